@@ -1,0 +1,63 @@
+#pragma once
+/// \file Least-squares fits of correction surfaces.
+
+#include <memory>
+#include <span>
+#include <string>
+
+#include "tofkit/calib/correction_surface.hpp"
+
+namespace tofkit::calib {
+
+/// Training data: inputs and the error to model, error_m = true - measured.
+struct SurfaceFitData {
+  SurfaceInputs inputs;
+  std::span<const double> error_m;
+};
+
+struct PolynomialFitOptions {
+  int order = 4;        ///< total degree N: terms of (1 + r + i [+ t])^N
+  double rcond = 1e-2;  ///< relative singular-value cutoff (thesis: 1e-2); 0 keeps all
+  bool use_temperature = false;
+  /// Throws std::invalid_argument naming the bad field.
+  void validate() const;
+};
+
+struct BSplineFitOptions {
+  int intervals_range = 6;      ///< knot intervals along range (cubic: intervals + 3 coefficients)
+  int intervals_amplitude = 8;  ///< along amplitude
+  int intervals_temperature = 3;  ///< along temperature (when used)
+  double smoothing = 1e-3;        ///< second-difference penalty weight, relative to the data term
+  bool use_temperature = false;
+  bool log_amplitude = true;  ///< place amplitude knots on a log scale (intensity spans decades)
+  /// Pick `smoothing` by generalized cross-validation over decades 1e-7 .. 1e1
+  /// (Craven & Wahba 1979) instead of using the value above.
+  bool choose_smoothing_by_gcv = false;
+  /// Throws std::invalid_argument naming the bad field.
+  void validate() const;
+};
+
+struct SurfaceFitResult {
+  std::shared_ptr<const CorrectionSurface> surface;
+  std::size_t rows = 0;
+  std::size_t parameters = 0;
+  std::size_t rank = 0;         ///< effective rank after the rcond cutoff (polynomial)
+  double residual_rms_m = 0;    ///< on the training data
+  double condition_number = 0;  ///< of the (scaled) design matrix
+  double smoothing = 0;         ///< B-spline: the smoothing weight used (GCV's pick when chosen)
+  double effective_parameters = 0;  ///< B-spline: trace of the hat matrix; polynomial: rank
+  [[nodiscard]] std::string summary() const;
+};
+
+/// Total-degree polynomial surface by SVD with a relative singular-value cutoff,
+/// inputs scaled to [-1, 1] for conditioning. Throws std::invalid_argument on
+/// degenerate data (too few rows, no spread in an input) naming the problem.
+[[nodiscard]] SurfaceFitResult fit_polynomial_surface(const SurfaceFitData& data,
+                                                      const PolynomialFitOptions& options);
+
+/// Tensor-product cubic B-spline surface with a second-difference smoothing
+/// penalty (P-spline), which stays sane at and beyond the data's edge.
+[[nodiscard]] SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data,
+                                                   const BSplineFitOptions& options);
+
+}  // namespace tofkit::calib

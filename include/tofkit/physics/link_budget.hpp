@@ -1,0 +1,82 @@
+#pragma once
+/// \file Optical link budget of a pulsed ToF rangefinder (paper Eqs. 4-9) and the
+/// receiver's noise currents and SNR (Eq. 8).
+
+#include <vector>
+
+#include "tofkit/physics/environment.hpp"
+#include "tofkit/physics/laser.hpp"
+#include "tofkit/physics/receiver.hpp"
+
+namespace tofkit::physics {
+
+/// Everything the link budget needs.
+struct LinkConfig {
+  LaserConfig laser;
+  ReceiverConfig receiver;
+  EnvironmentConfig environment;
+};
+
+/// Receiving aperture area Ar.
+[[nodiscard]] double aperture_area_m2(const ReceiverConfig& receiver);
+
+/// Beam footprint diameter at distance R (exit diameter plus divergence).
+[[nodiscard]] double footprint_diameter_m(const LaserConfig& laser, double distance_m);
+
+/// Received peak power from an extended Lambertian target that fills the beam,
+/// paper Eq. 6: Pr = Pt Ar rho cos(phi) / (pi R^2) Tt Tr Ta^2.
+[[nodiscard]] double received_power_extended_w(const LinkConfig& link, double distance_m,
+                                               double reflectance, double angle_deg);
+
+/// Received peak power from a target smaller than the footprint, paper Eq. 4:
+/// Pr = Pt Ar sigma / (4 pi theta_t^2 R^4) Tt Tr Ta^2 with theta_t the half-angle
+/// divergence and sigma the target's optical cross-section.
+[[nodiscard]] double received_power_small_w(const LinkConfig& link, double distance_m,
+                                            double cross_section_m2);
+
+/// Background power from sunlit target and sky, paper Eq. 9 as printed:
+/// Pb = (pi/16) Tr rho theta_r^2 d_r^2 dlambda [Ta rho H cos(theta) cos(phi) + pi N (1 - Ta)].
+[[nodiscard]] double background_power_w(const LinkConfig& link, double reflectance,
+                                        double angle_deg);
+
+/// Maximum range for a minimum detectable power, paper Eq. 7.
+[[nodiscard]] double max_range_extended_m(const LinkConfig& link, double reflectance,
+                                          double angle_deg, double min_power_w);
+
+/// APD gain M at a temperature: fixed bias loses gain as the breakdown voltage
+/// rises (M ~ 1 / (1 - (V/V_br)^n) approximated as M0 * margin0 / margin(T));
+/// a temperature-compensated bias keeps M0.
+[[nodiscard]] double apd_gain_at(const ReceiverConfig& receiver, double temperature_c);
+
+/// Noise currents at the APD output (multiplied), paper Eq. 8.
+struct NoiseCurrents {
+  double signal_shot_a = 0;      ///< sqrt(2 q I_p M^2 F B), I_p = R0 Pr
+  double background_shot_a = 0;  ///< same with I_p = R0 Pb
+  double dark_shot_a = 0;        ///< same with the primary dark current
+  double thermal_a = 0;          ///< amplifier/thermal noise from the NEP: NEP R0 M sqrt(B)
+  double total_a = 0;            ///< root sum of squares
+};
+
+[[nodiscard]] NoiseCurrents noise_currents(const ReceiverConfig& receiver, double signal_power_w,
+                                           double background_power_w, double apd_gain);
+
+/// One row of the link-budget table.
+struct LinkBudgetPoint {
+  double distance_m = 0;
+  double received_power_w = 0;
+  double background_power_w = 0;
+  double signal_current_a = 0;  ///< R0 M Pr
+  NoiseCurrents noise;
+  double snr = 0;  ///< I_s / I_n, paper Eq. 8
+};
+
+/// Evaluate the budget at one distance (extended target).
+[[nodiscard]] LinkBudgetPoint link_budget_at(const LinkConfig& link, double distance_m,
+                                             double reflectance, double angle_deg = 0.0,
+                                             double temperature_c = 25.0);
+
+/// Distance at which the SNR falls to `snr` (bisection on the monotone SNR(R)).
+[[nodiscard]] double range_at_snr(const LinkConfig& link, double snr, double reflectance,
+                                  double angle_deg = 0.0);
+
+}  // namespace tofkit::physics

@@ -1,0 +1,78 @@
+#include "tofkit/physics/pulse_template.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+
+#include "tofkit/physics/constants.hpp"
+
+namespace tofkit::physics {
+
+double two_pole_time_constant_ns(double bandwidth_mhz) {
+  // |H(f)|^2 = 1 / (1 + (f/fp)^2)^2 = 1/2  ->  f = fp sqrt(sqrt(2) - 1).
+  const double pole_mhz = bandwidth_mhz / std::sqrt(std::sqrt(2.0) - 1.0);
+  return 1e3 / (2.0 * kPi * pole_mhz);
+}
+
+PulseTemplate::PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double step_ps) {
+  const double sigma_ns = pulse_fwhm_ns / (2.0 * std::sqrt(2.0 * std::log(2.0)));
+  pole_tau_ns_ = two_pole_time_constant_ns(bandwidth_mhz);
+  const double step_ns = step_ps * 1e-3;
+  begin_ns_ = -6.0 * sigma_ns;
+  end_ns_ = 6.0 * sigma_ns + 20.0 * pole_tau_ns_;
+  const auto n = static_cast<std::size_t>(std::ceil((end_ns_ - begin_ns_) / step_ns)) + 1;
+  // Impulse response of two equal poles, unit area: h(t) = t / tau^2 exp(-t / tau).
+  const auto n_h = static_cast<std::size_t>(std::ceil(20.0 * pole_tau_ns_ / step_ns)) + 1;
+  std::vector<double> h(n_h);
+  double h_sum = 0;
+  for (std::size_t k = 0; k < n_h; ++k) {
+    const double t = static_cast<double>(k) * step_ns;
+    h[k] = t / (pole_tau_ns_ * pole_tau_ns_) * std::exp(-t / pole_tau_ns_);
+    h_sum += h[k];
+  }
+  for (auto& v : h) v /= h_sum;  // discrete unit area
+  std::vector<double> gauss(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double t = begin_ns_ + static_cast<double>(i) * step_ns;
+    gauss[i] = std::exp(-0.5 * t * t / (sigma_ns * sigma_ns));
+  }
+  values_.assign(n, 0.0);
+  for (std::size_t i = 0; i < n; ++i) {
+    double acc = 0;
+    const std::size_t kmax = std::min(i + 1, n_h);
+    for (std::size_t k = 0; k < kmax; ++k) acc += gauss[i - k] * h[k];
+    values_[i] = acc;
+  }
+  const auto peak_it = std::max_element(values_.begin(), values_.end());
+  peak_gain_ = *peak_it;
+  peak_time_ns_ = begin_ns_ + static_cast<double>(peak_it - values_.begin()) * step_ns;
+  for (auto& v : values_) v /= peak_gain_;
+  inv_step_ = 1.0 / step_ns;
+  last_index_ = static_cast<double>(n - 1);
+  end_ns_ = begin_ns_ + last_index_ * step_ns;
+}
+
+double PulseTemplate::width_at_level_ns(double level) const {
+  const double step = 1.0 / inv_step_;
+  double rise = begin_ns_, fall = end_ns_;
+  bool above = false;
+  for (std::size_t i = 1; i < values_.size(); ++i) {
+    const double a = values_[i - 1], b = values_[i];
+    const double t = begin_ns_ + static_cast<double>(i - 1) * step;
+    if (!above && a < level && b >= level) {
+      rise = t + step * (level - a) / (b - a);
+      above = true;
+    } else if (above && a >= level && b < level) {
+      fall = t + step * (a - level) / (a - b);
+      break;
+    }
+  }
+  return fall - rise;
+}
+
+double PulseTemplate::noise_correlation(double lag_ns) const {
+  const double x = std::abs(lag_ns) / pole_tau_ns_;
+  return (1.0 + x) * std::exp(-x);
+}
+
+}  // namespace tofkit::physics

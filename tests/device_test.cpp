@@ -1,0 +1,273 @@
+// The virtual rangefinder against physics oracles: detection fading at the
+// maximum range, range walk, saturation widening, jitter growth with range,
+// 1/sqrt(N) averaging, thermal drift, the two simulation modes against each
+// other, and reproducibility independent of the thread count.
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <cmath>
+#include <cstring>
+#include <vector>
+
+#include "tofkit/device/thermal.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/physics/link_budget.hpp"
+
+using namespace tofkit;
+using namespace tofkit::device;
+
+namespace {
+
+struct Spread {
+  double mean = 0, sd = 0;
+  int echoes = 0;
+};
+
+/// Mean and standard deviation of single-shot ranges (m).
+Spread single_shots(const VirtualRangefinder& dev, const Target& target, int shots,
+                    std::uint64_t seed = 11, const Conditions& c = {}) {
+  double s = 0, s2 = 0;
+  int n = 0;
+  for (int i = 0; i < shots; ++i) {
+    const auto shot = dev.shoot(target, c, seed, 0, static_cast<std::uint32_t>(i));
+    if (!shot.echo) continue;
+    const double d = dev.tof_to_distance_m(shot.tof_ns);
+    s += d;
+    s2 += d * d;
+    ++n;
+  }
+  Spread out;
+  out.echoes = n;
+  out.mean = s / n;
+  out.sd = std::sqrt(std::max(0.0, s2 / n - out.mean * out.mean));
+  return out;
+}
+
+double sanitized_scale() {
+  return std::getenv("TOFKIT_SANITIZED") ? 0.25 : 1.0;
+}
+
+}  // namespace
+
+TEST(Device, EchoShareFallsFromOneToZeroAroundMaximumRange) {
+  const VirtualRangefinder dev(preset("paper"));
+  const int shots = 2000;
+  auto share = [&](double r) {
+    return dev.measure(Target::plate(r, 0.1), {}, 3, 0, shots).shots_valid / double(shots);
+  };
+  EXPECT_GT(share(5.0), 0.999);
+  EXPECT_LT(share(14.0), 0.001);
+  // The 50 % point lies near the paper's maximum range (8.08 m achieved, 10 m predicted).
+  double lo = 5.0, hi = 14.0;
+  for (int i = 0; i < 20; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (share(mid) > 0.5 ? lo : hi) = mid;
+  }
+  EXPECT_GT(lo, 8.0);
+  EXPECT_LT(lo, 10.5);
+  // Monotone in between.
+  double previous = 1.0;
+  for (double r = 6.0; r <= 13.0; r += 0.5) {
+    const double s = share(r);
+    EXPECT_LE(s, previous + 0.02) << r;
+    previous = s;
+  }
+}
+
+TEST(Device, RangeWalkFallsMonotonicallyWithReflectance) {
+  // Paper Section 5.1: plates of 2 %-99 % at 2.355 m; brighter echoes cross the
+  // fixed threshold earlier, so the raw distance falls with reflectance.
+  const VirtualRangefinder dev(preset("paper"));
+  const std::vector<double> rhos{0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.85, 0.99};
+  std::vector<double> raw;
+  for (std::size_t i = 0; i < rhos.size(); ++i)
+    raw.push_back(dev.measure(Target::plate(2.355, rhos[i]), {}, 5, i, 4000).distance_raw_m);
+  for (std::size_t i = 1; i < raw.size(); ++i) EXPECT_LT(raw[i], raw[i - 1]) << rhos[i];
+  EXPECT_GT(raw.front() - raw.back(), 0.020);
+}
+
+TEST(Device, PulseWidthGrowsWithAmplitudeAndBendsAtSaturation) {
+  const auto cfg = preset("paper");
+  const VirtualRangefinder dev(cfg);
+  const double vsat = cfg.link.receiver.saturation_v;
+  // Noise-free echo widths against ln(amplitude), from weak to deep saturation.
+  std::vector<double> log_amp, width;
+  for (double rho = 0.02; rho <= 60.0; rho *= 1.25) {  // rho > 1: a retro-reflective patch
+    const auto e = dev.echo(Target::plate(2.355, rho), {});
+    log_amp.push_back(std::log(e.peak_v));
+    width.push_back(e.fall_crossing_ns - e.rise_crossing_ns);
+  }
+  for (std::size_t i = 1; i < width.size(); ++i) EXPECT_GT(width[i], width[i - 1]);
+  auto slope_around = [&](double log_a, double side) {
+    // Finite-difference slope just below (side < 0) or above (side > 0) a log amplitude.
+    for (std::size_t i = 1; i < log_amp.size(); ++i) {
+      if (side < 0 && log_amp[i] < log_a && i + 1 < log_amp.size() && log_amp[i + 1] >= log_a)
+        return (width[i] - width[i - 1]) / (log_amp[i] - log_amp[i - 1]);
+      if (side > 0 && log_amp[i - 1] > log_a)
+        return (width[i] - width[i - 1]) / (log_amp[i] - log_amp[i - 1]);
+    }
+    return 0.0;
+  };
+  const double below = slope_around(std::log(vsat), -1);
+  const double above = slope_around(std::log(vsat), +1);
+  // Recovery from overdrive adds recovery_ns_per_neper per e-fold above the clip level.
+  EXPECT_NEAR(above - below, cfg.link.receiver.recovery_ns_per_neper, 0.25);
+  // The knee (width at the onset of saturation) is the paper's 6.5 ns.
+  const double rho_at_sat = 0.1 * vsat / dev.echo(Target::plate(2.355, 0.1), {}).peak_v;
+  const auto knee = dev.echo(Target::plate(2.355, rho_at_sat), {});
+  EXPECT_NEAR(knee.fall_crossing_ns - knee.rise_crossing_ns, 6.5, 0.5);
+}
+
+TEST(Device, SingleShotSpreadGrowsWithRange) {
+  const VirtualRangefinder dev(preset("paper"));
+  const auto at2 = single_shots(dev, Target::plate(2.0, 0.1), 4000);
+  const auto at8 = single_shots(dev, Target::plate(8.0, 0.1), 4000);
+  EXPECT_GT(at8.sd, 2.0 * at2.sd);
+  // Jitter = noise / slope at the crossing: check the analytic figure at 2 m.
+  const auto e = dev.echo(Target::plate(2.0, 0.1), {});
+  const double jitter_m = dev.tof_to_distance_m(e.noise_at_rise_v / e.rise_slope_v_per_ns);
+  const double lsb_m = dev.tof_to_distance_m(preset("paper").tdc.lsb_ps * 1e-3);
+  // Plus the TDC's start and stop quantization (uniform, LSB^2/12 each) and INL.
+  const double expected = std::sqrt(jitter_m * jitter_m + 2.0 * lsb_m * lsb_m / 12.0);
+  EXPECT_NEAR(at2.sd / expected, 1.0, 0.15);
+}
+
+TEST(Device, AveragingShrinksSpreadAsOneOverSqrtN) {
+  const VirtualRangefinder dev(preset("paper"));
+  const auto target = Target::plate(7.0, 0.1);
+  const auto e = dev.echo(target, {});
+  const double jitter_ns = e.noise_at_rise_v / e.rise_slope_v_per_ns;
+  ASSERT_GT(jitter_ns, preset("paper").tdc.lsb_ps * 1e-3);  // jitter exceeds the TDC LSB
+  auto spread_of_means = [&](int shots) {
+    const int groups = 300;
+    double s = 0, s2 = 0;
+    for (int g = 0; g < groups; ++g) {
+      const double d = dev.measure(target, {}, 21, g, shots).distance_raw_m;
+      s += d;
+      s2 += d * d;
+    }
+    const double m = s / groups;
+    return std::sqrt(s2 / groups - m * m);
+  };
+  const double sd1 = spread_of_means(1);
+  for (int n : {4, 16, 64})
+    EXPECT_NEAR(spread_of_means(n) * std::sqrt(double(n)) / sd1, 1.0, 0.2) << n;
+}
+
+TEST(Device, ThermalDriftFollowsTheKneeModel) {
+  const auto cfg = preset("paper");
+  const VirtualRangefinder dev(cfg);
+  const auto target = Target::plate(2.402, 0.1);
+  const int shots = 20000;
+  // Same seed at every temperature (common random numbers): differences are precise.
+  auto raw_at = [&](double ambient_c) {
+    Conditions c;
+    c.ambient_c = ambient_c;
+    return dev.measure(target, c, 9, 0, shots).distance_raw_m;
+  };
+  const double self = cfg.thermal.self_heating_c;
+  const double knee_ambient = cfg.thermal.knee_c - self;
+  const double hot = (raw_at(knee_ambient + 20.0) - raw_at(knee_ambient + 5.0)) / 15.0 * 1e3;
+  EXPECT_NEAR(hot / cfg.thermal.delay_coeff_mm_per_c, 1.0, 0.10);
+  const double cold = (raw_at(knee_ambient - 1.0) - raw_at(knee_ambient - 8.0)) / 7.0 * 1e3;
+  EXPECT_LT(std::abs(cold), 0.25 * cfg.thermal.delay_coeff_mm_per_c);
+  // Internal temperature: ambient + self-heating, settled after power-on.
+  EXPECT_NEAR(internal_temperature_c(cfg.thermal, 20.0, 1e9), 20.0 + self, 1e-12);
+  EXPECT_NEAR(internal_temperature_c(cfg.thermal, 20.0, 0.0), 20.0, 1e-12);
+}
+
+TEST(Device, AnalyticAndWaveformModesAgree) {
+  auto cfg = preset("paper");
+  // Indoors (no sunlight), as in the paper's Section 5: no false alarms, so the
+  // comparison isolates the echo timing. Sunlit false alarms are checked below.
+  cfg.link.environment.solar_irradiance_w_per_m2_um = 0.0;
+  const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
+  const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
+  const int shots = static_cast<int>(6000 * sanitized_scale());
+  struct Point {
+    double r, rho;
+  };
+  // Weak, medium, strong and saturated echoes.
+  for (const auto& p :
+       {Point{6.0, 0.1}, Point{2.0, 0.1}, Point{4.0, 0.5}, Point{2.355, 0.95}, Point{1.0, 0.9}}) {
+    const auto a = single_shots(analytic, Target::plate(p.r, p.rho), shots, 17);
+    const auto w = single_shots(waveform, Target::plate(p.r, p.rho), shots, 17);
+    SCOPED_TRACE(testing::Message() << "R=" << p.r << " rho=" << p.rho);
+    EXPECT_EQ(a.echoes, shots);
+    EXPECT_EQ(w.echoes, shots);
+    // Means within 1 mm (the standard error is below 0.2 mm), spreads within 15 %.
+    EXPECT_NEAR(a.mean, w.mean, 1e-3);
+    EXPECT_NEAR(w.sd / a.sd, 1.0, 0.15);
+    // Averaged pulse widths agree too.
+    const auto ma = analytic.measure(Target::plate(p.r, p.rho), {}, 3, 0, shots);
+    const auto mw = waveform.measure(Target::plate(p.r, p.rho), {}, 3, 0, shots);
+    EXPECT_NEAR(ma.pulse_width_ns, mw.pulse_width_ns, 0.05);
+  }
+}
+
+TEST(Device, SunlitBrightTargetsGiveFalseAlarmsAtRicesRate) {
+  // Sunlight on a white target raises the background shot noise; the noise alone
+  // then crosses the threshold before the echo at Rice's rate, in both modes.
+  const auto cfg = preset("paper");
+  const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
+  const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
+  const auto target = Target::plate(2.355, 0.95);
+  const double echo_tof =
+      analytic.echo(target, {}).rise_crossing_ns + cfg.measurement.fixed_delay_ns;
+  const int shots = static_cast<int>(8000 * sanitized_scale());
+  auto early_share = [&](const VirtualRangefinder& dev) {
+    int early = 0;
+    for (int i = 0; i < shots; ++i) {
+      const auto s = dev.shoot(target, {}, 5, 0, static_cast<std::uint32_t>(i));
+      if (s.echo && s.tof_ns < echo_tof - 1.0) ++early;
+    }
+    return early / double(shots);
+  };
+  const double a = early_share(analytic), w = early_share(waveform);
+  EXPECT_GT(a, 0.005);
+  EXPECT_NEAR(a, w, 4.0 * std::sqrt(a / shots) + 0.002);
+  auto dark = cfg;
+  dark.link.environment.solar_irradiance_w_per_m2_um = 0.0;
+  EXPECT_EQ(early_share(VirtualRangefinder(dark)), 0.0);
+}
+
+TEST(Device, BatchOutputDoesNotDependOnThreadCount) {
+  const VirtualRangefinder dev(preset("paper"));
+  std::vector<MeasureRequest> requests;
+  for (int i = 0; i < 64; ++i)
+    requests.push_back({Target::plate(1.0 + 0.1 * i, 0.05 + 0.01 * i), {}, 100});
+  std::vector<ranging::RawMeasurement> one(requests.size()), two(requests.size());
+  tbb::task_arena(1).execute([&] { dev.measure_batch(requests, 42, one); });
+  tbb::task_arena(2).execute([&] { dev.measure_batch(requests, 42, two); });
+  EXPECT_EQ(std::memcmp(one.data(), two.data(), one.size() * sizeof(one[0])), 0);
+  std::vector<ranging::RawMeasurement> other(requests.size());
+  dev.measure_batch(requests, 43, other);
+  EXPECT_NE(one[0].tof_ns, other[0].tof_ns);  // a different seed is a different run
+}
+
+TEST(Device, MixedPixelReadsBetweenItsSurfaces) {
+  const VirtualRangefinder dev(preset("paper"));
+  const Target near = Target::plate(2.0, 0.3);
+  const Target far = Target::plate(2.05, 0.3);
+  const double d_near = dev.measure(near, {}, 1, 0, 4000).distance_raw_m;
+  const double d_far = dev.measure(far, {}, 1, 0, 4000).distance_raw_m;
+  double previous = d_near - 1e-3;
+  for (double f : {0.1, 0.3, 0.5, 0.7, 0.9}) {
+    const Target mixed{{Surface{1.0 - f, 2.0, 0.3, 0.0}, Surface{f, 2.05, 0.3, 0.0}}};
+    const double d = dev.measure(mixed, {}, 1, 0, 4000).distance_raw_m;
+    EXPECT_GT(d, previous);
+    EXPECT_LT(d, d_far + 5e-3);
+    previous = d;
+  }
+}
+
+TEST(Device, InvalidConfigIsRejectedNamingTheKey) {
+  auto cfg = preset("paper");
+  cfg.link.receiver.bandwidth_mhz = 0.0;
+  try {
+    const VirtualRangefinder dev(cfg);
+    FAIL() << "expected an exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("receiver.bandwidth_mhz"), std::string::npos) << e.what();
+  }
+}
