@@ -1,0 +1,45 @@
+#include "app.hpp"
+
+#include <stdexcept>
+#include <utility>
+
+namespace tofkit::app {
+namespace {
+
+// Function-local static: safe whatever order the commands' static initializers run in.
+std::map<std::string, CommandSetup>& registry() {
+  static std::map<std::string, CommandSetup> commands;
+  return commands;
+}
+
+}  // namespace
+
+device::DeviceConfig AppContext::load_config() const {
+  return load_config_traced().config;
+}
+
+io::LoadedDeviceConfig AppContext::load_config_traced() const {
+  return io::load_device_config_traced(preset, config_file, overrides);
+}
+
+bool register_command(std::string name, CommandSetup setup) {
+  auto [it, inserted] = registry().emplace(std::move(name), std::move(setup));
+  if (!inserted) throw std::logic_error("tofkit command registered twice: " + it->first);
+  return true;
+}
+
+const std::map<std::string, CommandSetup>& registered_commands() {
+  return registry();
+}
+
+void require_output_directory(const std::filesystem::path& path, const std::string& option) {
+  const std::filesystem::path directory =
+      path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
+  std::error_code ec;
+  if (!std::filesystem::is_directory(directory, ec)) {
+    throw std::runtime_error(option + " " + path.string() + ": directory '" + directory.string() +
+                             "' does not exist");
+  }
+}
+
+}  // namespace tofkit::app

@@ -1,0 +1,60 @@
+#pragma once
+/// \file The `tofkit` command-line tool's shared context and its registry of
+/// subcommands. Each subcommand lives in its own file and registers itself:
+///
+///     namespace {
+///     const bool registered = tofkit::app::register_command(
+///         "fit", [](CLI::App& sub, tofkit::app::AppContext& ctx) {
+///           sub.description("fit a correction model");
+///           auto opts = std::make_shared<FitOptions>();
+///           sub.add_option("--in", opts->in)->required();
+///           sub.callback([opts, &ctx] { run_fit(*opts, ctx); });
+///         });
+///     }
+///
+/// Callbacks report failure by throwing; main prints
+/// "tofkit <command>: error: <message>" and exits with status 1.
+
+#include <CLI/CLI.hpp>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "tofkit/device/device_config.hpp"
+#include "tofkit/io/config_file.hpp"
+
+namespace tofkit::app {
+
+/// Global options, shared by every subcommand.
+struct AppContext {
+  int threads = 0;  ///< --threads: worker threads for TBB (0: all cores)
+  std::optional<std::filesystem::path> config_file;  ///< --config FILE
+  std::vector<std::string> overrides;                ///< --set section.key=value, in order
+  std::string preset;  ///< --preset NAME (empty: the config file's, else "paper")
+
+  /// The device configuration from --preset, --config and --set (throws
+  /// io::ConfigError naming file, line and key).
+  [[nodiscard]] device::DeviceConfig load_config() const;
+  /// The same with the origin of every value.
+  [[nodiscard]] io::LoadedDeviceConfig load_config_traced() const;
+};
+
+using CommandSetup = std::function<void(CLI::App& sub, AppContext& ctx)>;
+
+/// Register a subcommand; call from a namespace-scope static initializer.
+/// Returns true (so it can initialize a `static const bool`). Throws
+/// std::logic_error on a duplicate name.
+bool register_command(std::string name, CommandSetup setup);
+
+/// All registered subcommands, by name.
+[[nodiscard]] const std::map<std::string, CommandSetup>& registered_commands();
+
+/// Throws std::runtime_error if `path`'s directory does not exist (check an
+/// output path before a long computation).
+void require_output_directory(const std::filesystem::path& path, const std::string& option);
+
+}  // namespace tofkit::app

@@ -1,0 +1,175 @@
+// `tofkit demo`: the main job. Runs the paper's Section 5 end to end on the
+// built-in virtual rangefinder, prints a Table 2-style comparison, and writes
+// summary.json, the CSVs, model.json, plots and report.html.
+#include <CLI/CLI.hpp>
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "app.hpp"
+#include "demo_report.hpp"
+#include "tofkit/experiments/paper_reference.hpp"
+#include "tofkit/experiments/paper_study.hpp"
+#include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/raw_csv.hpp"
+
+namespace tofkit::app {
+namespace {
+
+struct DemoOptions {
+  std::filesystem::path out = "demo-out";
+  std::uint64_t seed = 2022;
+  bool plots = true;
+};
+
+/// A one-line progress indicator on a terminal; silent when stderr is a file.
+class Progress {
+ public:
+  Progress() : tty_(::isatty(STDERR_FILENO) != 0) {}
+  void operator()(std::string_view stage, double done) {
+    if (!tty_) return;
+    std::fprintf(stderr, "\r  [%-30.*s] %3.0f %%", static_cast<int>(stage.size()), stage.data(),
+                 100.0 * done);
+    std::fflush(stderr);
+    if (done >= 1.0) std::fprintf(stderr, "\n");
+  }
+
+ private:
+  bool tty_;
+};
+
+std::string mark(bool ok) { return ok ? "yes" : "NO"; }
+
+void print_table(const experiments::PaperStudyResult& r) {
+  namespace paper = experiments::paper;
+  fmt::print("tofkit demo: the paper's Section 5 on the virtual rangefinder\n\n");
+  fmt::print("{:<44} {:>12} {:>12}\n", "figure", "paper", "tofkit");
+  fmt::print("{:<44} {:>12} {:>12.2f}\n", "range at SNR = 10, rho 0.1 (m)", "~10",
+             r.range_at_snr10_m);
+  fmt::print("{:<44} {:>12.2f} {:>12.2f}\n", "longest achievable distance, rho 0.1 (m)",
+             paper::kLongestDistance_m, r.max_range_m);
+  fmt::print("{:<44} {:>12.2f} {:>12.2f}\n", "gray-value at 2.355 m: std (mm)",
+             paper::kGrayvalueStd_mm, r.grayvalue.std_mm);
+  fmt::print("{:<44} {:>12} {:>12.2f}\n", "gray-value at 2.355 m: accuracy +- (mm)",
+             fmt::format("{:.0f}", paper::kGrayvalueAccuracy_mm), r.grayvalue.accuracy_mm);
+  fmt::print("{:<44} {:>12.2f} {:>12.2f}\n", "temperature at 2.402 m: std (mm)",
+             paper::kTemperatureStd_mm, r.temperature.std_mm);
+  fmt::print("{:<44} {:>12} {:>12.2f}\n", "temperature at 2.402 m: accuracy +- (mm)",
+             fmt::format("{:.0f}", paper::kTemperatureAccuracy_mm), r.temperature.accuracy_mm);
+  fmt::print("\nTable 2 (black foam plate, rho 0.1); deviation = actual - measured\n");
+  fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14}\n", "actual (m)", "paper meas.", "paper dev (mm)",
+             "tofkit meas.", "tofkit dev (mm)");
+  double worst = 0;
+  for (const auto& row : r.verification_rows) {
+    fmt::print("{:>10.3f} {:>14.3f} {:>14.1f} {:>14.4f} {:>14.2f}\n", row.actual_m,
+               row.paper_measured_m, row.paper_deviation_mm, row.measured_m, row.deviation_mm);
+    worst = std::max(worst, std::abs(row.deviation_mm));
+  }
+  fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14.2f}\n", "worst", "", "+-11", "", worst);
+  fmt::print("\nheld out ({} rows: 0.5-9 m x rho 0.05-0.9 x 5-40 C; {} without a reliable echo): "
+             "max |error| {:.2f} mm, RMS {:.2f} mm (uncorrected RMS {:.1f} mm)\n",
+             r.holdout_stats.rows, r.holdout_rows_without_echo, 1e3 * r.holdout_stats.max_abs_m,
+             1e3 * r.holdout_stats.rms_m, 1e3 * r.holdout_raw_stats.rms_m);
+  fmt::print("fixed point vs floating point: max difference {:.3f} mm\n",
+             r.fixed_vs_float_max_diff_mm);
+  fmt::print("every verification row within +-11 mm: {}; within +-3 mm: {}\n",
+             mark(worst <= 11.0), mark(worst <= 3.0));
+}
+
+nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
+  nlohmann::json j;
+  j["link_budget"] = {{"range_at_snr10_m", r.range_at_snr10_m}};
+  j["max_range_m"] = r.max_range_m;
+  j["grayvalue"] = {{"distance_m", r.grayvalue.distance_m},
+                    {"std_mm", r.grayvalue.std_mm},
+                    {"accuracy_mm", r.grayvalue.accuracy_mm},
+                    {"raw_spread_mm", r.grayvalue.raw_spread_mm},
+                    {"rows", r.grayvalue.rows}};
+  j["temperature"] = {{"distance_m", r.temperature.distance_m},
+                      {"std_mm", r.temperature.std_mm},
+                      {"accuracy_mm", r.temperature.accuracy_mm},
+                      {"rows", r.temperature.rows}};
+  j["verification"] = nlohmann::json::array();
+  for (const auto& row : r.verification_rows)
+    j["verification"].push_back({{"actual_m", row.actual_m},
+                                 {"measured_m", row.measured_m},
+                                 {"deviation_mm", row.deviation_mm},
+                                 {"paper_measured_m", row.paper_measured_m},
+                                 {"paper_deviation_mm", row.paper_deviation_mm}});
+  j["holdout"] = {{"max_abs_error_mm", 1e3 * r.holdout_stats.max_abs_m},
+                  {"rms_mm", 1e3 * r.holdout_stats.rms_m},
+                  {"bias_mm", 1e3 * r.holdout_stats.bias_m},
+                  {"rows", r.holdout_stats.rows},
+                  {"rows_without_reliable_echo", r.holdout_rows_without_echo},
+                  {"uncorrected_rms_mm", 1e3 * r.holdout_raw_stats.rms_m}};
+  j["fixed_point"] = {{"max_abs_difference_to_float_mm", r.fixed_vs_float_max_diff_mm}};
+  nlohmann::json knots = nlohmann::json::object();
+  if (r.fit.grayvalue) knots["grayvalue_ns"] = r.fit.grayvalue->knots;
+  if (r.fit.temperature) knots["temperature_c"] = r.fit.temperature->knots;
+  j["fit"] = {{"offset_mm", 1e3 * r.fit.offset_m},
+              {"knots", knots},
+              {"rows", r.fit.rows},
+              {"residual_rms_mm", 1e3 * r.fit.after.rms_m}};
+  return j;
+}
+
+void run_demo(const DemoOptions& options, const AppContext& ctx) {
+  const auto start = std::chrono::steady_clock::now();
+  const auto config = ctx.load_config();
+  std::filesystem::create_directories(options.out);
+  Progress progress;
+  experiments::PaperStudyOptions study_options;
+  study_options.seed = options.seed;
+  study_options.progress = [&](std::string_view stage, double done) {
+    progress(stage, 0.9 * done);
+  };
+  const auto result =
+      experiments::run_paper_study(config, study_options, experiments::paper::kTable2);
+
+  progress("writing results", 0.92);
+  const auto& out = options.out;
+  io::write_raw_csv(out / "calibration.csv", result.calibration);
+  io::write_corrected_csv(out / "grayvalue_test.csv", result.grayvalue_test,
+                          result.grayvalue_corrected);
+  io::write_corrected_csv(out / "temperature_test.csv", result.temperature_test,
+                          result.temperature_corrected);
+  io::write_corrected_csv(out / "verification.csv", result.verification,
+                          result.verification_corrected);
+  io::write_corrected_csv(out / "holdout.csv", result.holdout, result.holdout_corrected);
+  io::write_raw_csv(out / "max_range.csv", result.max_range_scan);
+  write_demo_model(out, result);
+  auto summary = summary_json(result);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  summary["seconds"] = seconds;
+  summary["seed"] = options.seed;
+  summary["device"] = config.name;
+  const auto figures = write_demo_plots(out, result, options.plots);
+  write_demo_report(out, result, summary, figures);
+  io::write_file_atomically(out / "summary.json", summary.dump(2) + "\n");
+  progress("done", 1.0);
+  print_table(result);
+  fmt::print("\nwrote {} (summary.json, CSVs, model.json, firmware/, {} plots, report.html) in "
+             "{:.1f} s\n",
+             out.string(), figures.size(), seconds);
+}
+
+const bool registered = register_command("demo", [](CLI::App& sub, AppContext& ctx) {
+  sub.description(
+      "the main job: calibrate and verify the built-in virtual rangefinder as the paper does "
+      "(Section 5), and write a report");
+  auto options = std::make_shared<DemoOptions>();
+  sub.add_option("--out", options->out, "output directory")->capture_default_str();
+  sub.add_option("--seed", options->seed, "random seed of the whole study")->capture_default_str();
+  sub.add_flag("!--no-plots", options->plots, "skip rendering PNG plots");
+  sub.callback([options, &ctx] { run_demo(*options, ctx); });
+});
+
+}  // namespace
+}  // namespace tofkit::app

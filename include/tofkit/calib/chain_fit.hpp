@@ -1,0 +1,79 @@
+#pragma once
+/// \file Fitting the paper's correction chain (Section 5) from measurements of
+/// known distance:
+///
+///   e = truth.distance_m - c_air tof / 2 = offset + g(pulse_width_ns) + h(temperature_c)
+///
+/// with g and h hinge functions (calib/hinge_fit.hpp) that are zero at
+/// reference points (medians of the data unless given), so the constant lives
+/// in `offset`. Without an offset step the constant goes to the first hinge.
+///
+/// Method: backfitting, then one joint solve. The knots of g and h are found
+/// by the 1-D hinge fitter (knot search, BIC, robust weights), which needs a
+/// 1-D problem: backfitting alternates fitting g on e - h and h on e - g until
+/// the fitted values change by less than `backfit_tolerance_m`. Backfitting
+/// converges slowly when pulse width and temperature are correlated, so once
+/// the knots are known all linear coefficients are refitted together on one
+/// design matrix [1, hinge basis of g, hinge basis of h] by robust least
+/// squares (QR), which is the exact joint optimum for those knots.
+
+#include <cstddef>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+
+#include "tofkit/calib/hinge_fit.hpp"
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+
+namespace tofkit::calib {
+
+/// Which steps of the chain to fit (any non-empty subset).
+struct ChainSteps {
+  bool offset = true;
+  bool grayvalue = true;
+  bool temperature = true;
+};
+
+/// "offset,grayvalue,temperature" (any subset, any order). Throws
+/// std::invalid_argument naming an unknown or repeated step, or an empty list.
+[[nodiscard]] ChainSteps parse_chain_steps(std::string_view list);
+[[nodiscard]] std::string to_string(const ChainSteps& steps);
+
+struct ChainFitOptions {
+  ChainSteps steps;
+  ranging::TimeToDistance time_to_distance;
+  HingeFitOptions grayvalue;                        ///< column / unit are set by fit_chain
+  HingeFitOptions temperature;                      ///< column / unit are set by fit_chain
+  double reference_pulse_width_ns = ranging::kNaN;  ///< g(ref) = 0; NaN: median pulse width
+  double reference_temperature_c = ranging::kNaN;   ///< h(ref) = 0; NaN: median temperature
+  int max_backfit_iterations = 30;
+  double backfit_tolerance_m = 1e-6;  ///< stop when no fitted value changes more than this
+};
+
+struct ChainFitResult {
+  ranging::Pipeline pipeline;  ///< offset, grayvalue, temperature steps (those selected)
+  double offset_m = 0;
+  std::optional<HingeFitResult> grayvalue;  ///< knots, BIC, domain from the 1-D fits
+  std::optional<HingeFitResult> temperature;
+  std::size_t rows = 0;               ///< rows fitted
+  std::size_t rows_skipped = 0;       ///< no echo, or a non-finite value the fit needs
+  std::size_t rows_downweighted = 0;  ///< final robust weight below 0.5
+  ErrorStats before;                  ///< of e = truth - c_air tof / 2
+  ErrorStats after;                   ///< of truth - corrected distance
+  int backfit_iterations = 0;
+  bool converged = false;
+  [[nodiscard]] std::string summary() const;
+};
+
+/// Rows need an echo, a finite truth.distance_m and start distance, and (for
+/// the steps fitted) a finite pulse width / temperature. Throws
+/// std::invalid_argument naming the problem and the column: fewer than 10
+/// usable rows (or fewer than parameters), no spread in pulse_width_ns for a
+/// grayvalue step, no spread in temperature_c for a temperature step.
+[[nodiscard]] ChainFitResult fit_chain(std::span<const ranging::Record> records,
+                                       const ChainFitOptions& options = {});
+
+}  // namespace tofkit::calib

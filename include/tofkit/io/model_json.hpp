@@ -1,0 +1,40 @@
+#pragma once
+/// \file The model file of a ranging pipeline (JSON):
+///
+///   {"kind": "tofkit.pipeline", "version": 1,
+///    "time_to_distance": {"wavelength_nm", "air": {"temperature_c", "pressure_hpa",
+///                         "relative_humidity_pct"}, "metres_per_ns" (informational)},
+///    "steps": [{"kind": "offset", "offset_m"},
+///              {"kind": "grayvalue" | "temperature", "input": "pulse_width_ns" | "temperature_c",
+///               "function": {"x0", "intercept", "slope0", "knots": [], "slopes": []},
+///               "domain": {"min", "max"}},
+///              {"kind": "surface", "surface": io::surface_to_json(...)}],
+///    each step with "fit": {"rows", "residual_rms_m"},
+///    "confidence": io::confidence_to_json(...)  (absent without a confidence model),
+///    "residual_rms_m": ..., "fit": {...}  (free-form fit statistics, optional)}
+///
+/// Non-finite numbers are written as null (an open domain bound, an unknown RMS).
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "tofkit/ranging/pipeline.hpp"
+
+namespace tofkit::io {
+
+/// `fit` (may be null) is stored under "fit": fit statistics for the reader.
+[[nodiscard]] nlohmann::json pipeline_to_json(const ranging::Pipeline& pipeline,
+                                              const nlohmann::json& fit = nullptr);
+/// Throws std::runtime_error naming `context` and the bad field
+/// ("model.json: steps[1].function.knots[0]: expected a number").
+[[nodiscard]] ranging::Pipeline pipeline_from_json(const nlohmann::json& j,
+                                                   const std::string& context);
+
+/// Writes the model file atomically (no half-written file on failure).
+void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& pipeline,
+                   const nlohmann::json& fit = nullptr);
+/// Reads a model file; errors name the file and the field.
+[[nodiscard]] ranging::Pipeline load_pipeline(const std::filesystem::path& path);
+
+}  // namespace tofkit::io

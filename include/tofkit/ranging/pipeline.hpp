@@ -1,0 +1,116 @@
+#pragma once
+/// \file The ranging pipeline: RawMeasurement -> Range. One mechanism: the
+/// start distance c_air t / 2 plus an ordered list of steps, each adding a
+/// correction C = true - measured (thesis Section 4.6 sign convention), then
+/// an optional confidence model for the expected error.
+///
+///   distance_m = c_air tof / 2 (or distance_raw_m when tof_ns is not finite)
+///              + sum over steps of C_step(inputs)
+///
+/// Step kinds: `offset` (constant: trigger and receive-chain delays, paper
+/// Section 4), `grayvalue` (hinge in echo pulse width, Section 5.1),
+/// `temperature` (hinge in sensor temperature, Section 5.2) and `surface`
+/// (a correction surface over the distance before the step, amplitude and
+/// temperature; thesis Section 4.6).
+
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "tofkit/calib/confidence_model.hpp"
+#include "tofkit/calib/correction_surface.hpp"
+#include "tofkit/ranging/piecewise_linear.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/ranging/time_to_distance.hpp"
+
+namespace tofkit::ranging {
+
+enum class StepKind { kOffset, kGrayvalue, kTemperature, kSurface };
+
+/// "offset", "grayvalue", "temperature", "surface".
+[[nodiscard]] std::string_view step_kind_name(StepKind kind);
+/// Inverse of step_kind_name; throws std::invalid_argument on an unknown name.
+[[nodiscard]] StepKind step_kind_from_name(std::string_view name);
+
+/// Closed interval of an input a step was fitted on.
+struct InputDomain {
+  double min = -std::numeric_limits<double>::infinity();
+  double max = std::numeric_limits<double>::infinity();
+  [[nodiscard]] bool contains(double x) const { return x >= min && x <= max; }
+};
+
+/// How a step was fitted (kept in the model file; not used for correcting).
+struct StepFitInfo {
+  std::size_t rows = 0;          ///< rows the step was fitted on
+  double residual_rms_m = kNaN;  ///< RMS of true - corrected after the fit
+};
+
+/// One correction. Only the fields of its kind are used.
+struct Step {
+  StepKind kind = StepKind::kOffset;
+  double offset_m = 0;  ///< kOffset
+  PiecewiseLinear
+      function;  ///< kGrayvalue (x = pulse_width_ns) / kTemperature (x = temperature_c), y in m
+  InputDomain
+      domain;  ///< kGrayvalue / kTemperature: x range fitted on; outside -> kCorrOutOfDomain
+  std::shared_ptr<const calib::CorrectionSurface> surface;  ///< kSurface
+  StepFitInfo fit;
+
+  /// Throws std::invalid_argument naming the problem.
+  void validate() const;
+};
+
+[[nodiscard]] Step make_offset_step(double offset_m);
+[[nodiscard]] Step make_grayvalue_step(PiecewiseLinear function, InputDomain pulse_width_domain_ns);
+[[nodiscard]] Step make_temperature_step(PiecewiseLinear function,
+                                         InputDomain temperature_domain_c);
+[[nodiscard]] Step make_surface_step(std::shared_ptr<const calib::CorrectionSurface> surface);
+
+class Pipeline {
+ public:
+  Pipeline() = default;
+  explicit Pipeline(TimeToDistance time_to_distance);
+
+  [[nodiscard]] const TimeToDistance& time_to_distance() const { return time_to_distance_; }
+  [[nodiscard]] const std::vector<Step>& steps() const { return steps_; }
+  [[nodiscard]] const std::shared_ptr<const calib::ConfidenceModel>& confidence() const {
+    return confidence_;
+  }
+  /// The fit's residual RMS: sigma_m of every range when there is no confidence model.
+  [[nodiscard]] double residual_rms_m() const { return residual_rms_m_; }
+
+  /// Appends a step (validated; throws std::invalid_argument).
+  void add_step(Step step);
+  void set_confidence(std::shared_ptr<const calib::ConfidenceModel> confidence);
+  void set_residual_rms_m(double residual_rms_m);
+
+  /// The batch hot path (in.size() == out.size(), else std::invalid_argument).
+  /// No echo: NaN distance and sigma, kCorrNoEcho. An input outside a step's
+  /// domain: the correction is still applied (hinges continue linearly,
+  /// surfaces clamp) and kCorrOutOfDomain is set. A NaN input a step needs:
+  /// NaN distance and kCorrNonFinite.
+  void apply(std::span<const RawMeasurement> in, std::span<Range> out) const;
+  /// One measurement (convenience; the batch form is the fast one).
+  [[nodiscard]] Range apply(const RawMeasurement& in) const;
+
+  /// The uncorrected start distance of a measurement: c_air tof / 2, or
+  /// distance_raw_m when tof_ns is not finite.
+  [[nodiscard]] double start_distance_m(const RawMeasurement& in) const;
+
+  /// One line per step.
+  [[nodiscard]] std::string summary() const;
+
+ private:
+  TimeToDistance time_to_distance_;
+  double metres_per_ns_ = metres_per_ns(TimeToDistance{});
+  std::vector<Step> steps_;
+  std::shared_ptr<const calib::ConfidenceModel> confidence_;
+  double residual_rms_m_ = kNaN;
+};
+
+}  // namespace tofkit::ranging

@@ -1,0 +1,299 @@
+#include "tofkit/calib/chain_fit.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <stdexcept>
+#include <utility>
+#include <vector>
+
+namespace tofkit::calib {
+namespace {
+
+constexpr std::size_t kMinChainRows = 10;
+
+double median_of(std::vector<double> v) {
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  double m = *mid;
+  if (v.size() % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), mid));
+  return m;
+}
+
+std::string fixed2(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.2f", v);
+  return buffer;
+}
+
+void require_spread(const std::vector<double>& x, const std::string& column,
+                    const std::string& unit, const std::string& hint) {
+  const auto [lo, hi] = std::minmax_element(x.begin(), x.end());
+  if (!(*hi - *lo > 1e-12 * std::max(1.0, std::max(std::fabs(*lo), std::fabs(*hi))))) {
+    throw std::invalid_argument("no spread in " + column + " (all " + fixed2(*lo) + " " + unit +
+                                "): " + hint);
+  }
+}
+
+/// Columns [x - ref, (x - k_1)+, ...] of one hinge in the joint design.
+void add_hinge_columns(Eigen::MatrixXd& a, Eigen::Index first, const std::vector<double>& x,
+                       double reference, const std::vector<double>& knots) {
+  for (std::size_t i = 0; i < x.size(); ++i) {
+    const auto row = static_cast<Eigen::Index>(i);
+    a(row, first) = x[i] - reference;
+    for (std::size_t k = 0; k < knots.size(); ++k) {
+      a(row, first + 1 + static_cast<Eigen::Index>(k)) = std::max(0.0, x[i] - knots[k]);
+    }
+  }
+}
+
+/// The hinge G(x) = b0 (x - ref) + sum s_k (x - k)+ minus G(ref), so g(ref) = 0;
+/// returns G(ref), the constant moved to the offset.
+double hinge_from_coefficients(const Eigen::VectorXd& beta, Eigen::Index first, double reference,
+                               const std::vector<double>& knots, ranging::PiecewiseLinear& g) {
+  g = ranging::PiecewiseLinear{};
+  g.x0 = reference;
+  g.slope0 = beta(first);
+  double at_reference = 0;
+  for (std::size_t k = 0; k < knots.size(); ++k) {
+    const double s = beta(first + 1 + static_cast<Eigen::Index>(k));
+    g.knots.push_back(knots[k]);
+    g.slopes.push_back(s);
+    at_reference += s * std::max(0.0, reference - knots[k]);
+  }
+  g.intercept = -at_reference;
+  return at_reference;
+}
+
+}  // namespace
+
+ChainSteps parse_chain_steps(std::string_view list) {
+  ChainSteps steps{false, false, false};
+  bool any = false;
+  std::size_t begin = 0;
+  while (begin <= list.size()) {
+    const std::size_t comma = std::min(list.find(',', begin), list.size());
+    std::string_view name = list.substr(begin, comma - begin);
+    while (!name.empty() && name.front() == ' ') name.remove_prefix(1);
+    while (!name.empty() && name.back() == ' ') name.remove_suffix(1);
+    bool* flag = name == "offset"        ? &steps.offset
+                 : name == "grayvalue"   ? &steps.grayvalue
+                 : name == "temperature" ? &steps.temperature
+                                         : nullptr;
+    if (flag == nullptr) {
+      throw std::invalid_argument("unknown chain step \"" + std::string(name) +
+                                  "\" (expected offset, grayvalue, temperature)");
+    }
+    if (*flag) throw std::invalid_argument("chain step \"" + std::string(name) + "\" given twice");
+    *flag = true;
+    any = true;
+    begin = comma + 1;
+  }
+  if (!any) throw std::invalid_argument("empty chain step list");
+  return steps;
+}
+
+std::string to_string(const ChainSteps& steps) {
+  std::string s;
+  const auto add = [&](bool on, const char* name) {
+    if (!on) return;
+    if (!s.empty()) s += ",";
+    s += name;
+  };
+  add(steps.offset, "offset");
+  add(steps.grayvalue, "grayvalue");
+  add(steps.temperature, "temperature");
+  return s;
+}
+
+ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFitOptions& options) {
+  const ChainSteps& steps = options.steps;
+  if (!steps.offset && !steps.grayvalue && !steps.temperature) {
+    throw std::invalid_argument("chain fit: no step selected");
+  }
+  ChainFitResult result;
+  result.pipeline = ranging::Pipeline(options.time_to_distance);
+
+  // Usable rows and the error to model, e = true - c_air tof / 2.
+  std::vector<double> e, pulse_width, temperature;
+  std::vector<std::size_t> used;
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const ranging::Record& r = records[i];
+    const double start = result.pipeline.start_distance_m(r.raw);
+    const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
+                    (!steps.grayvalue || std::isfinite(r.raw.pulse_width_ns)) &&
+                    (!steps.temperature || std::isfinite(r.raw.temperature_c));
+    if (!ok) continue;
+    used.push_back(i);
+    e.push_back(r.truth.distance_m - start);
+    pulse_width.push_back(r.raw.pulse_width_ns);
+    temperature.push_back(r.raw.temperature_c);
+  }
+  const std::size_t n = e.size();
+  result.rows = n;
+  result.rows_skipped = records.size() - n;
+  const std::size_t min_parameters =
+      (steps.offset ? 1 : 0) + (steps.grayvalue ? 2 : 0) + (steps.temperature ? 2 : 0);
+  if (n < std::max(kMinChainRows, min_parameters)) {
+    std::string needs = "an echo and finite distance_true_m and tof_ns (or distance_raw_m)";
+    if (steps.grayvalue) needs += ", pulse_width_ns";
+    if (steps.temperature) needs += ", temperature_c";
+    throw std::invalid_argument("too few rows: " + std::to_string(n) + " usable of " +
+                                std::to_string(records.size()) + " (the chain fit needs at least " +
+                                std::to_string(std::max(kMinChainRows, min_parameters)) +
+                                " rows with " + needs + ")");
+  }
+  if (steps.grayvalue) {
+    require_spread(pulse_width, "pulse_width_ns", "ns",
+                   "the grayvalue step needs plates of different reflectance");
+  }
+  if (steps.temperature) {
+    require_spread(temperature, "temperature_c", "C",
+                   "the temperature step needs measurements at different temperatures");
+  }
+  const double ref_g = std::isfinite(options.reference_pulse_width_ns)
+                           ? options.reference_pulse_width_ns
+                           : median_of(pulse_width);
+  const double ref_h = std::isfinite(options.reference_temperature_c)
+                           ? options.reference_temperature_c
+                           : median_of(temperature);
+
+  HingeFitOptions g_options = options.grayvalue;
+  g_options.column = "pulse_width_ns";
+  g_options.unit = "ns";
+  g_options.x0 = ref_g;
+  HingeFitOptions h_options = options.temperature;
+  h_options.column = "temperature_c";
+  h_options.unit = "C";
+  h_options.x0 = ref_h;
+
+  // Backfitting over the knots with joint coefficients: each iteration
+  // searches the knots of g on e - h and of h on e - g (1-D hinge fits, which
+  // never increase the joint residual), then refits every coefficient jointly
+  // for those knots, so correlated inputs do not slow the iteration down.
+  const Eigen::VectorXd ev =
+      Eigen::Map<const Eigen::VectorXd>(e.data(), static_cast<Eigen::Index>(n));
+  const RobustOptions& robust = steps.grayvalue ? g_options.robust : h_options.robust;
+  std::vector<double> g_values(n, 0.0), h_values(n, 0.0), partial(n);
+  std::vector<double> g_knots, h_knots;
+  Eigen::Index g_first = 1, h_first = 1;
+  RobustLinearFit joint;
+  for (int it = 1; it <= options.max_backfit_iterations; ++it) {
+    const std::vector<double> old_g_knots = g_knots, old_h_knots = h_knots;
+    if (steps.grayvalue) {
+      for (std::size_t i = 0; i < n; ++i) partial[i] = e[i] - h_values[i];
+      result.grayvalue = fit_hinge(pulse_width, partial, g_options);
+      g_knots = result.grayvalue->knots;
+      for (std::size_t i = 0; i < n; ++i) g_values[i] = result.grayvalue->function(pulse_width[i]);
+    }
+    if (steps.temperature) {
+      for (std::size_t i = 0; i < n; ++i) partial[i] = e[i] - g_values[i];
+      result.temperature = fit_hinge(temperature, partial, h_options);
+      h_knots = result.temperature->knots;
+    }
+    // Joint robust least squares with the knots fixed: [1, g basis, h basis].
+    h_first = g_first + (steps.grayvalue ? 1 + static_cast<Eigen::Index>(g_knots.size()) : 0);
+    const Eigen::Index columns =
+        h_first + (steps.temperature ? 1 + static_cast<Eigen::Index>(h_knots.size()) : 0);
+    Eigen::MatrixXd design(static_cast<Eigen::Index>(n), columns);
+    design.col(0).setOnes();
+    if (steps.grayvalue) add_hinge_columns(design, g_first, pulse_width, ref_g, g_knots);
+    if (steps.temperature) add_hinge_columns(design, h_first, temperature, ref_h, h_knots);
+    joint = robust_linear_fit(design, ev, robust);
+    // Partial fits for the next iteration: g carries the constant, h its own basis only.
+    const Eigen::VectorXd h_part =
+        design.rightCols(columns - h_first) * joint.coefficients.tail(columns - h_first);
+    double change = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = h_part(static_cast<Eigen::Index>(i));
+      change = std::max(change, std::fabs(v - h_values[i]));
+      h_values[i] = v;
+    }
+    result.backfit_iterations = it;
+    const auto same = [](const std::vector<double>& a, const std::vector<double>& b, double tol) {
+      if (a.size() != b.size()) return false;
+      for (std::size_t k = 0; k < a.size(); ++k) {
+        if (std::fabs(a[k] - b[k]) > tol) return false;
+      }
+      return true;
+    };
+    // One hinge (or none) is solved in one pass; two when knots and h settle.
+    if (!(steps.grayvalue && steps.temperature) ||
+        (it > 1 && change < options.backfit_tolerance_m && same(g_knots, old_g_knots, 1e-6) &&
+         same(h_knots, old_h_knots, 1e-6))) {
+      result.converged = true;
+      break;
+    }
+  }
+  result.rows_downweighted = static_cast<std::size_t>((joint.weights.array() < 0.5).count());
+
+  double constant = joint.coefficients(0);
+  ranging::PiecewiseLinear g, h;
+  if (steps.grayvalue)
+    constant += hinge_from_coefficients(joint.coefficients, g_first, ref_g, g_knots, g);
+  if (steps.temperature)
+    constant += hinge_from_coefficients(joint.coefficients, h_first, ref_h, h_knots, h);
+  if (steps.offset) {
+    result.offset_m = constant;
+  } else if (steps.grayvalue) {
+    g.intercept += constant;  // no offset step: the first hinge carries the constant
+  } else {
+    h.intercept += constant;
+  }
+
+  if (steps.offset) result.pipeline.add_step(ranging::make_offset_step(result.offset_m));
+  if (steps.grayvalue) {
+    result.grayvalue->function = g;
+    result.pipeline.add_step(
+        ranging::make_grayvalue_step(g, {result.grayvalue->x_min, result.grayvalue->x_max}));
+  }
+  if (steps.temperature) {
+    result.temperature->function = h;
+    result.pipeline.add_step(
+        ranging::make_temperature_step(h, {result.temperature->x_min, result.temperature->x_max}));
+  }
+
+  // Residual statistics of the fitted chain on the rows it was fitted on.
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(n);
+  for (std::size_t i : used) raw.push_back(records[i].raw);
+  std::vector<ranging::Range> corrected(n);
+  result.pipeline.apply(raw, corrected);
+  std::vector<double> residual(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    residual[i] = records[used[i]].truth.distance_m - corrected[i].distance_m;
+  }
+  result.before = error_stats(e);
+  result.after = error_stats(residual);
+  // Rebuild the steps with their fit statistics (the pipeline's steps are immutable).
+  ranging::Pipeline pipeline(options.time_to_distance);
+  for (ranging::Step step : result.pipeline.steps()) {
+    step.fit.rows = n;
+    step.fit.residual_rms_m = result.after.rms_m;
+    pipeline.add_step(std::move(step));
+  }
+  pipeline.set_residual_rms_m(result.after.rms_m);
+  result.pipeline = std::move(pipeline);
+  return result;
+}
+
+std::string ChainFitResult::summary() const {
+  char buffer[256];
+  std::string s = "chain fit: " + std::to_string(rows) + " rows";
+  if (rows_skipped > 0) s += " (" + std::to_string(rows_skipped) + " skipped)";
+  if (rows_downweighted > 0) s += ", " + std::to_string(rows_downweighted) + " downweighted";
+  std::snprintf(buffer, sizeof buffer, ", backfitting %s after %d iteration(s)\n  offset %.3f mm\n",
+                converged ? "converged" : "did NOT converge", backfit_iterations, offset_m * 1e3);
+  s += buffer;
+  if (grayvalue) s += "  grayvalue:   " + grayvalue->summary() + "\n";
+  if (temperature) s += "  temperature: " + temperature->summary() + "\n";
+  std::snprintf(buffer, sizeof buffer,
+                "  error before: bias %.3f mm, RMS %.3f mm; after: bias %.3f mm, RMS %.3f mm "
+                "(%.1f %% better), max |error| %.3f mm\n",
+                before.bias_m * 1e3, before.rms_m * 1e3, after.bias_m * 1e3, after.rms_m * 1e3,
+                improvement_pct(before.rms_m, after.rms_m), after.max_abs_m * 1e3);
+  s += buffer;
+  return s;
+}
+
+}  // namespace tofkit::calib

@@ -1,0 +1,477 @@
+#include "tofkit/calib/confidence_model.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace tofkit::calib {
+
+namespace {
+
+using Eigen::Index;
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+void check_lengths(std::size_t range, std::size_t amplitude, std::size_t out, const char* who) {
+  if (range != amplitude || out != amplitude) {
+    throw std::invalid_argument(std::string(who) +
+                                ": range_m, amplitude and sigma_m must have the same length");
+  }
+}
+
+/// Validates fit data; returns the amplitude and range extents.
+SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
+                            const std::string& who) {
+  const std::size_t n = data.residual_m.size();
+  if (data.amplitude.size() != n || (need_range && data.range_m.size() != n)) {
+    throw std::invalid_argument(who + ": " + (need_range ? "range_m, " : "") +
+                                "amplitude and residual_m must have the same length");
+  }
+  if (n == 0) throw std::invalid_argument(who + ": no rows");
+  SurfaceDomain d;
+  d.amplitude_min = d.range_min_m = std::numeric_limits<double>::infinity();
+  d.amplitude_max = d.range_max_m = -std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < n; ++k) {
+    if (!std::isfinite(data.residual_m[k])) {
+      throw std::invalid_argument(who + ": non-finite residual_m at row " + std::to_string(k));
+    }
+    if (!std::isfinite(data.amplitude[k])) {
+      throw std::invalid_argument(who + ": non-finite amplitude at row " + std::to_string(k));
+    }
+    d.amplitude_min = std::min(d.amplitude_min, data.amplitude[k]);
+    d.amplitude_max = std::max(d.amplitude_max, data.amplitude[k]);
+    if (need_range) {
+      if (!std::isfinite(data.range_m[k])) {
+        throw std::invalid_argument(who + ": non-finite range_m at row " + std::to_string(k));
+      }
+      d.range_min_m = std::min(d.range_min_m, data.range_m[k]);
+      d.range_max_m = std::max(d.range_max_m, data.range_m[k]);
+    }
+  }
+  if (!(d.amplitude_min < d.amplitude_max)) {
+    throw std::invalid_argument(who + ": no spread in amplitude");
+  }
+  if (need_range && !(d.range_min_m < d.range_max_m)) {
+    throw std::invalid_argument(who + ": no spread in range_m");
+  }
+  return d;
+}
+
+double clamp_to(double x, double lo, double hi) {
+  return std::min(std::max(x, lo), hi);
+}
+
+/// Monomials x^a y^b with a + b <= order.
+std::vector<std::array<int, 2>> exponents_2d(int order) {
+  std::vector<std::array<int, 2>> out;
+  for (int degree = 0; degree <= order; ++degree) {
+    for (int a = degree; a >= 0; --a) out.push_back({a, degree - a});
+  }
+  return out;
+}
+
+double polynomial_2d(const std::vector<std::array<int, 2>>& exps, const std::vector<double>& c,
+                     double x, double y) {
+  // Orders are small (<= 6), so explicit powers cost little.
+  double px[8], py[8];
+  px[0] = py[0] = 1.0;
+  for (int k = 1; k < 8; ++k) {
+    px[k] = px[k - 1] * x;
+    py[k] = py[k - 1] * y;
+  }
+  double v = 0;
+  for (std::size_t k = 0; k < exps.size(); ++k) v += c[k] * px[exps[k][0]] * py[exps[k][1]];
+  return v;
+}
+
+/// k-th smallest of values (0-based), by partial selection on a copy.
+double order_statistic(std::vector<double> values, std::size_t k) {
+  k = std::min(k, values.size() - 1);
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+/// Piecewise-linear interpolation of log k over the band centres, constant
+/// beyond the first and last centre.
+double band_factor(const std::vector<double>& centre, const std::vector<double>& scale, double u) {
+  if (centre.size() == 1 || u <= centre.front()) return scale.front();
+  if (u >= centre.back()) return scale.back();
+  const auto it = std::upper_bound(centre.begin(), centre.end(), u);
+  const std::size_t hi = static_cast<std::size_t>(it - centre.begin());
+  const std::size_t lo = hi - 1;
+  const double w = (u - centre[lo]) / (centre[hi] - centre[lo]);
+  return std::exp((1 - w) * std::log(scale[lo]) + w * std::log(scale[hi]));
+}
+
+std::string percent(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.1f %%", 100.0 * v);
+  return buffer;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------ thesis
+
+ThesisConfidence::ThesisConfidence(ThesisConfidenceParams params) : params_(std::move(params)) {
+  const auto& p = params_;
+  if (p.coefficients.empty()) throw std::invalid_argument("ThesisConfidence: no coefficients");
+  for (std::size_t k = 0; k < p.coefficients.size(); ++k) {
+    if (!std::isfinite(p.coefficients[k])) {
+      throw std::invalid_argument("ThesisConfidence: coefficients[" + std::to_string(k) +
+                                  "] is not finite");
+    }
+  }
+  if (!std::isfinite(p.amplitude_scaling.center) || !(p.amplitude_scaling.half_width > 0) ||
+      !std::isfinite(p.amplitude_scaling.half_width)) {
+    throw std::invalid_argument("ThesisConfidence: amplitude_scaling needs a positive half_width");
+  }
+  if (!std::isfinite(p.amplitude_min) || !std::isfinite(p.amplitude_max) ||
+      !(p.amplitude_min < p.amplitude_max)) {
+    throw std::invalid_argument("ThesisConfidence: amplitude domain must have min < max");
+  }
+  if (!(p.floor_m2 > 0) || !std::isfinite(p.floor_m2)) {
+    throw std::invalid_argument("ThesisConfidence: floor_m2 must be positive");
+  }
+}
+
+void ThesisConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,
+                             std::span<double> sigma_m) const {
+  // The thesis's metric ignores range, so range_m may also be empty.
+  if (!range_m.empty())
+    check_lengths(range_m.size(), amplitude.size(), sigma_m.size(), "ThesisConfidence::sigma");
+  if (amplitude.size() != sigma_m.size()) {
+    throw std::invalid_argument("ThesisConfidence::sigma: amplitude and sigma_m differ in length");
+  }
+  const auto& p = params_;
+  for (std::size_t k = 0; k < amplitude.size(); ++k) {
+    if (!std::isfinite(amplitude[k])) {
+      sigma_m[k] = kNaN;
+      continue;
+    }
+    // Clamped to the fitting domain: a cubic explodes outside it.
+    const double x =
+        p.amplitude_scaling.apply(clamp_to(amplitude[k], p.amplitude_min, p.amplitude_max));
+    double e2 = 0;
+    for (std::size_t j = p.coefficients.size(); j-- > 0;) e2 = e2 * x + p.coefficients[j];
+    // Thesis Section 4.8: the cubic goes negative at high intensity, so E^2 is floored.
+    sigma_m[k] = std::sqrt(std::max(e2, p.floor_m2));
+  }
+}
+
+std::shared_ptr<const ConfidenceModel> fit_thesis_confidence(
+    const ConfidenceFitData& data, const ThesisConfidenceOptions& options) {
+  const std::string who = "fit_thesis_confidence";
+  if (options.order < 0 || options.order > 10) {
+    throw std::invalid_argument("ThesisConfidenceOptions.order must be in [0, 10]");
+  }
+  if (!(options.floor_m2 >= 0) || !std::isfinite(options.floor_m2)) {
+    throw std::invalid_argument("ThesisConfidenceOptions.floor_m2 must be finite and >= 0");
+  }
+  const SurfaceDomain d = validate_data(data, false, who);
+  const std::size_t n = data.residual_m.size();
+  const Index terms = options.order + 1;
+  if (n < static_cast<std::size_t>(terms)) {
+    throw std::invalid_argument(who + ": " + std::to_string(n) + " rows for " +
+                                std::to_string(terms) + " coefficients");
+  }
+  ThesisConfidenceParams p;
+  p.amplitude_min = d.amplitude_min;
+  p.amplitude_max = d.amplitude_max;
+  p.amplitude_scaling = AxisScaling::over(d.amplitude_min, d.amplitude_max);
+  p.rows = n;
+  // Least squares of E^2 = (T - Rc)^2 on a polynomial in intensity (thesis: cubic).
+  MatrixXd design(static_cast<Index>(n), terms);
+  VectorXd e2(static_cast<Index>(n));
+  double mean_e2 = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double x = p.amplitude_scaling.apply(data.amplitude[k]);
+    double power = 1;
+    for (Index j = 0; j < terms; ++j, power *= x) design(static_cast<Index>(k), j) = power;
+    e2(static_cast<Index>(k)) = data.residual_m[k] * data.residual_m[k];
+    mean_e2 += e2(static_cast<Index>(k));
+  }
+  mean_e2 /= static_cast<double>(n);
+  if (!(mean_e2 > 0)) throw std::invalid_argument(who + ": every residual is zero");
+  const VectorXd c = design.colPivHouseholderQr().solve(e2);
+  p.coefficients.assign(c.data(), c.data() + c.size());
+  p.floor_m2 = options.floor_m2 > 0 ? options.floor_m2 : 0.05 * mean_e2;
+  return std::make_shared<const ThesisConfidence>(std::move(p));
+}
+
+// -------------------------------------------------------------- calibrated
+
+void CalibratedConfidenceOptions::validate() const {
+  if (!(target_coverage_2sigma > 0.5 && target_coverage_2sigma < 1)) {
+    throw std::invalid_argument(
+        "CalibratedConfidenceOptions.target_coverage_2sigma must be in (0.5, 1)");
+  }
+  if (order < 0 || order > 6) {
+    throw std::invalid_argument("CalibratedConfidenceOptions.order must be in [0, 6]");
+  }
+  if (intensity_bands < 1 || intensity_bands > 100) {
+    throw std::invalid_argument("CalibratedConfidenceOptions.intensity_bands must be in [1, 100]");
+  }
+}
+
+CalibratedConfidence::CalibratedConfidence(CalibratedConfidenceParams params)
+    : params_(std::move(params)) {
+  const auto& p = params_;
+  const std::string who = "CalibratedConfidence";
+  if (p.exponents.empty() || p.exponents.size() != p.coefficients.size()) {
+    throw std::invalid_argument(
+        who + ": exponents and coefficients must be non-empty and of equal length");
+  }
+  for (std::size_t k = 0; k < p.exponents.size(); ++k) {
+    const auto [a, b] = p.exponents[k];
+    if (a < 0 || b < 0 || a > 7 || b > 7) {
+      throw std::invalid_argument(who + ": exponents[" + std::to_string(k) + "] must be in [0, 7]");
+    }
+    if (!std::isfinite(p.coefficients[k])) {
+      throw std::invalid_argument(who + ": coefficients[" + std::to_string(k) + "] is not finite");
+    }
+  }
+  for (const AxisScaling* s : {&p.amplitude_scaling, &p.range_scaling}) {
+    if (!std::isfinite(s->center) || !std::isfinite(s->half_width) || !(s->half_width > 0)) {
+      throw std::invalid_argument(who + ": scalings need a finite center and positive half_width");
+    }
+  }
+  const auto& d = p.domain;
+  if (!(d.range_min_m < d.range_max_m) || !std::isfinite(d.range_min_m) ||
+      !std::isfinite(d.range_max_m)) {
+    throw std::invalid_argument(who + ": domain range must have min < max");
+  }
+  if (!(d.amplitude_min < d.amplitude_max) || !std::isfinite(d.amplitude_min) ||
+      !std::isfinite(d.amplitude_max) || (p.log_amplitude && !(d.amplitude_min > 0))) {
+    throw std::invalid_argument(
+        who + ": domain amplitude must have min < max (and be positive on a log scale)");
+  }
+  if (p.band_coordinate.empty() || p.band_coordinate.size() != p.band_scale.size()) {
+    throw std::invalid_argument(
+        who + ": band_coordinate and band_scale must be non-empty and of equal length");
+  }
+  for (std::size_t k = 0; k < p.band_scale.size(); ++k) {
+    if (!(p.band_scale[k] > 0) || !std::isfinite(p.band_scale[k]) ||
+        !std::isfinite(p.band_coordinate[k]) ||
+        (k > 0 && !(p.band_coordinate[k] > p.band_coordinate[k - 1]))) {
+      throw std::invalid_argument(
+          who + ": band " + std::to_string(k) +
+          " needs a positive scale and a coordinate above the previous band's");
+    }
+  }
+}
+
+void CalibratedConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,
+                                 std::span<double> sigma_m) const {
+  check_lengths(range_m.size(), amplitude.size(), sigma_m.size(), "CalibratedConfidence::sigma");
+  const auto& p = params_;
+  const auto& d = p.domain;
+  for (std::size_t k = 0; k < amplitude.size(); ++k) {
+    if (!std::isfinite(amplitude[k]) || !std::isfinite(range_m[k])) {
+      sigma_m[k] = kNaN;
+      continue;
+    }
+    // Clamped to the fitting domain: no extrapolation of a fitted polynomial.
+    const double a = clamp_to(amplitude[k], d.amplitude_min, d.amplitude_max);
+    const double u = p.log_amplitude ? std::log(a) : a;
+    const double y = p.range_scaling.apply(clamp_to(range_m[k], d.range_min_m, d.range_max_m));
+    const double log_e2 =
+        polynomial_2d(p.exponents, p.coefficients, p.amplitude_scaling.apply(u), y);
+    sigma_m[k] = band_factor(p.band_coordinate, p.band_scale, u) * std::exp(0.5 * log_e2);
+  }
+}
+
+std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
+    const ConfidenceFitData& data, const CalibratedConfidenceOptions& options) {
+  options.validate();
+  const std::string who = "fit_calibrated_confidence";
+  const SurfaceDomain d = validate_data(data, true, who);
+  if (options.log_amplitude && !(d.amplitude_min > 0)) {
+    throw std::invalid_argument(who + ": amplitude must be positive with log_amplitude");
+  }
+  const std::size_t n = data.residual_m.size();
+  CalibratedConfidenceParams p;
+  p.exponents = exponents_2d(options.order);
+  p.log_amplitude = options.log_amplitude;
+  p.domain = d;
+  p.target_coverage_2sigma = options.target_coverage_2sigma;
+  p.rows = n;
+  const Index terms = static_cast<Index>(p.exponents.size());
+  const std::size_t min_rows = std::max<std::size_t>(50, 10 * static_cast<std::size_t>(terms));
+  if (n < min_rows) {
+    throw std::invalid_argument(who + ": " + std::to_string(n) + " rows; at least " +
+                                std::to_string(min_rows) + " are needed to calibrate coverage");
+  }
+  const auto coordinate = [&](double a) { return options.log_amplitude ? std::log(a) : a; };
+  p.amplitude_scaling = AxisScaling::over(coordinate(d.amplitude_min), coordinate(d.amplitude_max));
+  p.range_scaling = AxisScaling::over(d.range_min_m, d.range_max_m);
+
+  std::vector<double> u(n);
+  MatrixXd design(static_cast<Index>(n), terms);
+  VectorXd e2(static_cast<Index>(n));
+  double mean_e2 = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    u[k] = coordinate(data.amplitude[k]);
+    const double x = p.amplitude_scaling.apply(u[k]);
+    const double y = p.range_scaling.apply(data.range_m[k]);
+    for (Index j = 0; j < terms; ++j) {
+      const auto& e = p.exponents[static_cast<std::size_t>(j)];
+      design(static_cast<Index>(k), j) = std::pow(x, e[0]) * std::pow(y, e[1]);
+    }
+    e2(static_cast<Index>(k)) = data.residual_m[k] * data.residual_m[k];
+    mean_e2 += e2(static_cast<Index>(k));
+  }
+  mean_e2 /= static_cast<double>(n);
+  if (!(mean_e2 > 0)) throw std::invalid_argument(who + ": every residual is zero");
+
+  // 1. log E[e^2] = X beta by gamma quasi-likelihood with a log link (McCullagh
+  //    & Nelder, Generalized Linear Models, ch. 8): minimise sum(e^2/mu + log mu)
+  //    by Fisher scoring, z = eta + (e^2 - mu)/mu regressed on X with unit
+  //    weights, halving steps that do not decrease the objective (it is convex
+  //    in beta). Unlike least squares on log(e^2) it needs no epsilon for zero
+  //    residuals and has no log bias.
+  const Eigen::ColPivHouseholderQR<MatrixXd> qr(design);
+  VectorXd beta = VectorXd::Zero(terms);
+  beta(0) = std::log(mean_e2);
+  const double eta_lo = std::log(mean_e2) - 60.0, eta_hi = std::log(mean_e2) + 60.0;
+  auto objective = [&](const VectorXd& b, VectorXd& eta) {
+    eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
+    return (e2.array() * (-eta.array()).exp() + eta.array()).sum();
+  };
+  VectorXd eta;
+  double loss = objective(beta, eta);
+  for (int iteration = 0; iteration < 100; ++iteration) {
+    const VectorXd z = eta.array() + e2.array() * (-eta.array()).exp() - 1.0;
+    const VectorXd step = qr.solve(z) - beta;
+    double t = 1.0;
+    VectorXd trial_eta;
+    double trial_loss = objective(beta + step, trial_eta);
+    while (trial_loss > loss && t > 1e-6) {
+      t *= 0.5;
+      trial_loss = objective(beta + t * step, trial_eta);
+    }
+    if (trial_loss > loss) break;
+    beta += t * step;
+    eta = trial_eta;
+    const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
+    loss = trial_loss;
+    if (converged) break;
+  }
+  p.coefficients.assign(beta.data(), beta.data() + terms);
+
+  // 2. Coverage per intensity band: bands of equal counts along u; k at each
+  //    band centre (median u) is set so that the band's share of
+  //    |e| <= 2 k(u) sigma_hat equals the target, with k(u) interpolated
+  //    between the centres (log-linear). Since k(u) within a band depends on
+  //    its neighbours, the factors are refined by a few fixed-point passes.
+  std::vector<std::size_t> order(n);
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return u[a] < u[b]; });
+  const std::size_t bands = std::clamp<std::size_t>(
+      std::min<std::size_t>(static_cast<std::size_t>(options.intensity_bands), n / 200), 1, 100);
+  std::vector<std::size_t> band_begin(bands + 1);
+  for (std::size_t b = 0; b <= bands; ++b) band_begin[b] = n * b / bands;
+  std::vector<double> centre, scale;
+  for (std::size_t b = 0; b < bands; ++b) {
+    const double c = u[order[(band_begin[b] + band_begin[b + 1]) / 2]];
+    if (!centre.empty() && !(c > centre.back())) continue;  // ties in u: merge bands
+    centre.push_back(c);
+  }
+  // Re-derive band edges from the unique centres (midpoints between centres).
+  const std::size_t used = centre.size();
+  std::vector<std::vector<std::size_t>> members(used);
+  for (std::size_t k = 0; k < n; ++k) {
+    const auto it = std::upper_bound(centre.begin(), centre.end(), u[k]);
+    std::size_t b = static_cast<std::size_t>(it - centre.begin());
+    if (b == used)
+      b = used - 1;
+    else if (b > 0 && u[k] - centre[b - 1] < centre[b] - u[k])
+      b = b - 1;
+    members[b].push_back(k);
+  }
+  std::vector<double> z(n);  // |e| / sigma_hat
+  for (std::size_t k = 0; k < n; ++k)
+    z[k] = std::abs(data.residual_m[k]) * std::exp(-0.5 * eta(static_cast<Index>(k)));
+  scale.assign(used, 1.0);
+  const double target = options.target_coverage_2sigma;
+  for (int pass = 0; pass < 8; ++pass) {
+    for (std::size_t b = 0; b < used; ++b) {
+      if (members[b].empty()) continue;
+      std::vector<double> ratio;
+      ratio.reserve(members[b].size());
+      for (std::size_t k : members[b]) ratio.push_back(z[k] / band_factor(centre, scale, u[k]));
+      // Smallest r with share(ratio <= r) >= target; the band's factor is scaled by r / 2.
+      const std::size_t m = ratio.size();
+      const auto index = static_cast<std::size_t>(std::ceil(target * static_cast<double>(m))) - 1;
+      const double r = order_statistic(std::move(ratio), index);
+      if (r > 0) scale[b] *= r / 2.0;
+    }
+  }
+  // Drop empty bands (possible only with heavy ties).
+  for (std::size_t b = 0; b < used; ++b) {
+    if (!members[b].empty()) {
+      p.band_coordinate.push_back(centre[b]);
+      p.band_scale.push_back(scale[b]);
+    }
+  }
+  std::size_t covered = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    covered += z[k] <= 2.0 * band_factor(p.band_coordinate, p.band_scale, u[k]) ? 1 : 0;
+  }
+  p.fit_coverage_2sigma = static_cast<double>(covered) / static_cast<double>(n);
+  return std::make_shared<const CalibratedConfidence>(std::move(p));
+}
+
+// ---------------------------------------------------------------- coverage
+
+std::string ConfidenceCoverage::summary() const {
+  return std::to_string(rows) + " rows: " + percent(within_2sigma) + " within 2 sigma (terciles " +
+         percent(within_2sigma_by_tercile[0]) + ", " + percent(within_2sigma_by_tercile[1]) + ", " +
+         percent(within_2sigma_by_tercile[2]) + ")";
+}
+
+ConfidenceCoverage coverage_2sigma(const ConfidenceModel& model, const ConfidenceFitData& data) {
+  const std::size_t n = data.residual_m.size();
+  if (data.range_m.size() != n || data.amplitude.size() != n) {
+    throw std::invalid_argument(
+        "coverage_2sigma: range_m, amplitude and residual_m differ in length");
+  }
+  ConfidenceCoverage c;
+  c.rows = n;
+  if (n == 0) return c;
+  std::vector<double> sigma(n);
+  model.sigma(data.range_m, data.amplitude, sigma);
+  std::vector<double> amplitude(data.amplitude.begin(), data.amplitude.end());
+  c.tercile_edges[0] = order_statistic(amplitude, n / 3);
+  c.tercile_edges[1] = order_statistic(amplitude, 2 * n / 3);
+  std::array<std::size_t, 3> inside{}, count{};
+  std::size_t total = 0;
+  double sigma_sum = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::size_t t = data.amplitude[k] < c.tercile_edges[0]   ? 0
+                          : data.amplitude[k] < c.tercile_edges[1] ? 1
+                                                                   : 2;
+    const bool ok = std::abs(data.residual_m[k]) <= 2.0 * sigma[k];
+    ++count[t];
+    inside[t] += ok ? 1 : 0;
+    total += ok ? 1 : 0;
+    sigma_sum += sigma[k];
+  }
+  c.within_2sigma = static_cast<double>(total) / static_cast<double>(n);
+  for (std::size_t t = 0; t < 3; ++t) {
+    c.within_2sigma_by_tercile[t] =
+        count[t] ? static_cast<double>(inside[t]) / static_cast<double>(count[t]) : 0.0;
+  }
+  c.mean_sigma_m = sigma_sum / static_cast<double>(n);
+  return c;
+}
+
+}  // namespace tofkit::calib

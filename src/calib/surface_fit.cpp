@@ -1,0 +1,489 @@
+#include "tofkit/calib/surface_fit.hpp"
+
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "tofkit/calib/bspline_surface.hpp"
+#include "tofkit/calib/polynomial_surface.hpp"
+
+namespace tofkit::calib {
+
+namespace {
+
+using Eigen::Index;
+using Eigen::MatrixXd;
+using Eigen::VectorXd;
+
+/// Validated column pointers of the training data and their bounding box.
+struct Columns {
+  const double* range = nullptr;
+  const double* amplitude = nullptr;
+  const double* temperature = nullptr;  // null without a temperature axis
+  const double* error = nullptr;
+  std::size_t rows = 0;
+  SurfaceDomain domain;
+};
+
+void check_column(std::span<const double> column, const std::string& who, const char* name,
+                  double& lo, double& hi) {
+  lo = std::numeric_limits<double>::infinity();
+  hi = -lo;
+  for (std::size_t k = 0; k < column.size(); ++k) {
+    const double v = column[k];
+    if (!std::isfinite(v)) {
+      throw std::invalid_argument(who + ": non-finite " + name + " at row " + std::to_string(k));
+    }
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  }
+}
+
+Columns validate_data(const SurfaceFitData& data, bool use_temperature, const std::string& who) {
+  const std::size_t n = data.error_m.size();
+  if (data.inputs.range_m.size() != n || data.inputs.amplitude.size() != n ||
+      (use_temperature && data.inputs.temperature_c.size() != n)) {
+    throw std::invalid_argument(who + ": range_m, amplitude, " +
+                                (use_temperature ? "temperature_c, " : "") +
+                                "error_m must have the same length");
+  }
+  if (n == 0) throw std::invalid_argument(who + ": no rows");
+  Columns c;
+  c.range = data.inputs.range_m.data();
+  c.amplitude = data.inputs.amplitude.data();
+  c.temperature = use_temperature ? data.inputs.temperature_c.data() : nullptr;
+  c.error = data.error_m.data();
+  c.rows = n;
+  double lo = 0, hi = 0;
+  check_column(data.error_m, who, "error_m", lo, hi);
+  auto& d = c.domain;
+  check_column(data.inputs.range_m, who, "range_m", d.range_min_m, d.range_max_m);
+  check_column(data.inputs.amplitude, who, "amplitude", d.amplitude_min, d.amplitude_max);
+  if (use_temperature) {
+    check_column(data.inputs.temperature_c, who, "temperature_c", d.temperature_min_c,
+                 d.temperature_max_c);
+  }
+  auto spread = [&](double min, double max, const char* name) {
+    if (!(min < max)) {
+      char value[64];
+      std::snprintf(value, sizeof value, "%.9g", min);
+      throw std::invalid_argument(who + ": no spread in " + name + " (every row at " + value +
+                                  "); a surface over it is undetermined");
+    }
+  };
+  spread(d.range_min_m, d.range_max_m, "range_m");
+  spread(d.amplitude_min, d.amplitude_max, "amplitude");
+  if (use_temperature) spread(d.temperature_min_c, d.temperature_max_c, "temperature_c");
+  return c;
+}
+
+void require_rows(const Columns& c, std::size_t parameters, const std::string& who) {
+  if (c.rows < parameters) {
+    throw std::invalid_argument(who + ": " + std::to_string(c.rows) + " rows for " +
+                                std::to_string(parameters) +
+                                " parameters (fewer rows than parameters)");
+  }
+}
+
+double residual_rms(const CorrectionSurface& surface, const SurfaceFitData& data) {
+  const std::size_t n = data.error_m.size();
+  std::vector<double> fitted(n);
+  std::vector<std::uint8_t> flags(n);
+  SurfaceInputs inputs = data.inputs;
+  if (!surface.uses_temperature()) inputs.temperature_c = {};
+  surface.evaluate(inputs, fitted, flags);
+  double sum = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double e = data.error_m[k] - fitted[k];
+    sum += e * e;
+  }
+  return std::sqrt(sum / static_cast<double>(n));
+}
+
+SurfaceFitResult make_result(std::shared_ptr<const CorrectionSurface> surface,
+                             const SurfaceFitStats& s) {
+  SurfaceFitResult r;
+  r.surface = std::move(surface);
+  r.rows = s.rows;
+  r.parameters = s.parameters;
+  r.rank = s.rank;
+  r.residual_rms_m = s.residual_rms_m;
+  r.condition_number = s.condition_number;
+  r.smoothing = s.smoothing;
+  r.effective_parameters = s.effective_parameters;
+  return r;
+}
+
+// ---------------------------------------------------------------- polynomial
+
+/// Upper-triangular factor R of the augmented design [A | y] by a streaming
+/// (tall-skinny) Householder QR: R_k = qr([R_{k-1}; rows of chunk k]). Then
+/// A = Q R11 and Q^T y = R12, so the SVD of R11 is the SVD of A itself (the
+/// route LAPACK's xGESVD takes for tall matrices) and A^T A is never formed.
+MatrixXd streaming_qr_factor(const Columns& c, const std::vector<MonomialExponents>& exps,
+                             int order, const PolynomialSurfaceParams& p) {
+  const Index params = static_cast<Index>(exps.size());
+  const Index cols = params + 1;
+  constexpr Index kChunk = 2048;
+  MatrixXd r_factor = MatrixXd::Zero(cols, cols);
+  MatrixXd stack(cols + kChunk, cols);
+  std::vector<double> pr(static_cast<std::size_t>(order) + 1);
+  std::vector<double> pa(pr.size()), pt(pr.size(), 1.0);
+  for (std::size_t start = 0; start < c.rows; start += kChunk) {
+    const Index m = static_cast<Index>(std::min<std::size_t>(kChunk, c.rows - start));
+    stack.topRows(cols) = r_factor;
+    for (Index j = 0; j < m; ++j) {
+      const std::size_t row = start + static_cast<std::size_t>(j);
+      const double r = p.range_scaling.apply(c.range[row]);
+      const double a = p.amplitude_scaling.apply(c.amplitude[row]);
+      const double t = c.temperature ? p.temperature_scaling.apply(c.temperature[row]) : 0.0;
+      pr[0] = pa[0] = pt[0] = 1.0;
+      for (int k = 1; k <= order; ++k) {
+        pr[k] = pr[k - 1] * r;
+        pa[k] = pa[k - 1] * a;
+        if (c.temperature) pt[k] = pt[k - 1] * t;
+      }
+      for (Index k = 0; k < params; ++k) {
+        const auto& e = exps[static_cast<std::size_t>(k)];
+        stack(cols + j, k) = pr[e[0]] * pa[e[1]] * pt[e[2]];
+      }
+      stack(cols + j, params) = c.error[row];
+    }
+    Eigen::HouseholderQR<MatrixXd> qr(stack.topRows(cols + m));
+    r_factor = qr.matrixQR().topRows(cols).triangularView<Eigen::Upper>();
+  }
+  return r_factor;
+}
+
+// ------------------------------------------------------------------ B-spline
+
+struct Grid {
+  BSplineAxis axes[3];
+  int dims = 2;
+  std::size_t extent[3] = {1, 1, 1};
+  std::size_t parameters = 0;
+  [[nodiscard]] std::size_t index(std::size_t ir, std::size_t ia, std::size_t it) const {
+    return (ir * extent[1] + ia) * extent[2] + it;
+  }
+};
+
+/// Normal equations G = B^T B, g = B^T y of the tensor-product basis; each row
+/// touches 4 x 4 (x 4) basis functions. Rows are split into a fixed number of
+/// chunks summed in order, so the result does not depend on the thread count.
+void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& gram,
+                                 VectorXd& rhs) {
+  const Index p = static_cast<Index>(grid.parameters);
+  const std::size_t chunks = std::clamp<std::size_t>(c.rows / 65536, 1, 8);
+  std::vector<MatrixXd> grams(chunks, MatrixXd::Zero(p, p));
+  std::vector<VectorXd> rhss(chunks, VectorXd::Zero(p));
+  const bool use_t = grid.dims == 3;
+  double inv[3];
+  for (int k = 0; k < grid.dims; ++k) {
+    inv[k] = grid.axes[k].intervals / (grid.axes[k].hi - grid.axes[k].lo);
+  }
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t chunk) {
+    const std::size_t begin = c.rows * chunk / chunks;
+    const std::size_t end = c.rows * (chunk + 1) / chunks;
+    double* g = grams[chunk].data();
+    double* b = rhss[chunk].data();
+    std::size_t idx[64];
+    double w[64];
+    for (std::size_t row = begin; row < end; ++row) {
+      const BSplineSpan sr =
+          cubic_bspline_span(grid.axes[0], inv[0], grid.axes[0].coordinate(c.range[row]));
+      const BSplineSpan sa =
+          cubic_bspline_span(grid.axes[1], inv[1], grid.axes[1].coordinate(c.amplitude[row]));
+      BSplineSpan st;
+      st.weight[0] = 1.0;
+      if (use_t) {
+        st = cubic_bspline_span(grid.axes[2], inv[2], grid.axes[2].coordinate(c.temperature[row]));
+      }
+      const int nt = use_t ? 4 : 1;
+      int count = 0;
+      for (int i = 0; i < 4; ++i) {
+        for (int j = 0; j < 4; ++j) {
+          for (int k = 0; k < nt; ++k) {
+            idx[count] = grid.index(static_cast<std::size_t>(sr.first + i),
+                                    static_cast<std::size_t>(sa.first + j),
+                                    static_cast<std::size_t>(st.first + k));
+            w[count] = sr.weight[i] * sa.weight[j] * st.weight[k];
+            ++count;
+          }
+        }
+      }
+      const double y = c.error[row];
+      // idx is ascending, so v >= u fills the lower triangle only (G is symmetric).
+      for (int u = 0; u < count; ++u) {
+        b[idx[u]] += w[u] * y;
+        double* column = g + idx[u] * static_cast<std::size_t>(p);
+        const double wu = w[u];
+        for (int v = u; v < count; ++v) column[idx[v]] += wu * w[v];
+      }
+    }
+  });
+  gram = std::move(grams[0]);
+  rhs = std::move(rhss[0]);
+  for (std::size_t k = 1; k < chunks; ++k) {
+    gram += grams[k];
+    rhs += rhss[k];
+  }
+  gram.triangularView<Eigen::StrictlyUpper>() = gram.transpose();
+}
+
+/// D^T D of the second-difference matrix D (rows [1 -2 1]) of n coefficients.
+MatrixXd second_difference_gram(int n) {
+  MatrixXd d = MatrixXd::Zero(n - 2, n);
+  for (int k = 0; k + 2 < n; ++k) {
+    d(k, k) = 1;
+    d(k, k + 1) = -2;
+    d(k, k + 2) = 1;
+  }
+  return d.transpose() * d;
+}
+
+/// Sum over axes of the second-difference penalty on the coefficient grid
+/// along that axis (Eilers & Marx 1996; Kronecker sum D_r'D_r (x) I + I (x) D_a'D_a ...).
+MatrixXd penalty_matrix(const Grid& grid) {
+  const Index p = static_cast<Index>(grid.parameters);
+  MatrixXd penalty = MatrixXd::Zero(p, p);
+  for (int axis = 0; axis < grid.dims; ++axis) {
+    const MatrixXd dtd = second_difference_gram(grid.axes[axis].basis_count());
+    for (std::size_t i0 = 0; i0 < grid.extent[0]; ++i0) {
+      for (std::size_t i1 = 0; i1 < grid.extent[1]; ++i1) {
+        for (std::size_t i2 = 0; i2 < grid.extent[2]; ++i2) {
+          const std::size_t from[3] = {i0, i1, i2};
+          const std::size_t row = grid.index(i0, i1, i2);
+          for (std::size_t j = 0; j < grid.extent[axis]; ++j) {
+            std::size_t to[3] = {i0, i1, i2};
+            to[axis] = j;
+            const double v = dtd(static_cast<Index>(from[axis]), static_cast<Index>(j));
+            if (v != 0)
+              penalty(static_cast<Index>(row),
+                      static_cast<Index>(grid.index(to[0], to[1], to[2]))) += v;
+          }
+        }
+      }
+    }
+  }
+  return penalty;
+}
+
+struct PenalizedSolution {
+  VectorXd coefficients;
+  double effective_parameters = 0;  // trace((G + lambda P)^-1 G)
+  double rss = 0;                   // from the normal equations
+  double condition_number = 0;      // of [B; sqrt(lambda) D], i.e. sqrt(cond(G + lambda P))
+};
+
+PenalizedSolution solve_penalized(const MatrixXd& gram, const VectorXd& rhs, double yy,
+                                  const MatrixXd& penalty, double lambda, bool with_condition) {
+  const Index p = gram.rows();
+  // A tiny ridge keeps the system positive definite when the data leave part of
+  // the penalty's null space (planes) undetermined.
+  const double ridge = 1e-12 * gram.trace() / static_cast<double>(p);
+  MatrixXd system = gram + lambda * penalty;
+  system.diagonal().array() += ridge;
+  Eigen::LLT<MatrixXd> llt(system);
+  if (llt.info() != Eigen::Success) {
+    throw std::runtime_error(
+        "fit_bspline_surface: penalized normal equations are not positive definite");
+  }
+  PenalizedSolution s;
+  s.coefficients = llt.solve(rhs);
+  s.effective_parameters = llt.solve(gram).trace();
+  // RSS = y'y - 2 c'B'y + c'B'Bc.
+  s.rss =
+      std::max(0.0, yy - 2.0 * s.coefficients.dot(rhs) + s.coefficients.dot(gram * s.coefficients));
+  if (with_condition) {
+    Eigen::SelfAdjointEigenSolver<MatrixXd> eig(system, Eigen::EigenvaluesOnly);
+    const double lo = eig.eigenvalues().minCoeff();
+    const double hi = eig.eigenvalues().maxCoeff();
+    s.condition_number = lo > 0 ? std::sqrt(hi / lo) : std::numeric_limits<double>::infinity();
+  }
+  return s;
+}
+
+std::string format_number(double v) {
+  char buffer[64];
+  std::snprintf(buffer, sizeof buffer, "%.4g", v);
+  return buffer;
+}
+
+}  // namespace
+
+void PolynomialFitOptions::validate() const {
+  if (order < 0 || order > 12)
+    throw std::invalid_argument("PolynomialFitOptions.order must be in [0, 12]");
+  if (!(rcond >= 0 && rcond < 1))
+    throw std::invalid_argument("PolynomialFitOptions.rcond must be in [0, 1)");
+}
+
+void BSplineFitOptions::validate() const {
+  auto check = [](int v, const char* name) {
+    if (v < 1 || v > 200) {
+      throw std::invalid_argument(std::string("BSplineFitOptions.") + name +
+                                  " must be in [1, 200]");
+    }
+  };
+  check(intervals_range, "intervals_range");
+  check(intervals_amplitude, "intervals_amplitude");
+  if (use_temperature) check(intervals_temperature, "intervals_temperature");
+  if (!(smoothing >= 0) || !std::isfinite(smoothing)) {
+    throw std::invalid_argument("BSplineFitOptions.smoothing must be finite and >= 0");
+  }
+}
+
+std::string SurfaceFitResult::summary() const {
+  std::string s = (surface ? surface->kind() : std::string("(no surface)")) + ": " +
+                  std::to_string(rows) + " rows, " + std::to_string(parameters) +
+                  " parameters, rank " + std::to_string(rank);
+  if (effective_parameters > 0)
+    s += ", effective parameters " + format_number(effective_parameters);
+  if (smoothing > 0) s += ", smoothing " + format_number(smoothing);
+  s += ", residual RMS " + format_number(residual_rms_m * 1e3) + " mm, condition number " +
+       format_number(condition_number);
+  return s;
+}
+
+SurfaceFitResult fit_polynomial_surface(const SurfaceFitData& data,
+                                        const PolynomialFitOptions& options) {
+  options.validate();
+  const std::string who = "fit_polynomial_surface (order " + std::to_string(options.order) + ")";
+  const Columns c = validate_data(data, options.use_temperature, who);
+  PolynomialSurfaceParams p;
+  p.order = options.order;
+  p.use_temperature = options.use_temperature;
+  p.exponents = polynomial_exponents(options.order, options.use_temperature);
+  p.domain = c.domain;
+  // Affine scaling to [-1, 1] over the training domain, for conditioning.
+  p.range_scaling = AxisScaling::over(c.domain.range_min_m, c.domain.range_max_m);
+  p.amplitude_scaling = AxisScaling::over(c.domain.amplitude_min, c.domain.amplitude_max);
+  if (options.use_temperature) {
+    p.temperature_scaling =
+        AxisScaling::over(c.domain.temperature_min_c, c.domain.temperature_max_c);
+  }
+  const std::size_t params = p.exponents.size();
+  require_rows(c, params, who);
+
+  const MatrixXd r_aug = streaming_qr_factor(c, p.exponents, p.order, p);
+  const Index np = static_cast<Index>(params);
+  const MatrixXd r11 = r_aug.topLeftCorner(np, np);
+  const VectorXd qty = r_aug.col(np).head(np);
+  Eigen::JacobiSVD<MatrixXd> svd(r11, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const VectorXd& sv = svd.singularValues();
+  // Thesis Section 4.6: singular values below rcond * s_max are treated as zero
+  // (the pseudo-inverse drops them) instead of being inverted.
+  const double cutoff = options.rcond * sv(0);
+  VectorXd x = VectorXd::Zero(np);
+  std::size_t rank = 0;
+  for (Index k = 0; k < np; ++k) {
+    if (sv(k) > 0 && sv(k) >= cutoff) {
+      x += svd.matrixV().col(k) * (svd.matrixU().col(k).dot(qty) / sv(k));
+      ++rank;
+    }
+  }
+  p.coefficients.assign(x.data(), x.data() + np);
+  auto& s = p.fit;
+  s.rows = c.rows;
+  s.parameters = params;
+  s.rank = rank;
+  s.rcond = options.rcond;
+  s.effective_parameters = static_cast<double>(rank);
+  const double smin = sv(np - 1);
+  s.condition_number = smin > 0 ? sv(0) / smin : std::numeric_limits<double>::infinity();
+  // Residual on the training data by evaluating the surface, so it reflects
+  // exactly what the model will return.
+  PolynomialSurface probe(p);
+  s.residual_rms_m = residual_rms(probe, data);
+  p.fit = s;
+  return make_result(std::make_shared<const PolynomialSurface>(std::move(p)), s);
+}
+
+SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFitOptions& options) {
+  options.validate();
+  const std::string who = "fit_bspline_surface";
+  const Columns c = validate_data(data, options.use_temperature, who);
+  if (options.log_amplitude && !(c.domain.amplitude_min > 0)) {
+    throw std::invalid_argument(who +
+                                ": amplitude must be positive for a log-scale amplitude axis"
+                                " (log_amplitude = true)");
+  }
+  BSplineSurfaceParams p;
+  p.use_temperature = options.use_temperature;
+  p.domain = c.domain;
+  auto make_axis = [](double lo, double hi, int intervals, bool log_scale) {
+    BSplineAxis a;
+    a.intervals = intervals;
+    a.log_scale = log_scale;
+    a.lo = a.coordinate(lo);
+    a.hi = a.coordinate(hi);
+    return a;
+  };
+  p.range = make_axis(c.domain.range_min_m, c.domain.range_max_m, options.intervals_range, false);
+  p.amplitude = make_axis(c.domain.amplitude_min, c.domain.amplitude_max,
+                          options.intervals_amplitude, options.log_amplitude);
+  if (options.use_temperature) {
+    p.temperature = make_axis(c.domain.temperature_min_c, c.domain.temperature_max_c,
+                              options.intervals_temperature, false);
+  }
+  Grid grid;
+  grid.dims = options.use_temperature ? 3 : 2;
+  grid.axes[0] = p.range;
+  grid.axes[1] = p.amplitude;
+  grid.axes[2] = p.temperature;
+  for (int k = 0; k < grid.dims; ++k)
+    grid.extent[k] = static_cast<std::size_t>(grid.axes[k].basis_count());
+  grid.parameters = grid.extent[0] * grid.extent[1] * grid.extent[2];
+  require_rows(c, grid.parameters, who);
+
+  MatrixXd gram;
+  VectorXd rhs;
+  accumulate_normal_equations(c, grid, gram, rhs);
+  double yy = 0;
+  for (std::size_t k = 0; k < c.rows; ++k) yy += c.error[k] * c.error[k];
+  const MatrixXd penalty = penalty_matrix(grid);
+  // Penalty weight relative to the data term, so `smoothing` does not depend
+  // on the number of rows or the grid size.
+  const double scale = gram.trace() / penalty.trace();
+
+  double smoothing = options.smoothing;
+  if (options.choose_smoothing_by_gcv) {
+    // GCV(lambda) = n RSS / (n - edf)^2 (Craven & Wahba 1979), on a grid of decades.
+    const double n = static_cast<double>(c.rows);
+    double best = std::numeric_limits<double>::infinity();
+    for (int e = -7; e <= 1; ++e) {
+      const double candidate = std::pow(10.0, e);
+      const PenalizedSolution sol =
+          solve_penalized(gram, rhs, yy, penalty, candidate * scale, false);
+      const double dof = n - sol.effective_parameters;
+      if (!(dof > 0)) continue;
+      const double gcv = n * sol.rss / (dof * dof);
+      if (gcv < best) {
+        best = gcv;
+        smoothing = candidate;
+      }
+    }
+  }
+  const PenalizedSolution sol = solve_penalized(gram, rhs, yy, penalty, smoothing * scale, true);
+  p.coefficients.assign(sol.coefficients.data(), sol.coefficients.data() + sol.coefficients.size());
+  auto& s = p.fit;
+  s.rows = c.rows;
+  s.parameters = grid.parameters;
+  s.rank = grid.parameters;
+  s.smoothing = smoothing;
+  s.effective_parameters = sol.effective_parameters;
+  s.condition_number = sol.condition_number;
+  BSplineSurface probe(p);
+  s.residual_rms_m = residual_rms(probe, data);
+  p.fit = s;
+  return make_result(std::make_shared<const BSplineSurface>(std::move(p)), s);
+}
+
+}  // namespace tofkit::calib

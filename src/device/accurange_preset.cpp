@@ -1,0 +1,103 @@
+#include "tofkit/device/accurange_preset.hpp"
+
+namespace tofkit::device {
+
+DeviceConfig accurange_preset() {
+  DeviceConfig c;
+  c.name = "accurange";
+
+  // ---------------------------------------------------------------- laser
+  auto& laser = c.link.laser;
+  laser.wavelength_nm = 780.0;  // thesis title: 780 nm diode
+  laser.peak_power_w = 0.020;   // thesis title: 20 mW
+  // Assumption: a gain-switched diode pulse of 0.3 ns. With the 70 MHz receiver
+  // below, the echo's leading edge is the receiver's (nearly linear) impulse
+  // response, so walk is strong near the threshold and weak far above it: the
+  // thesis's "dark reads long by inches, light greys within a quarter inch".
+  laser.pulse_width_ns = 0.3;
+  laser.repetition_hz = 312500.0;      // thesis: sampling rate = 312,500 / 2^N samples/s
+  laser.transmit_efficiency = 0.9;     // Assumption: uncoated collimator + window
+  laser.beam_divergence_mrad = 0.8;    // Assumption: with the exit diameter, a 3.0 mm
+  laser.exit_beam_diameter_mm = 2.6;   // footprint at 0.5 m (thesis: ~3 mm oval footprint)
+  laser.power_temp_coeff_per_c = -0.001;  // Assumption: automatic power control via the
+                                          // diode's monitor photodiode leaves 0.1 %/C
+  // Assumption: the first shots after switch-on read long (the diode's junction
+  // heats, its emission delay and chirp settle); thesis: "the first samples are
+  // wrong, then a plateau". 0.3 in at the first shot, decaying in 40 ms.
+  laser.turn_on_bias_mm = 7.6;
+  laser.turn_on_time_constant_ms = 40.0;
+
+  // ------------------------------------------------------------- receiver
+  auto& rx = c.link.receiver;
+  rx.aperture_diameter_mm = 63.5;    // 2.5 in collecting lens (AccuRange 3000 class)
+  rx.optics_efficiency = 0.5;        // Assumption: lens, filter, coaxial mirror obstruction
+  rx.field_of_view_rad = 0.005;      // Assumption: 5 mrad field stop (short-range unit)
+  rx.filter_bandwidth_nm = 10.0;     // Assumption: 10 nm interference filter at 780 nm
+  rx.bandwidth_mhz = 70.0;           // Assumption: slow, low-noise TIA (see pulse_width_ns)
+  rx.responsivity_a_per_w = 0.5;     // Si at 780 nm (about 0.5 A/W unity gain)
+  rx.apd_gain = 30.0;                // Assumption: low gain, echoes are strong at < 1 m
+  rx.excess_noise_factor = 3.0;      // Si APD at M = 30 (k about 0.02-0.05)
+  rx.nep_w_per_sqrt_hz = 2.0e-14;    // same amplifier class as the paper's (Table 1)
+  rx.dark_current_na = 0.5;          // typical Si APD, as the paper preset
+  // Assumption: sets the echo scale: a grey-0 chart (rho 0.03) at 20 in gives
+  // twice the threshold, so it is still seen at 22 in (training distance) and
+  // fades out near 30 in ("grey 0 unusable" far away and at large angles).
+  rx.transimpedance_kohm = 32.0;
+  // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates at >= 15 in and
+  // grey 204 (rho 0.58) below about 17 in (thesis: "very bright targets saturate").
+  rx.saturation_v = 1.0;
+  rx.recovery_ns_per_neper = 2.0;   // Assumption, as the paper preset
+  rx.amplitude_noise_rel = 0.01;    // Assumption: 1 % peak-detector noise per output
+  rx.nominal_temperature_c = 25.0;  // gain specified at room temperature
+  rx.breakdown_temp_coeff_v_per_c = 0.65;  // Si APD (DESIGN.md)
+  rx.bias_margin_v = 10.0;                 // Assumption, as the paper preset
+  rx.bias_temperature_compensated = true;  // Assumption: the temperature sensor in the unit
+                                           // (thesis) tracks the APD bias
+
+  // ---------------------------------------------------------- environment
+  auto& env = c.link.environment;
+  env.solar_irradiance_w_per_m2_um = 0.0;  // thesis: indoor laboratory, no sunlight
+  env.sun_angle_deg = 0.0;
+  env.sky_radiance_w_per_m2_sr_um = 0.0;
+  env.atmospheric_transmission = 1.0;  // < 1 m of laboratory air
+  env.pressure_hpa = 1013.25;
+  env.relative_humidity_pct = 50.0;
+
+  // ----------------------------------------------------- discriminator, TDC
+  c.discriminator.threshold_v = 0.020;  // Assumption: 8 x the noise floor (no false alarms)
+  c.tdc.coarse_clock_mhz = 80.0;        // thesis: 80 MHz timing clock
+  c.tdc.lsb_ps = 25.0;                  // Assumption: fine interpolator (0.55 mm per count
+                                        // at N = 16; thesis Fig. 4.4 resolutions)
+  c.tdc.inl_lsb = 0.5;                  // Assumption, as the paper preset
+
+  // -------------------------------------------------------------- thermal
+  // Thesis Section 4.4: range decreases 0.25-0.60 in per 10 C. A negative delay
+  // coefficient of -1.0 mm/C (-0.39 in per 10 C) with the knee below any
+  // working temperature makes the drift linear over the laboratory's range.
+  c.thermal.knee_c = 0.0;
+  c.thermal.delay_coeff_mm_per_c = -1.0;
+  c.thermal.below_knee_coeff_mm_per_c2 = 0.01;  // Assumption: small, as the paper's
+  c.thermal.self_heating_c = 8.0;               // Assumption: enclosed electronics
+  // Thesis: 25-35 min warm-up before the range is stable. With tau = 7.75 min the
+  // warm-up drift (8 C x (-2.5 + 1.0) mm/C = 12 mm = 0.47 in) falls below 0.25 mm
+  // after ln(48) tau = 30 min.
+  c.thermal.warmup_time_constant_min = 7.75;
+  // Assumption: the timing electronics lag the sensor and drift faster than the
+  // settled coefficient while they warm, so the range inflates during warm-up
+  // (thesis: "range inflates while electronics warm up").
+  c.thermal.warmup_delay_coeff_mm_per_c = -2.5;
+  c.thermal.sensor_resolution_c = 0.0625;  // 12-bit digital sensor
+  c.thermal.sensor_noise_c = 0.05;         // Assumption
+
+  // ---------------------------------------------------------- measurement
+  c.measurement.shots = 16;  // N = 4: 312,500 / 16 = 19,531 samples/s (thesis Fig. 4.4)
+  // Assumption: the vendor zeroed the range offset on a mid-grey target (grey 153,
+  // rho 0.32) at 20 in, 20 C, warmed up; the chain delay is whatever makes that true.
+  c.measurement.fixed_delay_ns = 0.244;
+  c.measurement.window_ns = 30.0;
+  c.measurement.sample_period_ps = 50.0;  // waveform mode: 20 samples per ns (fast edge)
+  c.measurement.reference_temperature_c = 20.0;
+  return c;
+}
+
+}  // namespace tofkit::device

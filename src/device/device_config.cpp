@@ -1,0 +1,281 @@
+#include "tofkit/device/device_config.hpp"
+
+#include <charconv>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+#include <utility>
+
+namespace tofkit::device {
+namespace {
+
+constexpr double kHalfPiRad = 1.5707963267948966;
+
+// Shortest round-trip text of a number, for messages ("1e+05", "0.012").
+std::string number_text(double value) {
+  char buffer[64];
+  const auto result = std::to_chars(buffer, buffer + sizeof buffer, value);
+  return std::string(buffer, result.ptr);
+}
+
+// Helpers that bind one struct member to a dotted key with its valid range.
+ConfigField field(std::string key, double* value, double min, double max, bool min_exclusive,
+                  std::string description) {
+  return ConfigField{std::move(key), value, min, max, min_exclusive, std::move(description)};
+}
+ConfigField field(std::string key, int* value, double min, double max, std::string description) {
+  return ConfigField{std::move(key), value, min, max, false, std::move(description)};
+}
+ConfigField field(std::string key, bool* value, std::string description) {
+  return ConfigField{std::move(key), value, 0.0, 1.0, false, std::move(description)};
+}
+
+// Inclusive lower bound / exclusive lower bound shorthands.
+constexpr bool kOpen = true;     // (min, max]
+constexpr bool kClosed = false;  // [min, max]
+
+std::string range_text(const ConfigField& f) {
+  std::string text = f.min_exclusive ? "(" : "[";
+  text += number_text(f.min);
+  text += ", ";
+  text += number_text(f.max);
+  text += ']';
+  return text;
+}
+
+bool in_range(const ConfigField& f, double v) {
+  if (!std::isfinite(v)) return false;
+  if (f.min_exclusive ? !(v > f.min) : !(v >= f.min)) return false;
+  return v <= f.max;
+}
+
+/// First version of an AccuRange-3000-like unit (reference/characterization_thesis.md:
+/// 780 nm, 20 mW, 80 MHz timing clock, ~3 mm footprint, 25-35 min warm-up, range
+/// decreasing 0.25-0.60 in per 10 C). Numbers the thesis does not state are
+/// assumptions, to be tuned against the thesis's figures.
+DeviceConfig accurange_config() {
+  DeviceConfig c;
+  c.name = "accurange";
+
+  auto& laser = c.link.laser;
+  laser.wavelength_nm = 780.0;             // thesis title: 780 nm
+  laser.peak_power_w = 0.02;               // thesis title: 20 mW
+  laser.pulse_width_ns = 5.0;              // assumption
+  laser.repetition_hz = 312500.0;          // thesis: sampling rate = 312,500 / 2^N samples/s
+  laser.transmit_efficiency = 0.9;         // assumption
+  laser.beam_divergence_mrad = 0.5;        // assumption: keeps the ~3 mm footprint at 0.5-1 m
+  laser.exit_beam_diameter_mm = 2.5;       // thesis: ~3 mm oval footprint
+  laser.power_temp_coeff_per_c = -0.005;   // 780 nm diodes, assumption
+  laser.turn_on_bias_mm = 5.0;             // thesis: first samples after switch-on are wrong
+  laser.turn_on_time_constant_ms = 100.0;  // assumption
+
+  auto& rx = c.link.receiver;
+  rx.aperture_diameter_mm = 63.5;  // 2.5 in collecting lens
+  rx.optics_efficiency = 0.5;      // assumption
+  rx.field_of_view_rad = 0.005;    // assumption
+  rx.filter_bandwidth_nm = 10.0;   // assumption
+  rx.bandwidth_mhz = 100.0;        // assumption
+  rx.responsivity_a_per_w = 0.5;   // Si at 780 nm
+  rx.apd_gain = 10.0;              // assumption: low gain, bright short-range echoes
+  rx.excess_noise_factor = 2.5;    // Si APD at low gain, assumption
+  rx.transimpedance_kohm = 5.0;    // assumption
+  rx.saturation_v = 1.6;           // assumption; very bright targets saturate (thesis)
+  rx.bias_temperature_compensated = true;
+
+  auto& env = c.link.environment;
+  env.solar_irradiance_w_per_m2_um = 0.0;  // indoor laboratory: no sunlight
+  env.atmospheric_transmission = 1.0;      // < 1 m of indoor air
+
+  c.discriminator.threshold_v = 0.005;  // assumption
+  c.tdc.coarse_clock_mhz = 80.0;        // thesis: 80 MHz timing clock
+  c.tdc.lsb_ps = 100.0;                 // assumption
+
+  // Thesis: range decreases 0.25-0.60 in (6.4-15 mm) per 10 C, roughly linear.
+  c.thermal.knee_c = -40.0;  // no knee in the operating range
+  c.thermal.delay_coeff_mm_per_c = -1.0;
+  c.thermal.below_knee_coeff_mm_per_c2 = 0.0;
+  c.thermal.self_heating_c = 8.0;                // assumption
+  c.thermal.warmup_time_constant_min = 7.5;      // thesis: 25-35 min to settle (~4 tau)
+  c.thermal.warmup_delay_coeff_mm_per_c = -0.5;  // thesis: range inflates while cold
+
+  c.measurement.shots = 16;  // N = 4 -> 19531 samples/s
+  return c;
+}
+
+}  // namespace
+
+std::vector<ConfigField> config_fields(DeviceConfig& config) {
+  auto& laser = config.link.laser;
+  auto& rx = config.link.receiver;
+  auto& env = config.link.environment;
+  auto& disc = config.discriminator;
+  auto& tdc = config.tdc;
+  auto& th = config.thermal;
+  auto& m = config.measurement;
+  return {
+      // laser: the pulsed emitter, paper Table 1
+      field("laser.wavelength_nm", &laser.wavelength_nm, 200, 2000, kClosed,
+            "emitted wavelength, Table 1"),
+      field("laser.peak_power_w", &laser.peak_power_w, 0, 1e4, kOpen,
+            "transmitted peak power Pt, Table 1"),
+      field("laser.pulse_width_ns", &laser.pulse_width_ns, 0, 1000, kOpen,
+            "emitted pulse FWHM: Table 1's 0.1 % duty cycle at 1 MHz"),
+      field("laser.repetition_hz", &laser.repetition_hz, 0, 1e9, kOpen,
+            "pulse repetition frequency, Table 1"),
+      field("laser.transmit_efficiency", &laser.transmit_efficiency, 0, 1, kOpen,
+            "transmitting optics efficiency Tt, Table 1"),
+      field("laser.beam_divergence_mrad", &laser.beam_divergence_mrad, 0, 1000, kOpen,
+            "full-angle divergence after collimation. Assumption"),
+      field("laser.exit_beam_diameter_mm", &laser.exit_beam_diameter_mm, 0, 1000, kOpen,
+            "collimated beam diameter at the exit. Assumption"),
+      field("laser.power_temp_coeff_per_c", &laser.power_temp_coeff_per_c, -0.1, 0.1, kClosed,
+            "relative change of Pt per degree (driver-regulated diode). Assumption"),
+      field("laser.turn_on_bias_mm", &laser.turn_on_bias_mm, -1000, 1000, kClosed,
+            "range bias of the first shot after laser switch-on (thermal chirp). Assumption"),
+      field("laser.turn_on_time_constant_ms", &laser.turn_on_time_constant_ms, 0, 1e7, kOpen,
+            "decay time of the turn-on bias. Assumption"),
+
+      // receiver: optics, APD, transimpedance amplifier
+      field("receiver.aperture_diameter_mm", &rx.aperture_diameter_mm, 0, 1000, kOpen,
+            "receiving aperture diameter, Table 1"),
+      field("receiver.optics_efficiency", &rx.optics_efficiency, 0, 1, kOpen,
+            "receiving optics efficiency Tr, Table 1"),
+      field("receiver.field_of_view_rad", &rx.field_of_view_rad, 0, kHalfPiRad, kOpen,
+            "receiving field angle theta_r, Table 1"),
+      field("receiver.filter_bandwidth_nm", &rx.filter_bandwidth_nm, 0, 1000, kOpen,
+            "optical filter bandwidth, Table 1"),
+      field("receiver.bandwidth_mhz", &rx.bandwidth_mhz, 0, 1e5, kOpen,
+            "electrical -3 dB bandwidth B, Table 1"),
+      field("receiver.responsivity_a_per_w", &rx.responsivity_a_per_w, 0, 2, kOpen,
+            "unity-gain responsivity; Table 1's 58 A/W read as 0.58 A/W x gain 100"),
+      field("receiver.apd_gain", &rx.apd_gain, 1, 1e4, kClosed,
+            "APD multiplication M at the nominal temperature"),
+      field("receiver.excess_noise_factor", &rx.excess_noise_factor, 1, 100, kClosed,
+            "APD excess noise factor F; Table 1's noise figure 3"),
+      field("receiver.nep_w_per_sqrt_hz", &rx.nep_w_per_sqrt_hz, 0, 1e-6, kClosed,
+            "noise-equivalent power, Table 1 (2e-14 W/sqrt(Hz))"),
+      field("receiver.dark_current_na", &rx.dark_current_na, 0, 1e6, kClosed,
+            "primary (unmultiplied) dark current. Assumption: typical Si APD"),
+      field("receiver.transimpedance_kohm", &rx.transimpedance_kohm, 0, 1e6, kOpen,
+            "gain converting APD current to volts at the comparator (TIA + post-amp). Assumption"),
+      field("receiver.saturation_v", &rx.saturation_v, 0, 100, kOpen,
+            "amplifier output clip level. Assumption: saturation starts at the 6.5 ns echo width"),
+      field("receiver.recovery_ns_per_neper", &rx.recovery_ns_per_neper, 0, 1000, kClosed,
+            "extra clipped time per e-fold of overdrive (charge storage). Assumption"),
+      field("receiver.amplitude_noise_rel", &rx.amplitude_noise_rel, 0, 1, kClosed,
+            "relative noise of the amplitude (peak) reading"),
+      field("receiver.nominal_temperature_c", &rx.nominal_temperature_c, -60, 150, kClosed,
+            "temperature at which apd_gain holds"),
+      field("receiver.breakdown_temp_coeff_v_per_c", &rx.breakdown_temp_coeff_v_per_c, 0, 10,
+            kClosed, "Si APD breakdown voltage drift (about 0.65 V/C)"),
+      field("receiver.bias_margin_v", &rx.bias_margin_v, 0, 1000, kOpen,
+            "V_br - V_bias at the nominal temperature (sets dM/dT at fixed bias)"),
+      field("receiver.bias_temperature_compensated", &rx.bias_temperature_compensated,
+            "APD bias tracks the breakdown voltage, holding M constant (paper's design)"),
+
+      // environment: sunlight, atmosphere, air
+      field("environment.solar_irradiance_w_per_m2_um", &env.solar_irradiance_w_per_m2_um, 0, 3000,
+            kClosed, "solar spectral irradiance H at the wavelength, Table 1"),
+      field("environment.sun_angle_deg", &env.sun_angle_deg, 0, 90, kClosed,
+            "angle between sun and target normal theta, Table 1"),
+      field("environment.sky_radiance_w_per_m2_sr_um", &env.sky_radiance_w_per_m2_sr_um, 0, 1e4,
+            kClosed, "sky spectral radiance N (Eq. 9); the paper's case has none"),
+      field("environment.atmospheric_transmission", &env.atmospheric_transmission, 0, 1, kOpen,
+            "one-way atmospheric transmission Ta, Table 1"),
+      field("environment.pressure_hpa", &env.pressure_hpa, 100, 1200, kClosed,
+            "air pressure, for the group index of air"),
+      field("environment.relative_humidity_pct", &env.relative_humidity_pct, 0, 100, kClosed,
+            "relative humidity, for the group index of air"),
+
+      // discriminator, TDC
+      field("discriminator.threshold_v", &disc.threshold_v, 0, 100, kOpen,
+            "comparator threshold. Assumption: rho = 0.1 echoes fade out past 8 m (paper: 8.08 m)"),
+      field("tdc.lsb_ps", &tdc.lsb_ps, 0, 1e6, kOpen,
+            "fine interpolator LSB (FPGA carry-chain TDC). Assumption"),
+      field("tdc.coarse_clock_mhz", &tdc.coarse_clock_mhz, 0, 1e5, kOpen,
+            "coarse counter clock. Assumption"),
+      field("tdc.inl_lsb", &tdc.inl_lsb, 0, 1000, kClosed,
+            "peak integral nonlinearity of the interpolator, LSB. Assumption"),
+
+      // thermal: delay drift, sensor, warm-up
+      field("thermal.knee_c", &th.knee_c, -100, 200, kClosed,
+            "temperature above which delay drift is linear (paper Section 5.2: 16 C)"),
+      field("thermal.delay_coeff_mm_per_c", &th.delay_coeff_mm_per_c, -1000, 1000, kClosed,
+            "range drift above the knee (paper Section 5.2: 3.8 mm/C)"),
+      field("thermal.below_knee_coeff_mm_per_c2", &th.below_knee_coeff_mm_per_c2, -100, 100,
+            kClosed, "small quadratic drift below the knee, mm/C^2"),
+      field("thermal.self_heating_c", &th.self_heating_c, 0, 100, kClosed,
+            "steady-state internal rise above ambient. Assumption"),
+      field("thermal.warmup_time_constant_min", &th.warmup_time_constant_min, 0, 1e4, kOpen,
+            "internal temperature time constant after power-on (thesis: 25-35 min). Assumption"),
+      field("thermal.warmup_delay_coeff_mm_per_c", &th.warmup_delay_coeff_mm_per_c, -1000, 1000,
+            kClosed, "extra delay drift while the board warms up. Assumption"),
+      field("thermal.sensor_resolution_c", &th.sensor_resolution_c, 0, 10, kClosed,
+            "temperature sensor LSB (0: continuous)"),
+      field("thermal.sensor_noise_c", &th.sensor_noise_c, 0, 10, kClosed,
+            "temperature sensor noise (1 sigma)"),
+
+      // measurement: timing and averaging
+      field("measurement.shots", &m.shots, 1, 1e7, "shots averaged per output"),
+      field("measurement.fixed_delay_ns", &m.fixed_delay_ns, 0, 1e4, kClosed,
+            "trigger-to-emission plus receive-chain delay at the knee. Assumption"),
+      field("measurement.window_ns", &m.window_ns, 0, 1e5, kOpen,
+            "waveform-mode record length around the echo"),
+      field("measurement.sample_period_ps", &m.sample_period_ps, 0, 1e6, kOpen,
+            "waveform-mode sampling period"),
+      field("measurement.reference_temperature_c", &m.reference_temperature_c, -100, 200, kClosed,
+            "air temperature the device assumes for the speed of light"),
+  };
+}
+
+double field_value(const ConfigField& field) {
+  return std::visit(
+      [](auto* p) -> double {
+        using T = std::remove_pointer_t<decltype(p)>;
+        if constexpr (std::is_same_v<T, bool>) {
+          return *p ? 1.0 : 0.0;
+        } else {
+          return static_cast<double>(*p);
+        }
+      },
+      field.value);
+}
+
+std::vector<std::string> validate(const DeviceConfig& config) {
+  DeviceConfig copy = config;  // config_fields binds mutable pointers
+  std::vector<std::string> messages;
+  for (const auto& f : config_fields(copy)) {
+    const double v = field_value(f);
+    if (!in_range(f, v)) {
+      messages.push_back(f.key + " = " + number_text(v) + " is out of range " + range_text(f));
+    }
+  }
+  // Cross-field checks; each message starts with the key it blames.
+  const auto& laser = config.link.laser;
+  if (laser.pulse_width_ns > 0 && laser.repetition_hz > 0 &&
+      laser.pulse_width_ns * 1e-9 * laser.repetition_hz >= 1.0) {
+    messages.push_back("laser.pulse_width_ns = " + number_text(laser.pulse_width_ns) +
+                       " is not shorter than the pulse period 1 / laser.repetition_hz");
+  }
+  const auto& m = config.measurement;
+  if (m.window_ns > 0 && m.sample_period_ps > 0 && m.window_ns * 1e3 / m.sample_period_ps > 1e7) {
+    messages.push_back("measurement.sample_period_ps = " + number_text(m.sample_period_ps) +
+                       " gives more than 1e7 samples per measurement.window_ns");
+  }
+  return messages;
+}
+
+DeviceConfig preset(std::string_view name) {
+  if (name == "paper") return DeviceConfig{};
+  if (name == "accurange") return accurange_config();
+  std::string names;
+  for (const auto& n : preset_names()) names += (names.empty() ? "" : ", ") + n;
+  throw std::invalid_argument("unknown preset '" + std::string(name) + "' (known: " + names + ")");
+}
+
+std::vector<std::string> preset_names() {
+  return {"paper", "accurange"};
+}
+
+}  // namespace tofkit::device

@@ -1,0 +1,108 @@
+#include "tofkit/experiments/characterization_sampling.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <stdexcept>
+
+namespace tofkit::experiments {
+
+void SamplingOptions::validate() const {
+  auto fail = [](const std::string& what) { throw std::invalid_argument("sampling: " + what); };
+  if (!(distance_m > 0)) fail("distance_m must be > 0");
+  if (!(reflectance > 0 && reflectance <= 1)) fail("reflectance must be in (0, 1]");
+  if (min_exponent < 0 || max_exponent > 20 || min_exponent > max_exponent)
+    fail("exponents must satisfy 0 <= min_exponent <= max_exponent <= 20");
+  if (samples_per_setting < 3) fail("samples_per_setting must be >= 3");
+}
+
+SamplingResult run_sampling(const device::VirtualRangefinder& device,
+                            const SamplingOptions& options, std::uint64_t seed) {
+  options.validate();
+  SamplingResult result;
+  result.options = options;
+  const auto target = device::Target::plate(options.distance_m, options.reflectance);
+  device::Conditions c;
+  c.ambient_c = options.ambient_c;
+  const auto per = static_cast<std::size_t>(options.samples_per_setting);
+  std::vector<device::MeasureRequest> requests;
+  for (int e = options.min_exponent; e <= options.max_exponent; ++e) {
+    for (std::size_t k = 0; k < per; ++k) requests.push_back({target, c, 1 << e});
+  }
+  const std::vector<ranging::GroundTruth> truths(requests.size(), plate_truth(target, c));
+  result.records = measure_records(device, requests, truths, seed);
+
+  const auto errors = range_errors_m(result.records);
+  std::vector<double> log_shots, log_sd;
+  for (int e = options.min_exponent; e <= options.max_exponent; ++e) {
+    const std::size_t begin = static_cast<std::size_t>(e - options.min_exponent) * per;
+    const auto err = std::span<const double>(errors).subspan(begin, per);
+    const auto s = sample_stats(err);
+    double ss = 0;
+    for (const double v : err) {
+      if (std::isfinite(v)) ss += v * v;
+    }
+    SamplingRow row;
+    row.exponent = e;
+    row.shots = 1 << e;
+    row.sampling_rate_hz = output_rate_hz(device, row.shots);
+    row.mean_range_m = options.distance_m + s.mean;
+    row.sd_range_m = s.sd;
+    row.rms_error_m = s.count ? std::sqrt(ss / static_cast<double>(s.count)) : ranging::kNaN;
+    row.sd_times_sqrt_shots_m = s.sd * std::sqrt(static_cast<double>(row.shots));
+    result.rows.push_back(row);
+    log_shots.push_back(std::log(static_cast<double>(row.shots)));
+    log_sd.push_back(std::log(s.sd));
+  }
+  result.log_slope = fit_line(log_shots, log_sd).slope;
+  std::vector<double> scaled;
+  for (const auto& r : result.rows) scaled.push_back(r.sd_times_sqrt_shots_m);
+  std::sort(scaled.begin(), scaled.end());
+  const double median = scaled[scaled.size() / 2];
+  result.max_scaling_deviation = 0;
+  for (const auto& r : result.rows) {
+    result.max_scaling_deviation =
+        std::max(result.max_scaling_deviation, std::abs(r.sd_times_sqrt_shots_m / median - 1.0));
+  }
+  return result;
+}
+
+std::vector<Finding> SamplingResult::findings() const {
+  std::vector<Finding> f{{"log_slope_sd_vs_shots", log_slope, ""},
+                         {"max_scaling_deviation", max_scaling_deviation, ""}};
+  for (const auto& r : rows) {
+    f.push_back({"sd_mm_at_" + std::to_string(r.shots) + "_shots", r.sd_range_m * 1e3, "mm"});
+  }
+  return f;
+}
+
+ResultTable SamplingResult::table() const {
+  ResultTable t{"settings",
+                {"exponent", "shots", "sampling_rate_hz", "mean_range_m", "sd_range_m",
+                 "rms_error_m", "sd_times_sqrt_shots_m"},
+                {}};
+  for (const auto& r : rows) {
+    t.rows.push_back({double(r.exponent), double(r.shots), r.sampling_rate_hz, r.mean_range_m,
+                      r.sd_range_m, r.rms_error_m, r.sd_times_sqrt_shots_m});
+  }
+  return t;
+}
+
+std::string SamplingResult::summary() const {
+  std::string out = "sampling rate vs resolution (thesis Fig. 4.4) at " +
+                    std::to_string(m_to_inches(options.distance_m)).substr(0, 5) + " in:\n";
+  out += "     N   shots   rate [1/s]   mean [in]   sd [mm]   rms [in]   sd*sqrt(n) [mm]\n";
+  char line[160];
+  for (const auto& r : rows) {
+    std::snprintf(line, sizeof line, "  %4d  %6d  %11.3f  %10.4f  %8.4f  %9.4f  %10.3f\n",
+                  r.exponent, r.shots, r.sampling_rate_hz, m_to_inches(r.mean_range_m),
+                  r.sd_range_m * 1e3, m_to_inches(r.rms_error_m), r.sd_times_sqrt_shots_m * 1e3);
+    out += line;
+  }
+  std::snprintf(line, sizeof line,
+                "  spread ~ shots^%.3f (1/sqrt: -0.5); sd*sqrt(n) within %.1f %% of its median\n",
+                log_slope, 100.0 * max_scaling_deviation);
+  return out + line;
+}
+
+}  // namespace tofkit::experiments

@@ -1,0 +1,277 @@
+#include "tofkit/experiments/paper_study.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/measurement_grid.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+
+namespace tofkit::experiments {
+namespace {
+
+using ranging::Record;
+
+/// Seeds of the separate runs: calibration and every test set are independent.
+enum RunSeed : std::uint64_t {
+  kCalibrationRun = 1,
+  kGrayvalueTestRun,
+  kTemperatureTestRun,
+  kMaxRangeRun,
+  kVerificationRun,
+  kHoldoutRun,
+};
+
+std::vector<ranging::RawMeasurement> raw_of(const std::vector<Record>& records) {
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(records.size());
+  for (const auto& r : records) raw.push_back(r.raw);
+  return raw;
+}
+
+std::vector<ranging::Range> correct(const ranging::Pipeline& pipeline,
+                                    const std::vector<Record>& records) {
+  const auto raw = raw_of(records);
+  std::vector<ranging::Range> out(raw.size());
+  pipeline.apply(raw, out);
+  return out;
+}
+
+/// A measurement counts when at least `share` of its shots gave an echo.
+bool reliable(const Record& r, int shots, double share) {
+  return r.raw.has_echo() && r.raw.shots_valid >= share * shots;
+}
+
+AccuracyFigures accuracy_of(const std::vector<Record>& records, std::span<const double> corrected_m,
+                            const ranging::Pipeline& pipeline, double distance_m) {
+  AccuracyFigures f;
+  f.distance_m = distance_m;
+  std::vector<double> errors;
+  double raw_min = 1e300, raw_max = -1e300;
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    if (!std::isfinite(corrected_m[i])) continue;
+    errors.push_back(corrected_m[i] - records[i].truth.distance_m);
+    const double raw = pipeline.start_distance_m(records[i].raw);
+    raw_min = std::min(raw_min, raw);
+    raw_max = std::max(raw_max, raw);
+  }
+  f.rows = errors.size();
+  if (errors.empty()) return f;
+  double mean = 0, worst = 0;
+  for (double e : errors) {
+    mean += e;
+    worst = std::max(worst, std::abs(e));
+  }
+  mean /= static_cast<double>(errors.size());
+  double var = 0;
+  for (double e : errors) var += (e - mean) * (e - mean);
+  f.std_mm = 1e3 * std::sqrt(var / static_cast<double>(errors.size()));
+  f.accuracy_mm = 1e3 * worst;
+  f.mean_error_mm = 1e3 * mean;
+  f.raw_spread_mm = 1e3 * (raw_max - raw_min);
+  return f;
+}
+
+std::vector<double> distances_of(const std::vector<ranging::Range>& ranges) {
+  std::vector<double> d;
+  d.reserve(ranges.size());
+  for (const auto& r : ranges) d.push_back(r.distance_m);
+  return d;
+}
+
+}  // namespace
+
+PaperStudyResult run_paper_study(const device::DeviceConfig& config,
+                                 const PaperStudyOptions& options,
+                                 std::span<const PaperTable2Row> paper_table2) {
+  auto progress = [&](std::string_view stage, double done) {
+    if (options.progress) options.progress(stage, done);
+  };
+  PaperStudyResult result;
+  const int shots = config.measurement.shots;
+  const int repeats = std::max(1, options.repeats);
+
+  // Figure 3: the link budget with Table 1 (sunlit target).
+  progress("link budget", 0.0);
+  for (double r = 0.5; r <= 15.0 + 1e-9; r += 0.5)
+    result.link_budget.push_back(physics::link_budget_at(config.link, r, 0.1));
+  result.range_at_snr10_m = physics::range_at_snr(config.link, 10.0, 0.1);
+
+  const device::VirtualRangefinder device(indoors(config), device::SimulationMode::kAnalytic);
+  auto run_seed = [&](RunSeed run) { return options.seed * 1000003ULL + run; };
+
+  // Calibration: plates at 2.355 m (and more distances), then the temperature sweep.
+  progress("calibration", 0.05);
+  const auto reflectances =
+      log_spaced(options.reflectance_min, options.reflectance_max, options.grayvalue_groups);
+  std::vector<PlannedMeasurement> plan;
+  std::vector<double> calibration_distances{options.grayvalue_distance_m};
+  calibration_distances.insert(calibration_distances.end(),
+                               options.extra_calibration_distances_m.begin(),
+                               options.extra_calibration_distances_m.end());
+  for (double d : calibration_distances)
+    for (double rho : reflectances)
+      for (int k = 0; k < repeats; ++k) plan.push_back(plate(d, rho, options.calibration_ambient_c));
+  const auto ambients = lin_spaced(options.ambient_min_c, options.ambient_max_c,
+                                   options.temperature_groups);
+  for (double t : ambients)
+    for (int k = 0; k < repeats; ++k)
+      plan.push_back(plate(options.temperature_distance_m, options.temperature_reflectance, t));
+  result.calibration = run(device, plan, run_seed(kCalibrationRun));
+  // Keep only measurements a calibration would accept (90 % of shots echoed).
+  std::vector<Record> usable;
+  for (const auto& r : result.calibration)
+    if (reliable(r, shots, options.max_range_min_valid_share)) usable.push_back(r);
+
+  progress("fitting the chain", 0.25);
+  calib::ChainFitOptions fit_options;
+  fit_options.grayvalue.max_knots = options.grayvalue_max_knots;
+  fit_options.temperature.max_knots = options.temperature_max_knots;
+  // Most calibration rows share one temperature (the plates); only the sweep
+  // spreads it, so a temperature segment needs a few sweep groups, not a share.
+  fit_options.temperature.min_segment_fraction = 0.0;
+  fit_options.temperature.min_segment_rows = static_cast<std::size_t>(3 * repeats);
+  // A robust scale taken from the MAD would come from the plates' single
+  // temperature and call the whole sweep an outlier: plain least squares here.
+  fit_options.temperature.robust.loss = calib::RobustLoss::kNone;
+  result.fit = calib::fit_chain(usable, fit_options);
+  const auto& pipeline = result.fit.pipeline;
+  result.calibration_corrected = correct(pipeline, result.calibration);
+
+  // Fixed point: averaged TDC codes keep 6 fractional bits (>= 64 shots per output).
+  ranging::FixedPointFormat format;
+  format.tdc_lsb_ps = config.tdc.lsb_ps / 64.0;
+  format.pulse_width_lsb_ps = config.tdc.lsb_ps / 64.0;
+  format.temperature_lsb_c = config.thermal.sensor_resolution_c;
+  const auto fixed = ranging::FixedPointChain::from_pipeline(pipeline, format);
+  result.fixed_point = fixed.coefficients();
+  auto fixed_distances = [&](const std::vector<Record>& records) {
+    std::vector<double> out;
+    for (const auto& r : records) {
+      const auto o = fixed.apply(fixed.to_codes(r.raw));
+      out.push_back(o.distance_um == ranging::kFixedNoDistance ? ranging::kNaN
+                                                               : 1e-6 * o.distance_um);
+    }
+    return out;
+  };
+  auto track_fixed_vs_float = [&](const std::vector<Record>& records,
+                                  const std::vector<ranging::Range>& ranges) {
+    const auto f = fixed_distances(records);
+    for (std::size_t i = 0; i < f.size(); ++i)
+      if (std::isfinite(f[i]) && std::isfinite(ranges[i].distance_m))
+        result.fixed_vs_float_max_diff_mm = std::max(
+            result.fixed_vs_float_max_diff_mm, 1e3 * std::abs(f[i] - ranges[i].distance_m));
+  };
+  track_fixed_vs_float(result.calibration, result.calibration_corrected);
+
+  // Gray-value test at 2.355 m through the fixed-point chain (paper Figure 7).
+  progress("gray-value test", 0.35);
+  plan.clear();
+  for (double rho : reflectances)
+    plan.push_back(plate(options.grayvalue_distance_m, rho, options.calibration_ambient_c));
+  result.grayvalue_test = run(device, plan, run_seed(kGrayvalueTestRun));
+  result.grayvalue_corrected = correct(pipeline, result.grayvalue_test);
+  track_fixed_vs_float(result.grayvalue_test, result.grayvalue_corrected);
+  result.grayvalue_fixed_point_m = fixed_distances(result.grayvalue_test);
+  result.grayvalue = accuracy_of(result.grayvalue_test, result.grayvalue_fixed_point_m, pipeline,
+                                 options.grayvalue_distance_m);
+
+  // Temperature test at 2.402 m (paper Figure 9).
+  progress("temperature test", 0.45);
+  plan.clear();
+  for (double t : ambients)
+    plan.push_back(plate(options.temperature_distance_m, options.temperature_reflectance, t));
+  result.temperature_test = run(device, plan, run_seed(kTemperatureTestRun));
+  result.temperature_corrected = correct(pipeline, result.temperature_test);
+  track_fixed_vs_float(result.temperature_test, result.temperature_corrected);
+  const auto temperature_m = distances_of(result.temperature_corrected);
+  result.temperature =
+      accuracy_of(result.temperature_test, temperature_m, pipeline, options.temperature_distance_m);
+
+  // Longest achievable distance on the black foam plate (paper Figure 10).
+  progress("longest distance", 0.55);
+  plan.clear();
+  for (double d = 5.0; d <= 12.0 + 1e-9; d += options.max_range_step_m)
+    plan.push_back(plate(d, options.max_range_reflectance, options.calibration_ambient_c));
+  result.max_range_scan = run(device, plan, run_seed(kMaxRangeRun));
+  for (const auto& r : result.max_range_scan) {
+    if (!reliable(r, shots, options.max_range_min_valid_share)) break;
+    result.max_range_m = r.truth.distance_m;
+  }
+
+  // Verification from 1 to 8 m (Table 2).
+  progress("verification", 0.65);
+  plan.clear();
+  for (double d : options.verification_distances_m)
+    for (int k = 0; k < repeats; ++k)
+      plan.push_back(plate(d, options.verification_reflectance, options.calibration_ambient_c));
+  result.verification = run(device, plan, run_seed(kVerificationRun));
+  result.verification_corrected = correct(pipeline, result.verification);
+  track_fixed_vs_float(result.verification, result.verification_corrected);
+  for (double d : options.verification_distances_m) {
+    double sum = 0;
+    int n = 0;
+    for (std::size_t i = 0; i < result.verification.size(); ++i) {
+      if (result.verification[i].truth.distance_m != d) continue;
+      if (!std::isfinite(result.verification_corrected[i].distance_m)) continue;
+      sum += result.verification_corrected[i].distance_m;
+      ++n;
+    }
+    VerificationRow row;
+    row.actual_m = d;
+    row.measured_m = n > 0 ? sum / n : ranging::kNaN;
+    row.deviation_mm = 1e3 * (d - row.measured_m);  // Table 2's sign: actual - measured
+    for (const auto& p : paper_table2) {
+      if (std::abs(p.actual_value_m - d) < 0.05) {
+        row.paper_measured_m = p.ranging_value_m;
+        row.paper_deviation_mm = 1e3 * p.deviation_m;
+      }
+    }
+    result.verification_rows.push_back(row);
+  }
+
+  // Held-out grid: distances x reflectances x ambient temperatures, never fitted.
+  progress("held-out grid", 0.75);
+  plan.clear();
+  for (double d : options.holdout_distances_m)
+    for (double rho : options.holdout_reflectances)
+      for (double t : options.holdout_ambient_c) plan.push_back(plate(d, rho, t));
+  result.holdout = run(device, plan, run_seed(kHoldoutRun));
+  result.holdout_corrected = correct(pipeline, result.holdout);
+  track_fixed_vs_float(result.holdout, result.holdout_corrected);
+  std::vector<double> corrected_errors, raw_errors;
+  for (std::size_t i = 0; i < result.holdout.size(); ++i) {
+    const auto& r = result.holdout[i];
+    if (!reliable(r, shots, options.max_range_min_valid_share)) {
+      ++result.holdout_rows_without_echo;
+      continue;
+    }
+    corrected_errors.push_back(r.truth.distance_m - result.holdout_corrected[i].distance_m);
+    raw_errors.push_back(r.truth.distance_m - pipeline.start_distance_m(r.raw));
+  }
+  result.holdout_stats = calib::error_stats(corrected_errors);
+  result.holdout_raw_stats = calib::error_stats(raw_errors);
+  progress("done", 1.0);
+  return result;
+}
+
+std::string PaperStudyResult::summary() const {
+  std::ostringstream s;
+  s.setf(std::ios::fixed);
+  s.precision(2);
+  s << "range at SNR 10: " << range_at_snr10_m << " m; longest distance: " << max_range_m
+    << " m\n";
+  s << "gray-value at " << grayvalue.distance_m << " m: std " << grayvalue.std_mm
+    << " mm, accuracy +-" << grayvalue.accuracy_mm << " mm (raw spread " << grayvalue.raw_spread_mm
+    << " mm)\n";
+  s << "temperature at " << temperature.distance_m << " m: std " << temperature.std_mm
+    << " mm, accuracy +-" << temperature.accuracy_mm << " mm\n";
+  s << "held out (" << holdout_stats.rows << " rows): max |error| " << 1e3 * holdout_stats.max_abs_m
+    << " mm, RMS " << 1e3 * holdout_stats.rms_m << " mm (uncorrected RMS "
+    << 1e3 * holdout_raw_stats.rms_m << " mm)\n";
+  s << "fixed point vs float: max " << fixed_vs_float_max_diff_mm << " mm\n";
+  return s.str();
+}
+
+}  // namespace tofkit::experiments

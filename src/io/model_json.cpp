@@ -1,0 +1,239 @@
+#include "tofkit/io/model_json.hpp"
+
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/surface_json.hpp"
+
+namespace tofkit::io {
+namespace {
+
+using nlohmann::json;
+
+constexpr const char* kKind = "tofkit.pipeline";
+constexpr int kVersion = 1;
+
+[[noreturn]] void fail(const std::string& where, const std::string& what) {
+  throw std::runtime_error(where + ": " + what);
+}
+
+const json& field(const json& j, const char* key, const std::string& where) {
+  if (!j.is_object()) fail(where, "expected an object");
+  const auto it = j.find(key);
+  if (it == j.end()) fail(where, std::string("missing field '") + key + "'");
+  return *it;
+}
+
+double number(const json& j, const std::string& where) {
+  if (!j.is_number()) fail(where, "expected a number");
+  return j.get<double>();
+}
+
+double number(const json& j, const char* key, const std::string& where) {
+  return number(field(j, key, where), where + "." + key);
+}
+
+/// null (or absent) -> `missing`.
+double number_or(const json& j, const char* key, const std::string& where, double missing) {
+  if (!j.is_object()) fail(where, "expected an object");
+  const auto it = j.find(key);
+  if (it == j.end() || it->is_null()) return missing;
+  return number(*it, where + "." + key);
+}
+
+json finite_or_null(double v) {
+  return std::isfinite(v) ? json(v) : json(nullptr);
+}
+
+std::vector<double> numbers(const json& j, const char* key, const std::string& where) {
+  const json& v = field(j, key, where);
+  const std::string here = where + "." + key;
+  if (!v.is_array()) fail(here, "expected an array of numbers");
+  std::vector<double> out;
+  for (std::size_t k = 0; k < v.size(); ++k) {
+    out.push_back(number(v[k], here + "[" + std::to_string(k) + "]"));
+  }
+  return out;
+}
+
+std::string text(const json& j, const char* key, const std::string& where) {
+  const json& v = field(j, key, where);
+  if (!v.is_string()) fail(where + "." + key, "expected a string");
+  return v.get<std::string>();
+}
+
+json fit_to_json(const ranging::StepFitInfo& fit) {
+  return {{"rows", fit.rows}, {"residual_rms_m", finite_or_null(fit.residual_rms_m)}};
+}
+
+ranging::StepFitInfo fit_from_json(const json& step, const std::string& where) {
+  ranging::StepFitInfo fit;
+  const auto it = step.find("fit");
+  if (it == step.end() || it->is_null()) return fit;
+  const std::string here = where + ".fit";
+  if (!it->is_object()) fail(here, "expected an object");
+  const auto rows = it->find("rows");
+  if (rows != it->end()) {
+    if (!rows->is_number_unsigned() &&
+        !(rows->is_number_integer() && rows->get<long long>() >= 0)) {
+      fail(here + ".rows", "expected a non-negative integer");
+    }
+    fit.rows = rows->get<std::size_t>();
+  }
+  fit.residual_rms_m = number_or(*it, "residual_rms_m", here, ranging::kNaN);
+  return fit;
+}
+
+json step_to_json(const ranging::Step& step) {
+  json j;
+  j["kind"] = std::string(ranging::step_kind_name(step.kind));
+  switch (step.kind) {
+    case ranging::StepKind::kOffset:
+      j["offset_m"] = step.offset_m;
+      break;
+    case ranging::StepKind::kGrayvalue:
+    case ranging::StepKind::kTemperature:
+      j["input"] = step.kind == ranging::StepKind::kGrayvalue ? "pulse_width_ns" : "temperature_c";
+      j["function"] = {{"x0", step.function.x0},
+                       {"intercept", step.function.intercept},
+                       {"slope0", step.function.slope0},
+                       {"knots", step.function.knots},
+                       {"slopes", step.function.slopes}};
+      j["domain"] = {{"min", finite_or_null(step.domain.min)},
+                     {"max", finite_or_null(step.domain.max)}};
+      break;
+    case ranging::StepKind::kSurface:
+      j["surface"] = surface_to_json(*step.surface);
+      break;
+  }
+  j["fit"] = fit_to_json(step.fit);
+  return j;
+}
+
+ranging::Step step_from_json(const json& j, const std::string& where) {
+  ranging::StepKind kind;
+  try {
+    kind = ranging::step_kind_from_name(text(j, "kind", where));
+  } catch (const std::invalid_argument& e) {
+    fail(where + ".kind", e.what());
+  }
+  ranging::Step step;
+  step.kind = kind;
+  switch (kind) {
+    case ranging::StepKind::kOffset:
+      step.offset_m = number(j, "offset_m", where);
+      break;
+    case ranging::StepKind::kGrayvalue:
+    case ranging::StepKind::kTemperature: {
+      const std::string fw = where + ".function";
+      const json& f = field(j, "function", where);
+      step.function.x0 = number(f, "x0", fw);
+      step.function.intercept = number(f, "intercept", fw);
+      step.function.slope0 = number(f, "slope0", fw);
+      step.function.knots = numbers(f, "knots", fw);
+      step.function.slopes = numbers(f, "slopes", fw);
+      const json& d = field(j, "domain", where);
+      step.domain.min =
+          number_or(d, "min", where + ".domain", -std::numeric_limits<double>::infinity());
+      step.domain.max =
+          number_or(d, "max", where + ".domain", std::numeric_limits<double>::infinity());
+      break;
+    }
+    case ranging::StepKind::kSurface:
+      step.surface = surface_from_json(field(j, "surface", where), where + ".surface");
+      break;
+  }
+  step.fit = fit_from_json(j, where);
+  try {
+    step.validate();
+  } catch (const std::invalid_argument& e) {
+    fail(where, e.what());
+  }
+  return step;
+}
+
+}  // namespace
+
+json pipeline_to_json(const ranging::Pipeline& pipeline, const json& fit) {
+  const ranging::TimeToDistance& t = pipeline.time_to_distance();
+  json j;
+  j["kind"] = kKind;
+  j["version"] = kVersion;
+  j["time_to_distance"] = {{"wavelength_nm", t.wavelength_nm},
+                           {"air",
+                            {{"temperature_c", t.air.temperature_c},
+                             {"pressure_hpa", t.air.pressure_hpa},
+                             {"relative_humidity_pct", t.air.relative_humidity_pct}}},
+                           {"metres_per_ns", ranging::metres_per_ns(t)}};
+  json steps = json::array();
+  for (const ranging::Step& step : pipeline.steps()) steps.push_back(step_to_json(step));
+  j["steps"] = std::move(steps);
+  if (pipeline.confidence()) j["confidence"] = confidence_to_json(*pipeline.confidence());
+  j["residual_rms_m"] = finite_or_null(pipeline.residual_rms_m());
+  if (!fit.is_null()) j["fit"] = fit;
+  return j;
+}
+
+ranging::Pipeline pipeline_from_json(const json& j, const std::string& context) {
+  if (!j.is_object()) fail(context, "expected a JSON object");
+  const std::string kind = text(j, "kind", context);
+  if (kind != kKind) fail(context + ".kind", "is \"" + kind + "\", expected \"" + kKind + "\"");
+  const json& version = field(j, "version", context);
+  if (!version.is_number_integer() || version.get<long long>() != kVersion) {
+    fail(context + ".version", "unsupported version " + version.dump() + " (this tofkit reads " +
+                                   std::to_string(kVersion) + ")");
+  }
+  const std::string tw = context + ".time_to_distance";
+  const json& tj = field(j, "time_to_distance", context);
+  ranging::TimeToDistance t;
+  t.wavelength_nm = number(tj, "wavelength_nm", tw);
+  const json& air = field(tj, "air", tw);
+  t.air.temperature_c = number(air, "temperature_c", tw + ".air");
+  t.air.pressure_hpa = number(air, "pressure_hpa", tw + ".air");
+  t.air.relative_humidity_pct = number(air, "relative_humidity_pct", tw + ".air");
+  ranging::Pipeline pipeline;
+  try {
+    pipeline = ranging::Pipeline(t);
+  } catch (const std::invalid_argument& e) {
+    fail(tw, e.what());
+  }
+  const json& steps = field(j, "steps", context);
+  if (!steps.is_array()) fail(context + ".steps", "expected an array");
+  for (std::size_t s = 0; s < steps.size(); ++s) {
+    pipeline.add_step(step_from_json(steps[s], context + ".steps[" + std::to_string(s) + "]"));
+  }
+  const auto confidence = j.find("confidence");
+  if (confidence != j.end() && !confidence->is_null()) {
+    pipeline.set_confidence(confidence_from_json(*confidence, context + ".confidence"));
+  }
+  const double rms = number_or(j, "residual_rms_m", context, ranging::kNaN);
+  if (rms < 0) fail(context + ".residual_rms_m", "must not be negative");
+  pipeline.set_residual_rms_m(rms);
+  return pipeline;
+}
+
+void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& pipeline,
+                   const json& fit) {
+  const std::string text = pipeline_to_json(pipeline, fit).dump(2) + "\n";
+  write_file_atomically(path, text);
+}
+
+ranging::Pipeline load_pipeline(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) fail(path.string(), "cannot open the model file");
+  json j;
+  try {
+    j = json::parse(in);
+  } catch (const json::parse_error& e) {
+    fail(path.string(), std::string("not valid JSON: ") + e.what());
+  }
+  return pipeline_from_json(j, path.string());
+}
+
+}  // namespace tofkit::io

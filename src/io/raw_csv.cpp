@@ -1,0 +1,304 @@
+#include "tofkit/io/raw_csv.hpp"
+
+#include <fmt/format.h>
+
+#include <array>
+#include <charconv>
+#include <cmath>
+#include <fstream>
+#include <iterator>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "tofkit/io/atomic_file.hpp"
+
+namespace tofkit::io {
+namespace {
+
+namespace fs = std::filesystem;
+using ranging::Range;
+using ranging::Record;
+
+// Every column either table may have; raw ones first, in file order.
+enum Column : std::size_t {
+  kDistanceTrue,
+  kReflectance,
+  kAngle,
+  kAmbient,
+  kTof,
+  kDistanceRaw,
+  kPulseWidth,
+  kAmplitude,
+  kTemperature,
+  kShotsValid,
+  kFlags,
+  kDistance,
+  kSigma,
+  kCorrectionFlags,
+  kColumnCount
+};
+constexpr std::size_t kRawColumnCount = kDistance;
+
+constexpr std::array<std::string_view, kColumnCount> kColumnNames = {
+    "distance_true_m", "reflectance",    "angle_deg", "ambient_c",       "tof_ns",
+    "distance_raw_m",  "pulse_width_ns", "amplitude", "temperature_c",   "shots_valid",
+    "flags",           "distance_m",     "sigma_m",   "correction_flags"};
+
+bool is_integer_column(std::size_t c) {
+  return c == kShotsValid || c == kFlags || c == kCorrectionFlags;
+}
+
+// NaN is an empty field; everything else shortest round-trip ("{}").
+void append_number(fmt::memory_buffer& out, double v) {
+  if (!std::isnan(v)) fmt::format_to(std::back_inserter(out), "{}", v);
+}
+
+void append_record(fmt::memory_buffer& out, const Record& r) {
+  const auto& t = r.truth;
+  const auto& m = r.raw;
+  for (const double v : {t.distance_m, t.reflectance, t.angle_deg, t.ambient_c, m.tof_ns,
+                         m.distance_raw_m, m.pulse_width_ns, m.amplitude, m.temperature_c}) {
+    append_number(out, v);
+    out.push_back(',');
+  }
+  fmt::format_to(std::back_inserter(out), "{},{}", m.shots_valid, m.flags);
+}
+
+void append_header(fmt::memory_buffer& out, std::size_t columns) {
+  for (std::size_t c = 0; c < columns; ++c) {
+    if (c > 0) out.push_back(',');
+    out.append(kColumnNames[c]);
+  }
+  out.push_back('\n');
+}
+
+void write_buffer(std::ostream& os, const fmt::memory_buffer& buffer) {
+  os.write(buffer.data(), static_cast<std::streamsize>(buffer.size()));
+}
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.remove_suffix(1);
+  return s;
+}
+
+void split_fields(std::string_view line, std::vector<std::string_view>& fields) {
+  fields.clear();
+  std::size_t start = 0;
+  for (;;) {
+    const std::size_t comma = line.find(',', start);
+    fields.push_back(
+        trim(line.substr(start, comma == std::string_view::npos ? comma : comma - start)));
+    if (comma == std::string_view::npos) return;
+    start = comma + 1;
+  }
+}
+
+// One parsed row: every known column's value, NaN / nullopt where absent.
+struct ParsedRow {
+  std::array<double, kColumnCount> number{};
+  std::array<std::uint32_t, kColumnCount> integer{};
+};
+
+class TableReader {
+ public:
+  TableReader(const fs::path& path, bool corrected) : path_(path), corrected_(corrected) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw std::runtime_error(path.string() + ": cannot open file");
+    std::ostringstream text;
+    text << in.rdbuf();
+    if (in.bad()) throw std::runtime_error(path.string() + ": read error");
+    text_ = std::move(text).str();
+  }
+
+  std::vector<CorrectedRow> read() {
+    std::vector<CorrectedRow> rows;
+    std::string_view rest = text_;
+    if (rest.substr(0, 3) == "\xEF\xBB\xBF") rest.remove_prefix(3);  // UTF-8 BOM
+    std::size_t line_number = 0;
+    bool have_header = false;
+    std::vector<std::string_view> fields;
+    while (!rest.empty()) {
+      const std::size_t newline = rest.find('\n');
+      std::string_view line = rest.substr(0, newline);
+      rest.remove_prefix(newline == std::string_view::npos ? rest.size() : newline + 1);
+      ++line_number;
+      if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+      if (trim(line).empty()) continue;
+      split_fields(line, fields);
+      if (!have_header) {
+        read_header(fields, line_number);
+        have_header = true;
+        continue;
+      }
+      rows.push_back(read_row(fields, line_number));
+    }
+    if (!have_header) throw std::runtime_error(path_.string() + ": empty file (no header row)");
+    return rows;
+  }
+
+ private:
+  [[noreturn]] void fail(std::size_t line, const std::string& what) const {
+    throw std::runtime_error(path_.string() + ":" + std::to_string(line) + ": " + what);
+  }
+
+  void read_header(const std::vector<std::string_view>& names, std::size_t line) {
+    header_size_ = names.size();
+    index_.fill(std::nullopt);
+    for (std::size_t i = 0; i < names.size(); ++i) {
+      for (std::size_t c = 0; c < kColumnCount; ++c) {
+        if (names[i] != kColumnNames[c]) continue;
+        if (index_[c]) {
+          fail(line, fmt::format("column '{}' appears twice (columns {} and {})", names[i],
+                                 *index_[c] + 1, i + 1));
+        }
+        index_[c] = i;
+      }
+    }
+    if (!index_[kTof] && !index_[kDistanceRaw]) {
+      fail(line, "header has neither 'tof_ns' nor 'distance_raw_m'");
+    }
+    if (corrected_ && !index_[kDistance]) fail(line, "header has no 'distance_m' column");
+  }
+
+  double parse_double(std::string_view field, std::size_t line, std::size_t column) const {
+    if (field.empty()) return ranging::kNaN;
+    const std::string_view digits = field.front() == '+' ? field.substr(1) : field;
+    double v = 0;
+    const auto [ptr, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), v);
+    if (digits.empty() || ptr != digits.data() + digits.size() ||
+        (ec != std::errc() && ec != std::errc::result_out_of_range)) {
+      fail(line, fmt::format("column {} ({}): '{}' is not a number", column + 1,
+                             column_name(column), field));
+    }
+    return v;
+  }
+
+  std::uint32_t parse_uint(std::string_view field, std::size_t line, std::size_t column) const {
+    std::uint32_t v = 0;
+    const auto [ptr, ec] = std::from_chars(field.data(), field.data() + field.size(), v);
+    if (field.empty() || ec != std::errc() || ptr != field.data() + field.size()) {
+      fail(line, fmt::format("column {} ({}): '{}' is not a non-negative 32-bit integer",
+                             column + 1, column_name(column), field));
+    }
+    return v;
+  }
+
+  std::string_view column_name(std::size_t file_column) const {
+    for (std::size_t c = 0; c < kColumnCount; ++c) {
+      if (index_[c] == file_column) return kColumnNames[c];
+    }
+    return "?";
+  }
+
+  CorrectedRow read_row(const std::vector<std::string_view>& fields, std::size_t line) const {
+    if (fields.size() != header_size_) {
+      fail(line, fmt::format("expected {} fields (as in the header), got {}", header_size_,
+                             fields.size()));
+    }
+    ParsedRow p;
+    for (std::size_t c = 0; c < kColumnCount; ++c) {
+      p.number[c] = ranging::kNaN;
+      if (!index_[c]) continue;
+      const std::size_t i = *index_[c];
+      if (is_integer_column(c)) {
+        p.integer[c] = parse_uint(fields[i], line, i);
+      } else {
+        p.number[c] = parse_double(fields[i], line, i);
+      }
+    }
+    CorrectedRow row;
+    auto& t = row.record.truth;
+    auto& m = row.record.raw;
+    t.distance_m = p.number[kDistanceTrue];
+    t.reflectance = p.number[kReflectance];
+    t.angle_deg = p.number[kAngle];
+    t.ambient_c = p.number[kAmbient];
+    m.tof_ns = p.number[kTof];
+    m.distance_raw_m = p.number[kDistanceRaw];
+    m.pulse_width_ns = p.number[kPulseWidth];
+    m.amplitude = p.number[kAmplitude];
+    m.temperature_c = p.number[kTemperature];
+    const bool has_distance = !std::isnan(m.tof_ns) || !std::isnan(m.distance_raw_m);
+    m.shots_valid = index_[kShotsValid] ? p.integer[kShotsValid] : (has_distance ? 1u : 0u);
+    m.flags = index_[kFlags] ? p.integer[kFlags] : (has_distance ? 0u : ranging::kRawNoEcho);
+    row.range.distance_m = p.number[kDistance];
+    row.range.sigma_m = p.number[kSigma];
+    row.range.correction_flags = index_[kCorrectionFlags] ? p.integer[kCorrectionFlags] : 0u;
+    return row;
+  }
+
+  fs::path path_;
+  bool corrected_;
+  std::string text_;
+  std::size_t header_size_ = 0;
+  std::array<std::optional<std::size_t>, kColumnCount> index_{};
+};
+
+}  // namespace
+
+std::span<const std::string_view> raw_csv_columns() {
+  return std::span<const std::string_view>(kColumnNames.data(), kRawColumnCount);
+}
+
+std::span<const std::string_view> corrected_csv_columns() {
+  return std::span<const std::string_view>(kColumnNames.data() + kRawColumnCount,
+                                           kColumnCount - kRawColumnCount);
+}
+
+void write_raw_csv(const fs::path& path, std::span<const Record> records) {
+  write_file_atomically(path, [&](std::ostream& os) {
+    fmt::memory_buffer buffer;
+    append_header(buffer, kRawColumnCount);
+    for (const auto& r : records) {
+      append_record(buffer, r);
+      buffer.push_back('\n');
+      if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
+        write_buffer(os, buffer);
+        buffer.clear();
+      }
+    }
+    write_buffer(os, buffer);
+  });
+}
+
+std::vector<Record> read_raw_csv(const fs::path& path) {
+  std::vector<CorrectedRow> rows = TableReader(path, false).read();
+  std::vector<Record> records;
+  records.reserve(rows.size());
+  for (const auto& row : rows) records.push_back(row.record);
+  return records;
+}
+
+void write_corrected_csv(const fs::path& path, std::span<const Record> records,
+                         std::span<const Range> ranges) {
+  if (records.size() != ranges.size()) {
+    throw std::invalid_argument(fmt::format("write_corrected_csv({}): {} records but {} ranges",
+                                            path.string(), records.size(), ranges.size()));
+  }
+  write_file_atomically(path, [&](std::ostream& os) {
+    fmt::memory_buffer buffer;
+    append_header(buffer, kColumnCount);
+    for (std::size_t i = 0; i < records.size(); ++i) {
+      append_record(buffer, records[i]);
+      buffer.push_back(',');
+      append_number(buffer, ranges[i].distance_m);
+      buffer.push_back(',');
+      append_number(buffer, ranges[i].sigma_m);
+      fmt::format_to(std::back_inserter(buffer), ",{}\n", ranges[i].correction_flags);
+      if (buffer.size() > (1u << 20)) {
+        write_buffer(os, buffer);
+        buffer.clear();
+      }
+    }
+    write_buffer(os, buffer);
+  });
+}
+
+std::vector<CorrectedRow> read_corrected_csv(const fs::path& path) {
+  return TableReader(path, true).read();
+}
+
+}  // namespace tofkit::io

@@ -1,0 +1,344 @@
+#include "tofkit/ranging/pipeline.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+namespace tofkit::ranging {
+namespace {
+
+/// Rows processed together: small enough that the column buffers stay in L1,
+/// large enough that each step's loop over them vectorizes and amortizes the
+/// dispatch on the step kind.
+constexpr std::size_t kBlock = 256;
+
+struct BlockBuffers {
+  std::array<double, kBlock> distance;
+  std::array<double, kBlock> pulse_width;
+  std::array<double, kBlock> temperature;
+  std::array<double, kBlock> amplitude;
+  std::array<double, kBlock> scratch_a;
+  std::array<double, kBlock> scratch_b;
+  std::array<double, kBlock> scratch_c;
+  std::array<std::uint32_t, kBlock> flags;
+  std::array<std::uint8_t, kBlock> out_of_domain;
+};
+
+/// distance += y(x) for a hinge folded to y = c + b0 x + sum_k s_k max(0, x - knot_k);
+/// x outside the fitted domain is flagged but still corrected (linear continuation).
+/// NaN x propagates into the distance (flagged non-finite at the end).
+void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double* x,
+               double* distance, std::uint32_t* flags, std::size_t n) {
+  const double constant = f.intercept - f.slope0 * f.x0;
+  const double slope0 = f.slope0;
+  const double lo = domain.min;
+  const double hi = domain.max;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double xi = x[i];
+    distance[i] += constant + slope0 * xi;
+    flags[i] |= (xi < lo || xi > hi) ? kCorrOutOfDomain : 0u;
+  }
+  for (std::size_t k = 0; k < f.knots.size(); ++k) {
+    const double knot = f.knots[k];
+    const double slope = f.slopes[k];
+    for (std::size_t i = 0; i < n; ++i) {
+      const double over = x[i] - knot;
+      // (over > 0 ? over : 0) keeps NaN as 0 here; the slope0 term already made it NaN.
+      distance[i] += slope * (over > 0.0 ? over : 0.0);
+    }
+  }
+}
+
+double midpoint(double lo, double hi) {
+  const double mid = 0.5 * (lo + hi);
+  return std::isfinite(mid) ? mid : 0.0;
+}
+
+/// A surface step on one block. NaN inputs are replaced by the domain's
+/// midpoint before evaluation (surfaces need not accept NaN) and the
+/// correction is then set to NaN.
+void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::size_t n) {
+  const calib::SurfaceDomain& d = surface.domain();
+  const bool uses_temperature = surface.uses_temperature();
+  double* range = b.scratch_a.data();
+  double* amplitude = b.scratch_b.data();
+  double* temperature = b.scratch_c.data();
+  std::array<double, kBlock> correction;
+  std::array<std::uint8_t, kBlock> missing;
+  const double range_mid = midpoint(d.range_min_m, d.range_max_m);
+  const double amplitude_mid = midpoint(d.amplitude_min, d.amplitude_max);
+  const double temperature_mid = midpoint(d.temperature_min_c, d.temperature_max_c);
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool bad = !std::isfinite(b.distance[i]) || !std::isfinite(b.amplitude[i]) ||
+                     (uses_temperature && !std::isfinite(b.temperature[i]));
+    missing[i] = bad ? 1 : 0;
+    range[i] = std::isfinite(b.distance[i]) ? b.distance[i] : range_mid;
+    amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : amplitude_mid;
+    temperature[i] = std::isfinite(b.temperature[i]) ? b.temperature[i] : temperature_mid;
+  }
+  calib::SurfaceInputs inputs{
+      std::span<const double>(range, n), std::span<const double>(amplitude, n),
+      uses_temperature ? std::span<const double>(temperature, n) : std::span<const double>()};
+  surface.evaluate(inputs, std::span<double>(correction.data(), n),
+                   std::span<std::uint8_t>(b.out_of_domain.data(), n));
+  for (std::size_t i = 0; i < n; ++i) {
+    if (missing[i] != 0) {
+      b.distance[i] = kNaN;
+      continue;
+    }
+    b.distance[i] += correction[i];
+    b.flags[i] |= b.out_of_domain[i] != 0 ? kCorrOutOfDomain : 0u;
+  }
+}
+
+void fill_sigma(const calib::ConfidenceModel* confidence, double residual_rms_m, BlockBuffers& b,
+                std::size_t n, double* sigma) {
+  if (confidence == nullptr) {
+    for (std::size_t i = 0; i < n; ++i) sigma[i] = residual_rms_m;
+  } else {
+    double* range = b.scratch_a.data();
+    double* amplitude = b.scratch_b.data();
+    for (std::size_t i = 0; i < n; ++i) {
+      range[i] = std::isfinite(b.distance[i]) ? b.distance[i] : 1.0;
+      amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : 1.0;
+    }
+    confidence->sigma(std::span<const double>(range, n), std::span<const double>(amplitude, n),
+                      std::span<double>(sigma, n));
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!std::isfinite(b.amplitude[i])) sigma[i] = kNaN;
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(b.distance[i])) sigma[i] = kNaN;
+  }
+}
+
+std::string format_number(double value) {
+  std::ostringstream out;
+  out.precision(6);
+  out << value;
+  return out.str();
+}
+
+}  // namespace
+
+std::string_view step_kind_name(StepKind kind) {
+  switch (kind) {
+    case StepKind::kOffset:
+      return "offset";
+    case StepKind::kGrayvalue:
+      return "grayvalue";
+    case StepKind::kTemperature:
+      return "temperature";
+    case StepKind::kSurface:
+      return "surface";
+  }
+  return "unknown";
+}
+
+StepKind step_kind_from_name(std::string_view name) {
+  for (StepKind kind :
+       {StepKind::kOffset, StepKind::kGrayvalue, StepKind::kTemperature, StepKind::kSurface}) {
+    if (step_kind_name(kind) == name) return kind;
+  }
+  throw std::invalid_argument("unknown step kind \"" + std::string(name) +
+                              "\" (expected offset, grayvalue, temperature or surface)");
+}
+
+void Step::validate() const {
+  const std::string name(step_kind_name(kind));
+  switch (kind) {
+    case StepKind::kOffset:
+      if (!std::isfinite(offset_m)) {
+        throw std::invalid_argument("offset step: offset_m is not finite");
+      }
+      break;
+    case StepKind::kGrayvalue:
+    case StepKind::kTemperature:
+      try {
+        function.validate();
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument(name + " step: " + e.what());
+      }
+      if (std::isnan(domain.min) || std::isnan(domain.max) || domain.min > domain.max) {
+        throw std::invalid_argument(name + " step: domain [" + format_number(domain.min) + ", " +
+                                    format_number(domain.max) + "] is empty or NaN");
+      }
+      break;
+    case StepKind::kSurface:
+      if (!surface) throw std::invalid_argument("surface step: no surface");
+      break;
+  }
+}
+
+Step make_offset_step(double offset_m) {
+  Step step;
+  step.kind = StepKind::kOffset;
+  step.offset_m = offset_m;
+  return step;
+}
+
+Step make_grayvalue_step(PiecewiseLinear function, InputDomain pulse_width_domain_ns) {
+  Step step;
+  step.kind = StepKind::kGrayvalue;
+  step.function = std::move(function);
+  step.domain = pulse_width_domain_ns;
+  return step;
+}
+
+Step make_temperature_step(PiecewiseLinear function, InputDomain temperature_domain_c) {
+  Step step;
+  step.kind = StepKind::kTemperature;
+  step.function = std::move(function);
+  step.domain = temperature_domain_c;
+  return step;
+}
+
+Step make_surface_step(std::shared_ptr<const calib::CorrectionSurface> surface) {
+  Step step;
+  step.kind = StepKind::kSurface;
+  step.surface = std::move(surface);
+  return step;
+}
+
+Pipeline::Pipeline(TimeToDistance time_to_distance) : time_to_distance_(time_to_distance) {
+  time_to_distance_.validate();
+  metres_per_ns_ = metres_per_ns(time_to_distance_);
+}
+
+void Pipeline::add_step(Step step) {
+  step.validate();
+  steps_.push_back(std::move(step));
+}
+
+void Pipeline::set_confidence(std::shared_ptr<const calib::ConfidenceModel> confidence) {
+  confidence_ = std::move(confidence);
+}
+
+void Pipeline::set_residual_rms_m(double residual_rms_m) {
+  if (!(residual_rms_m >= 0) && !std::isnan(residual_rms_m)) {
+    throw std::invalid_argument("residual_rms_m must be >= 0");
+  }
+  residual_rms_m_ = residual_rms_m;
+}
+
+double Pipeline::start_distance_m(const RawMeasurement& in) const {
+  // S = c_air t / 2 (paper Section 2); a source without a time of flight
+  // (e.g. a CSV with distances only) supplies its own distance.
+  return std::isfinite(in.tof_ns) ? in.tof_ns * metres_per_ns_ : in.distance_raw_m;
+}
+
+void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) const {
+  if (in.size() != out.size()) {
+    throw std::invalid_argument("Pipeline::apply: " + std::to_string(in.size()) +
+                                " measurements but room for " + std::to_string(out.size()));
+  }
+  BlockBuffers b;
+  std::array<double, kBlock> sigma;
+  const calib::ConfidenceModel* confidence = confidence_.get();
+  for (std::size_t begin = 0; begin < in.size(); begin += kBlock) {
+    const std::size_t n = std::min(kBlock, in.size() - begin);
+    const RawMeasurement* raw = in.data() + begin;
+    for (std::size_t i = 0; i < n; ++i) {
+      const RawMeasurement& m = raw[i];
+      const bool echo = m.shots_valid > 0 && (m.flags & kRawNoEcho) == 0;
+      const double start = std::isfinite(m.tof_ns) ? m.tof_ns * metres_per_ns_ : m.distance_raw_m;
+      b.distance[i] = echo ? start : kNaN;
+      b.flags[i] = echo ? 0u : kCorrNoEcho;
+      b.pulse_width[i] = m.pulse_width_ns;
+      b.temperature[i] = m.temperature_c;
+      b.amplitude[i] = m.amplitude;
+    }
+    for (const Step& step : steps_) {
+      switch (step.kind) {
+        case StepKind::kOffset: {
+          const double offset = step.offset_m;
+          for (std::size_t i = 0; i < n; ++i) b.distance[i] += offset;
+          break;
+        }
+        case StepKind::kGrayvalue:
+          add_hinge(step.function, step.domain, b.pulse_width.data(), b.distance.data(),
+                    b.flags.data(), n);
+          break;
+        case StepKind::kTemperature:
+          add_hinge(step.function, step.domain, b.temperature.data(), b.distance.data(),
+                    b.flags.data(), n);
+          break;
+        case StepKind::kSurface:
+          add_surface(*step.surface, b, n);
+          break;
+      }
+    }
+    fill_sigma(confidence, residual_rms_m_, b, n, sigma.data());
+    Range* o = out.data() + begin;
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t no_echo = b.flags[i] & kCorrNoEcho;
+      // Only rows with an echo can be non-finite; no-echo rows carry their own flag.
+      const std::uint32_t non_finite =
+          (no_echo == 0 && !std::isfinite(b.distance[i])) ? kCorrNonFinite : 0u;
+      o[i].distance_m = b.distance[i];
+      o[i].sigma_m = sigma[i];
+      o[i].correction_flags = b.flags[i] | non_finite;
+    }
+  }
+}
+
+Range Pipeline::apply(const RawMeasurement& in) const {
+  Range out;
+  apply(std::span<const RawMeasurement>(&in, 1), std::span<Range>(&out, 1));
+  return out;
+}
+
+std::string Pipeline::summary() const {
+  std::ostringstream out;
+  out << "pipeline: c_air/2 = " << format_number(metres_per_ns_) << " m/ns ("
+      << format_number(time_to_distance_.wavelength_nm) << " nm, "
+      << format_number(time_to_distance_.air.temperature_c) << " C, "
+      << format_number(time_to_distance_.air.pressure_hpa) << " hPa)\n";
+  for (std::size_t s = 0; s < steps_.size(); ++s) {
+    const Step& step = steps_[s];
+    out << "  step " << s << ": " << step_kind_name(step.kind);
+    switch (step.kind) {
+      case StepKind::kOffset:
+        out << " " << format_number(step.offset_m * 1e3) << " mm";
+        break;
+      case StepKind::kGrayvalue:
+      case StepKind::kTemperature: {
+        const char* unit = step.kind == StepKind::kGrayvalue ? " ns" : " C";
+        const char* slope_unit = step.kind == StepKind::kGrayvalue ? " mm/ns" : " mm/C";
+        out << ", knots [";
+        for (std::size_t k = 0; k < step.function.knots.size(); ++k) {
+          out << (k ? ", " : "") << format_number(step.function.knots[k]) << unit;
+        }
+        out << "], segment slopes [";
+        const auto slopes = step.function.segment_slopes();
+        for (std::size_t k = 0; k < slopes.size(); ++k) {
+          out << (k ? ", " : "") << format_number(slopes[k] * 1e3);
+        }
+        out << "]" << slope_unit << ", domain [" << format_number(step.domain.min) << ", "
+            << format_number(step.domain.max) << "]" << unit;
+        break;
+      }
+      case StepKind::kSurface:
+        out << " " << step.surface->kind()
+            << (step.surface->uses_temperature() ? " (range, amplitude, temperature)"
+                                                 : " (range, amplitude)");
+        break;
+    }
+    if (step.fit.rows > 0) {
+      out << "; fitted on " << step.fit.rows << " rows, residual RMS "
+          << format_number(step.fit.residual_rms_m * 1e3) << " mm";
+    }
+    out << "\n";
+  }
+  out << "  sigma: "
+      << (confidence_ ? confidence_->kind() + " confidence model"
+                      : "residual RMS " + format_number(residual_rms_m_ * 1e3) + " mm")
+      << "\n";
+  return out.str();
+}
+
+}  // namespace tofkit::ranging

@@ -1,0 +1,209 @@
+// The `tofkit` executable end to end: the link budget as JSON, configuration
+// errors that stop a command before it writes anything, reproducible
+// measurements whatever the thread count, and the config dump loading back.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tofkit/io/raw_csv.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    dir_ = fs::temp_directory_path() /
+           ("tofkit_cli_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  struct Result {
+    int status = -1;
+    std::string out;
+    std::string err;
+  };
+
+  // Runs `tofkit <args>` in the test's directory.
+  Result run(const std::string& args) const {
+    const std::string command =
+        "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args + " >stdout.txt 2>stderr.txt";
+    const int raw = std::system(command.c_str());
+    Result r;
+    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+    r.out = read("stdout.txt");
+    r.err = read("stderr.txt");
+    return r;
+  }
+
+  [[nodiscard]] std::string read(const std::string& name) const {
+    std::ifstream in(dir_ / name, std::ios::binary);
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+
+  void write(const std::string& name, const std::string& text) const {
+    std::ofstream(dir_ / name, std::ios::binary) << text;
+  }
+
+  fs::path dir_;
+};
+
+}  // namespace
+
+// Oracles: the paper's Figure 3 (SNR = 10 near 10 m for rho = 0.1) and the
+// extended-target law Pr ~ 1/R^2 (paper Eq. 6).
+TEST_F(CliTest, BudgetJsonCoversTheDistancesWithAllFields) {
+  const auto r = run("budget --json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j.at("reflectance").get<double>(), 0.1);
+  const double range = j.at("range_at_snr10_m").get<double>();
+  EXPECT_GT(range, 9.0);
+  EXPECT_LT(range, 11.0);
+
+  const auto& rows = j.at("rows");
+  ASSERT_EQ(rows.size(), 30u);
+  const double pr_r2_first = rows[0].at("received_power_w").get<double>() * 0.25;
+  double previous_snr = 1e300;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const auto& row = rows[i];
+    for (const char* key : {"distance_m", "received_power_w", "background_power_w",
+                            "signal_current_a", "signal_shot_a", "background_shot_a", "dark_shot_a",
+                            "thermal_a", "total_noise_a", "snr"}) {
+      ASSERT_TRUE(row.contains(key) && row.at(key).is_number()) << key;
+    }
+    const double d = row.at("distance_m").get<double>();
+    EXPECT_NEAR(d, 0.5 * static_cast<double>(i + 1), 1e-12);
+    EXPECT_NEAR(row.at("received_power_w").get<double>() * d * d, pr_r2_first, 1e-9 * pr_r2_first);
+    const double snr = row.at("snr").get<double>();
+    EXPECT_LT(snr, previous_snr);
+    previous_snr = snr;
+    // Noise terms add in quadrature (paper Eq. 8).
+    const double total = row.at("total_noise_a").get<double>();
+    double sum_sq = 0;
+    for (const char* key : {"signal_shot_a", "background_shot_a", "dark_shot_a", "thermal_a"}) {
+      sum_sq += std::pow(row.at(key).get<double>(), 2);
+    }
+    EXPECT_NEAR(total, std::sqrt(sum_sq), 1e-9 * total);
+    EXPECT_NEAR(snr, row.at("signal_current_a").get<double>() / total, 1e-9 * snr);
+  }
+  // The SNR = 10 range lies between the rows that bracket SNR = 10.
+  const auto bracket = static_cast<std::size_t>(range / 0.5) - 1;
+  EXPECT_GE(rows[bracket].at("snr").get<double>(), 10.0);
+  EXPECT_LE(rows[bracket + 1].at("snr").get<double>(), 10.0);
+
+  // The text form carries the same range.
+  const auto text = run("budget");
+  ASSERT_EQ(text.status, 0) << text.err;
+  EXPECT_NE(text.out.find("SNR = 10"), std::string::npos) << text.out;
+}
+
+TEST_F(CliTest, BadConfigStopsBeforeWritingAnything) {
+  struct Case {
+    const char* toml;
+    const char* key;
+  };
+  const Case cases[] = {
+      {"[receiver]\nbandwith_mhz = 100\n", "receiver.bandwith_mhz"},
+      {"[laser]\npeak_power_w = \"1 W\"\n", "laser.peak_power_w"},
+      {"[laser]\npeak_power_w = -1.0\n", "laser.peak_power_w"},
+      {"[receiver]\nbandwidth_mhz = 0\n", "receiver.bandwidth_mhz"},
+  };
+  for (const auto& c : cases) {
+    write("bad.toml", c.toml);
+    const auto r =
+        run("--config bad.toml measure --distance 1,2 --reflectance 0.5 --shots 10 --out out.csv");
+    EXPECT_NE(r.status, 0) << c.toml;
+    EXPECT_NE(r.err.find(c.key), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("bad.toml:2"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("tofkit measure: error:"), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / "out.csv")) << c.toml;
+  }
+  // The same through --set.
+  const auto r =
+      run("measure --set receiver.bandwidth_mhz=0 --distance 1 --reflectance 0.5 "
+          "--out out.csv");
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.err.find("--set"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("receiver.bandwidth_mhz"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "out.csv"));
+  // A bad value list too.
+  const auto l = run("measure --distance 1,x --reflectance 0.5 --out out.csv");
+  EXPECT_EQ(l.status, 1);
+  EXPECT_NE(l.err.find("--distance"), std::string::npos) << l.err;
+  EXPECT_FALSE(fs::exists(dir_ / "out.csv"));
+}
+
+TEST_F(CliTest, UsageErrorsExitWithTwo) {
+  EXPECT_EQ(run("measure --distance 1 --reflectance 0.5").status, 2);  // no --out
+  EXPECT_EQ(run("no-such-command").status, 2);
+  EXPECT_EQ(run("measure --distance 1 --reflectance 0.5 --mode bogus --out x.csv").status, 2);
+  EXPECT_EQ(run("--help").status, 0);
+}
+
+// Oracle: counter-based randomness, stream per request - the thread count
+// must not change a single byte; the seed must.
+TEST_F(CliTest, MeasureIsByteIdenticalAcrossThreadCounts) {
+  for (const std::string mode : {"analytic", "waveform"}) {
+    const std::string grid =
+        "measure --distance 1:3:1 --reflectance 0.1,0.8 --shots 200 --count 2 --mode " + mode;
+    ASSERT_EQ(run("--threads 1 " + grid + " --seed 7 --out t1.csv").status, 0) << mode;
+    const auto r2 = run("--threads 2 " + grid + " --seed 7 --out t2.csv");
+    ASSERT_EQ(r2.status, 0) << r2.err;
+    EXPECT_NE(r2.err.find("12 rows"), std::string::npos) << r2.err;
+    EXPECT_NE(r2.err.find("on 2 thread(s)"), std::string::npos) << r2.err;
+    ASSERT_EQ(run(grid + " --threads 2 --seed 8 --out s8.csv").status, 0) << mode;
+    const std::string t1 = read("t1.csv");
+    EXPECT_FALSE(t1.empty());
+    EXPECT_EQ(t1, read("t2.csv")) << mode;
+    EXPECT_NE(t1, read("s8.csv")) << mode;
+
+    // Cartesian product order: distance outermost, repeats innermost.
+    const auto records = tofkit::io::read_raw_csv(dir_ / "t1.csv");
+    ASSERT_EQ(records.size(), 12u);
+    for (std::size_t i = 0; i < records.size(); ++i) {
+      EXPECT_EQ(records[i].truth.distance_m, 1.0 + static_cast<double>(i / 4)) << i;
+      EXPECT_EQ(records[i].truth.reflectance, (i / 2) % 2 == 0 ? 0.1 : 0.8) << i;
+      EXPECT_EQ(records[i].truth.angle_deg, 0.0);
+      EXPECT_TRUE(records[i].raw.has_echo()) << i;
+      // Raw distance near the truth: uncorrected fixed delay (2.5 ns = 0.37 m) and walk.
+      EXPECT_NEAR(records[i].raw.distance_raw_m, records[i].truth.distance_m, 1.0) << i;
+    }
+    // Repeats are independent draws, not copies.
+    EXPECT_NE(records[0].raw.tof_ns, records[1].raw.tof_ns);
+  }
+}
+
+TEST_F(CliTest, ConfigDumpLoadsBackToTheSameDump) {
+  const auto first = run("--preset accurange --set measurement.shots=77 config --dump");
+  ASSERT_EQ(first.status, 0) << first.err;
+  EXPECT_NE(first.out.find("shots = 77"), std::string::npos);
+  write("dump.toml", first.out);
+  const auto second = run("--config dump.toml config --dump");
+  ASSERT_EQ(second.status, 0) << second.err;
+  EXPECT_EQ(first.out, second.out);
+
+  const auto summary = run("--config dump.toml --set tdc.lsb_ps=30 config");
+  ASSERT_EQ(summary.status, 0) << summary.err;
+  EXPECT_NE(summary.out.find("accurange"), std::string::npos) << summary.out;
+  EXPECT_NE(summary.out.find("tdc.lsb_ps = 30"), std::string::npos) << summary.out;
+  EXPECT_NE(summary.out.find("--set"), std::string::npos) << summary.out;
+}

@@ -1,0 +1,503 @@
+// Correction surfaces (thesis Section 4.6 and its B-spline future work): fits
+// checked against known functions and against least squares solved another way.
+
+#include "tofkit/calib/surface_fit.hpp"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <functional>
+#include <limits>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "tofkit/calib/bspline_surface.hpp"
+#include "tofkit/calib/polynomial_surface.hpp"
+#include "tofkit/io/surface_json.hpp"
+
+namespace tofkit::calib {
+namespace {
+
+/// Columns of a synthetic data set (owning), viewable as SurfaceFitData.
+struct Table {
+  std::vector<double> range_m, amplitude, temperature_c, error_m;
+  [[nodiscard]] SurfaceInputs inputs() const { return {range_m, amplitude, temperature_c}; }
+  [[nodiscard]] SurfaceFitData data() const { return {inputs(), error_m}; }
+  [[nodiscard]] std::size_t size() const { return range_m.size(); }
+};
+
+using Truth = std::function<double(double r, double a, double t)>;
+
+/// Range uniform in [1, 30] m, amplitude log-uniform in [20, 4000], temperature
+/// uniform in [0, 50] C; error = truth + Gaussian noise.
+Table make_table(std::size_t n, const Truth& truth, double noise_m, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  Table t;
+  for (std::size_t k = 0; k < n; ++k) {
+    const double r = 1.0 + 29.0 * unit(rng);
+    const double a = 20.0 * std::pow(200.0, unit(rng));
+    const double c = 50.0 * unit(rng);
+    t.range_m.push_back(r);
+    t.amplitude.push_back(a);
+    t.temperature_c.push_back(c);
+    t.error_m.push_back(truth(r, a, c) + noise_m * gauss(rng));
+  }
+  return t;
+}
+
+std::vector<double> evaluate(const CorrectionSurface& s, const Table& t,
+                             std::vector<std::uint8_t>* flags = nullptr) {
+  std::vector<double> out(t.size());
+  std::vector<std::uint8_t> f(t.size());
+  SurfaceInputs in = t.inputs();
+  if (!s.uses_temperature()) in.temperature_c = {};
+  s.evaluate(in, out, f);
+  if (flags) *flags = f;
+  return out;
+}
+
+// A polynomial of total degree 3 in raw units (not in the fit's scaled inputs).
+double cubic_truth(double r, double a, double /*t*/) {
+  return 0.02 - 1.5e-3 * r + 4e-5 * r * r - 3e-5 * a + 2e-9 * a * a + 1e-7 * r * a -
+         5e-7 * r * r * r + 1e-12 * a * a * a + 2e-9 * r * r * a;
+}
+
+TEST(PolynomialSurface, RecoversKnownPolynomialFromNoiselessData) {
+  const Table train = make_table(400, cubic_truth, 0.0, 1);
+  const Table probe = make_table(200, cubic_truth, 0.0, 2);
+  for (int order : {3, 4, 5}) {
+    PolynomialFitOptions options;
+    options.order = order;
+    options.rcond = 0;
+    const SurfaceFitResult fit = fit_polynomial_surface(train.data(), options);
+    EXPECT_EQ(fit.rank, fit.parameters);
+    EXPECT_LT(fit.residual_rms_m, 1e-12);
+    std::vector<std::uint8_t> flags;
+    const std::vector<double> value = evaluate(*fit.surface, probe, &flags);
+    for (std::size_t k = 0; k < probe.size(); ++k) {
+      if (flags[k]) continue;  // probe rows just outside the training box are clamped
+      EXPECT_NEAR(value[k], probe.error_m[k], 1e-9) << "order " << order << " row " << k;
+    }
+  }
+}
+
+TEST(PolynomialSurface, MatchesLeastSquaresByAnotherDecomposition) {
+  // Total-degree polynomials are closed under affine changes of each input, so
+  // the least-squares fit does not depend on the scaling: solve it here with
+  // the test's own (standardized) inputs and a complete orthogonal decomposition.
+  const Table train = make_table(3000, cubic_truth, 0.004, 3);
+  for (int order : {2, 4, 6}) {
+    PolynomialFitOptions options;
+    options.order = order;
+    options.rcond = 0;
+    const SurfaceFitResult fit = fit_polynomial_surface(train.data(), options);
+    const std::size_t n = train.size();
+    Eigen::MatrixXd design(n, (order + 1) * (order + 2) / 2);
+    Eigen::VectorXd y(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      const double x1 = (train.range_m[k] - 15.0) / 8.0;
+      const double x2 = (train.amplitude[k] - 1000.0) / 1000.0;
+      int col = 0;
+      for (int i = 0; i <= order; ++i) {
+        for (int j = 0; i + j <= order; ++j) design(k, col++) = std::pow(x1, i) * std::pow(x2, j);
+      }
+      y(k) = train.error_m[k];
+    }
+    const Eigen::VectorXd reference = design * design.completeOrthogonalDecomposition().solve(y);
+    const std::vector<double> value = evaluate(*fit.surface, train);
+    const double scale = reference.cwiseAbs().maxCoeff();
+    double worst = 0;
+    for (std::size_t k = 0; k < n; ++k) worst = std::max(worst, std::abs(value[k] - reference(k)));
+    EXPECT_LT(worst / scale, 1e-9) << "order " << order;
+    const double reference_rms = std::sqrt((y - reference).squaredNorm() / static_cast<double>(n));
+    EXPECT_NEAR(fit.residual_rms_m, reference_rms, 1e-9 * reference_rms);
+  }
+}
+
+TEST(PolynomialSurface, SingularValueCutoffSetsRankAndCondition) {
+  // Oracle: singular values of the design with the documented scaling ([-1, 1]
+  // over the training box), by a bidiagonal divide-and-conquer SVD of the full matrix.
+  const Table train = make_table(2000, cubic_truth, 0.004, 4);
+  const int order = 5;
+  const std::size_t n = train.size();
+  const auto exps = polynomial_exponents(order, false);
+  const double rmin = *std::min_element(train.range_m.begin(), train.range_m.end());
+  const double rmax = *std::max_element(train.range_m.begin(), train.range_m.end());
+  const double amin = *std::min_element(train.amplitude.begin(), train.amplitude.end());
+  const double amax = *std::max_element(train.amplitude.begin(), train.amplitude.end());
+  Eigen::MatrixXd design(n, exps.size());
+  for (std::size_t k = 0; k < n; ++k) {
+    const double x1 = (2 * train.range_m[k] - rmin - rmax) / (rmax - rmin);
+    const double x2 = (2 * train.amplitude[k] - amin - amax) / (amax - amin);
+    for (std::size_t c = 0; c < exps.size(); ++c)
+      design(k, c) = std::pow(x1, exps[c][0]) * std::pow(x2, exps[c][1]);
+  }
+  const Eigen::VectorXd sv = Eigen::BDCSVD<Eigen::MatrixXd>(design).singularValues();
+  std::size_t previous_rank = exps.size() + 1;
+  double previous_rms = 0;
+  for (double rcond : {0.0, 1e-3, 1e-2, 3e-2, 0.1, 0.3}) {
+    PolynomialFitOptions options;
+    options.order = order;
+    options.rcond = rcond;
+    const SurfaceFitResult fit = fit_polynomial_surface(train.data(), options);
+    std::size_t expected = 0;
+    for (Eigen::Index k = 0; k < sv.size(); ++k) expected += sv(k) >= rcond * sv(0) ? 1 : 0;
+    EXPECT_EQ(fit.rank, expected) << "rcond " << rcond;
+    EXPECT_LE(fit.rank, previous_rank);
+    EXPECT_GE(fit.residual_rms_m, previous_rms * (1 - 1e-12));
+    EXPECT_NEAR(fit.condition_number, sv(0) / sv(sv.size() - 1), 1e-6 * fit.condition_number);
+    previous_rank = fit.rank;
+    previous_rms = fit.residual_rms_m;
+  }
+  EXPECT_LT(previous_rank, exps.size());  // the largest cutoff did drop directions
+}
+
+// Range walk: weak echoes read long (exponential in intensity) plus a range slope.
+double walk_truth(double r, double a, double /*t*/) {
+  return 0.06 * std::exp(-a / 300.0) + 1e-3 * r - 0.01;
+}
+
+TEST(BSplineSurface, ReproducesSmoothNonPolynomialFunction) {
+  const double noise = 0.002;
+  const Table train = make_table(20000, walk_truth, noise, 5);
+  const Table probe = make_table(2000, walk_truth, 0.0, 6);
+  BSplineFitOptions options;
+  const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
+  EXPECT_EQ(fit.parameters, std::size_t{(6 + 3) * (8 + 3)});
+  EXPECT_NEAR(fit.residual_rms_m, noise, 0.05 * noise);  // neither under- nor overfitted
+  std::vector<std::uint8_t> flags;
+  const std::vector<double> value = evaluate(*fit.surface, probe, &flags);
+  double sum = 0, worst = 0;
+  std::size_t inside = 0;
+  for (std::size_t k = 0; k < probe.size(); ++k) {
+    if (flags[k]) continue;
+    const double e = value[k] - probe.error_m[k];
+    sum += e * e;
+    worst = std::max(worst, std::abs(e));
+    ++inside;
+  }
+  EXPECT_GT(inside, probe.size() * 9 / 10);
+  EXPECT_LT(std::sqrt(sum / static_cast<double>(inside)), 0.2 * noise);
+  EXPECT_LT(worst, noise);
+  // A polynomial of order 4 (the thesis's best) cannot follow the exponential as well.
+  PolynomialFitOptions poly;
+  poly.order = 4;
+  const SurfaceFitResult pfit = fit_polynomial_surface(train.data(), poly);
+  EXPECT_GT(pfit.residual_rms_m, fit.residual_rms_m);
+}
+
+TEST(BSplineSurface, GeneralizedCrossValidationPicksAReasonableSmoothing) {
+  const double noise = 0.002;
+  const Table train = make_table(5000, walk_truth, noise, 7);
+  BSplineFitOptions options;
+  options.choose_smoothing_by_gcv = true;
+  const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
+  EXPECT_GE(fit.smoothing, 1e-7);
+  EXPECT_LE(fit.smoothing, 10.0);
+  EXPECT_LT(fit.effective_parameters, static_cast<double>(fit.parameters) + 1e-9);
+  EXPECT_NEAR(fit.residual_rms_m, noise, 0.1 * noise);
+}
+
+TEST(BSplineSurface, StaysNearLinearContinuationBeyondTheDataEdge) {
+  // Realistic coverage: intensity falls as reflectance / r^2, so the box's
+  // corners (bright and far, dim and near) hold no data. Truth is linear there
+  // (the range-walk exponential has died out); the P-spline's penalty continues
+  // it smoothly, while an order-6 polynomial swings away.
+  const auto truth = [](double r, double a, double) {
+    return 0.06 * std::exp(-a / 300.0) + 1e-3 * r;
+  };
+  std::mt19937_64 rng(8);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 0.002);
+  Table train;
+  for (int k = 0; k < 20000; ++k) {
+    const double r = 2.0 + 28.0 * unit(rng);
+    const double reflectance = 0.05 + 0.9 * unit(rng);
+    const double a = 4e4 * reflectance / (r * r) * (1.0 + 0.1 * unit(rng));
+    train.range_m.push_back(r);
+    train.amplitude.push_back(a);
+    train.error_m.push_back(truth(r, a, 0) + gauss(rng));
+  }
+  const SurfaceFitResult spline = fit_bspline_surface(train.data(), BSplineFitOptions{});
+  PolynomialFitOptions poly;
+  poly.order = 6;
+  const SurfaceFitResult poly6 = fit_polynomial_surface(train.data(), poly);
+  // Probes just beyond the data's edge, inside the box: far ranges at amplitudes
+  // 1.5x to 3x brighter than the brightest return seen there.
+  Table probe;
+  for (double r = 16; r <= 29; r += 1) {
+    for (double f : {1.5, 2.0, 3.0}) {
+      probe.range_m.push_back(r);
+      probe.amplitude.push_back(f * 4e4 * 0.95 * 1.1 / (r * r));
+      probe.error_m.push_back(truth(r, probe.amplitude.back(), 0));
+    }
+  }
+  std::vector<std::uint8_t> flags;
+  const std::vector<double> s = evaluate(*spline.surface, probe, &flags);
+  const std::vector<double> p = evaluate(*poly6.surface, probe);
+  double spline_worst = 0, poly_worst = 0;
+  for (std::size_t k = 0; k < probe.size(); ++k) {
+    ASSERT_EQ(flags[k], 0);
+    spline_worst = std::max(spline_worst, std::abs(s[k] - probe.error_m[k]));
+    poly_worst = std::max(poly_worst, std::abs(p[k] - probe.error_m[k]));
+  }
+  std::printf("beyond the edge: worst error bspline %.2f mm, poly6 %.2f mm\n", 1e3 * spline_worst, 1e3 * poly_worst);
+  EXPECT_LT(spline_worst, 0.005);  // bounded: within a few noise sigmas of the continuation
+  EXPECT_GT(poly_worst, 2.0 * spline_worst);
+}
+
+TEST(CorrectionSurface, OutOfDomainRowsAreFlaggedAndClamped) {
+  const Table train = make_table(3000, walk_truth, 0.001, 9);
+  PolynomialFitOptions poly;
+  poly.order = 4;
+  BSplineFitOptions spline;
+  spline.use_temperature = true;
+  for (const auto& surface : {fit_polynomial_surface(train.data(), poly).surface,
+                              fit_bspline_surface(train.data(), spline).surface}) {
+    const SurfaceDomain& d = surface->domain();
+    const double r_mid = 0.5 * (d.range_min_m + d.range_max_m);
+    const double a_mid = std::sqrt(d.amplitude_min * d.amplitude_max);
+    const double t_mid = 0.5 * (d.temperature_min_c + d.temperature_max_c);
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    // Rows: inside, at the corners exactly, each axis beyond each end, NaN.
+    const std::vector<double> r = {r_mid,
+                                   d.range_min_m,
+                                   d.range_max_m,
+                                   d.range_max_m + 0.5,
+                                   d.range_min_m - 0.5,
+                                   r_mid,
+                                   r_mid,
+                                   r_mid,
+                                   r_mid,
+                                   nan};
+    const std::vector<double> a = {a_mid,
+                                   d.amplitude_min,
+                                   d.amplitude_max,
+                                   a_mid,
+                                   a_mid,
+                                   d.amplitude_max * 2,
+                                   d.amplitude_min * 0.5,
+                                   a_mid,
+                                   a_mid,
+                                   a_mid};
+    const std::vector<double> t = {
+        t_mid, d.temperature_min_c,     d.temperature_max_c,     t_mid, t_mid, t_mid,
+        t_mid, d.temperature_max_c + 1, d.temperature_min_c - 1, t_mid};
+    // The same rows clamped by hand.
+    const std::vector<double> rc = {r_mid,         d.range_min_m, d.range_max_m, d.range_max_m,
+                                    d.range_min_m, r_mid,         r_mid,         r_mid,
+                                    r_mid,         r_mid};
+    const std::vector<double> ac = {
+        a_mid,           d.amplitude_min, d.amplitude_max, a_mid, a_mid,
+        d.amplitude_max, d.amplitude_min, a_mid,           a_mid, a_mid};
+    const std::vector<double> tc = {
+        t_mid, d.temperature_min_c, d.temperature_max_c, t_mid, t_mid, t_mid,
+        t_mid, d.temperature_max_c, d.temperature_min_c, t_mid};
+    const bool temp = surface->uses_temperature();
+    std::vector<double> out(r.size()), expected(r.size());
+    std::vector<std::uint8_t> flags(r.size()), expected_flags(r.size());
+    surface->evaluate({r, a, temp ? std::span<const double>(t) : std::span<const double>()}, out,
+                      flags);
+    surface->evaluate({rc, ac, temp ? std::span<const double>(tc) : std::span<const double>()},
+                      expected, expected_flags);
+    const std::uint8_t tflag = temp ? 1 : 0;
+    const std::vector<std::uint8_t> want = {0, 0, 0, 1, 1, 1, 1, tflag, tflag, 1};
+    for (std::size_t k = 0; k < r.size(); ++k) {
+      EXPECT_EQ(flags[k], want[k]) << surface->kind() << " row " << k;
+      EXPECT_EQ(expected_flags[k], 0) << surface->kind() << " row " << k;
+      if (k + 1 < r.size()) EXPECT_EQ(out[k], expected[k]) << surface->kind() << " row " << k;
+    }
+    EXPECT_TRUE(std::isnan(out.back()));
+    // Mismatched lengths are refused.
+    std::vector<double> short_out(r.size() - 1);
+    std::vector<std::uint8_t> short_flags(r.size() - 1);
+    EXPECT_THROW(surface->evaluate({r, a, t}, short_out, short_flags), std::invalid_argument);
+  }
+}
+
+void expect_invalid(const std::function<void()>& f, const std::string& needle) {
+  try {
+    f();
+    ADD_FAILURE() << "no exception; expected one mentioning '" << needle << "'";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+}
+
+TEST(CorrectionSurface, DegenerateDataThrowsNamingTheProblem) {
+  Table small = make_table(10, walk_truth, 0.001, 10);
+  PolynomialFitOptions poly;
+  poly.order = 4;
+  expect_invalid([&] { (void)fit_polynomial_surface(small.data(), poly); },
+                 "fewer rows than parameters");
+  expect_invalid([&] { (void)fit_bspline_surface(small.data(), BSplineFitOptions{}); },
+                 "fewer rows than parameters");
+
+  Table flat = make_table(500, walk_truth, 0.001, 11);
+  std::fill(flat.range_m.begin(), flat.range_m.end(), 5.0);
+  expect_invalid([&] { (void)fit_polynomial_surface(flat.data(), poly); }, "no spread in range_m");
+  expect_invalid([&] { (void)fit_bspline_surface(flat.data(), BSplineFitOptions{}); },
+                 "no spread in range_m");
+
+  Table dim = make_table(500, walk_truth, 0.001, 12);
+  std::fill(dim.amplitude.begin(), dim.amplitude.end(), 100.0);
+  expect_invalid([&] { (void)fit_polynomial_surface(dim.data(), poly); }, "no spread in amplitude");
+
+  Table cold = make_table(500, walk_truth, 0.001, 13);
+  std::fill(cold.temperature_c.begin(), cold.temperature_c.end(), 20.0);
+  PolynomialFitOptions poly_t = poly;
+  poly_t.use_temperature = true;
+  expect_invalid([&] { (void)fit_polynomial_surface(cold.data(), poly_t); },
+                 "no spread in temperature_c");
+  (void)fit_polynomial_surface(cold.data(), poly);  // fine without the temperature axis
+
+  Table broken = make_table(500, walk_truth, 0.001, 14);
+  broken.error_m[17] = std::numeric_limits<double>::quiet_NaN();
+  expect_invalid([&] { (void)fit_polynomial_surface(broken.data(), poly); },
+                 "non-finite error_m at row 17");
+  broken.error_m[17] = 0;
+  broken.amplitude[3] = std::numeric_limits<double>::infinity();
+  expect_invalid([&] { (void)fit_bspline_surface(broken.data(), BSplineFitOptions{}); },
+                 "non-finite amplitude at row 3");
+
+  Table negative = make_table(500, walk_truth, 0.001, 15);
+  negative.amplitude[0] = -1.0;
+  expect_invalid([&] { (void)fit_bspline_surface(negative.data(), BSplineFitOptions{}); }, "log");
+
+  Table mismatched = make_table(500, walk_truth, 0.001, 16);
+  mismatched.error_m.pop_back();
+  expect_invalid([&] { (void)fit_polynomial_surface(mismatched.data(), poly); }, "same length");
+
+  PolynomialFitOptions bad_rcond;
+  bad_rcond.rcond = -1;
+  expect_invalid([&] { (void)fit_polynomial_surface(small.data(), bad_rcond); }, "rcond");
+}
+
+TEST(CorrectionSurface, TemperatureAxisRecoversALinearTemperatureTerm) {
+  // Thesis future work: temperature in the model. Timing drift of 3.8 mm/C
+  // (the paper's figure above its knee) on top of the range walk.
+  const double slope = -3.8e-3;
+  const auto cubic_t = [&](double r, double a, double t) {
+    return cubic_truth(r, a, t) + slope * (t - 25.0);
+  };
+  const Table exact = make_table(600, cubic_t, 0.0, 17);
+  PolynomialFitOptions poly;
+  poly.order = 3;
+  poly.rcond = 0;
+  poly.use_temperature = true;
+  const SurfaceFitResult pfit = fit_polynomial_surface(exact.data(), poly);
+  EXPECT_EQ(pfit.parameters, std::size_t{20});
+  EXPECT_TRUE(pfit.surface->uses_temperature());
+  const Table probe = make_table(300, cubic_t, 0.0, 18);
+  std::vector<std::uint8_t> flags;
+  const std::vector<double> pv = evaluate(*pfit.surface, probe, &flags);
+  for (std::size_t k = 0; k < probe.size(); ++k) {
+    if (!flags[k]) EXPECT_NEAR(pv[k], probe.error_m[k], 1e-9);
+  }
+
+  const auto walk_t = [&](double r, double a, double t) {
+    return walk_truth(r, a, t) + slope * (t - 25.0);
+  };
+  const Table noisy = make_table(20000, walk_t, 0.002, 19);
+  BSplineFitOptions spline;
+  spline.use_temperature = true;
+  const SurfaceFitResult sfit = fit_bspline_surface(noisy.data(), spline);
+  EXPECT_EQ(sfit.parameters, std::size_t{9 * 11 * 6});
+  // The fitted temperature slope at a few interior points, by central differences.
+  for (double r : {5.0, 15.0, 25.0}) {
+    for (double a : {50.0, 500.0, 3000.0}) {
+      const std::vector<double> rr = {r, r}, aa = {a, a}, tt = {15.0, 35.0};
+      std::vector<double> v(2);
+      std::vector<std::uint8_t> f(2);
+      sfit.surface->evaluate({rr, aa, tt}, v, f);
+      EXPECT_NEAR((v[1] - v[0]) / 20.0, slope, 0.05 * std::abs(slope)) << "r " << r << " a " << a;
+    }
+  }
+  // Without a temperature axis the drift would stay in the residual.
+  const SurfaceFitResult blind = fit_bspline_surface(noisy.data(), BSplineFitOptions{});
+  EXPECT_GT(blind.residual_rms_m, 5 * sfit.residual_rms_m);
+}
+
+TEST(SurfaceJson, RoundTripGivesIdenticalEvaluations) {
+  const Table train = make_table(3000, walk_truth, 0.002, 20);
+  const Table probe = make_table(500, walk_truth, 0.0, 21);
+  PolynomialFitOptions poly;
+  poly.order = 4;
+  PolynomialFitOptions poly_t = poly;
+  poly_t.use_temperature = true;
+  BSplineFitOptions spline;
+  BSplineFitOptions spline_t;
+  spline_t.use_temperature = true;
+  spline_t.log_amplitude = false;
+  for (const auto& fit :
+       {fit_polynomial_surface(train.data(), poly), fit_polynomial_surface(train.data(), poly_t),
+        fit_bspline_surface(train.data(), spline), fit_bspline_surface(train.data(), spline_t)}) {
+    const std::string text = io::surface_to_json(*fit.surface).dump();
+    const auto loaded = io::surface_from_json(nlohmann::json::parse(text), "test");
+    EXPECT_EQ(loaded->kind(), fit.surface->kind());
+    EXPECT_EQ(loaded->uses_temperature(), fit.surface->uses_temperature());
+    std::vector<std::uint8_t> f1, f2;
+    const std::vector<double> before = evaluate(*fit.surface, probe, &f1);
+    const std::vector<double> after = evaluate(*loaded, probe, &f2);
+    for (std::size_t k = 0; k < probe.size(); ++k) {
+      ASSERT_EQ(before[k], after[k]) << fit.summary() << " row " << k;  // bit-identical
+      ASSERT_EQ(f1[k], f2[k]);
+    }
+    // Training rows stay inside the domain after the round trip.
+    std::vector<std::uint8_t> train_flags;
+    (void)evaluate(*loaded, train, &train_flags);
+    EXPECT_EQ(std::count(train_flags.begin(), train_flags.end(), 1), 0);
+    const auto j = nlohmann::json::parse(text);
+    EXPECT_EQ(j.at("version"), 1);
+    EXPECT_EQ(j.at("fit").at("rows"), train.size());
+  }
+}
+
+TEST(SurfaceJson, BadInputNamesContextAndField) {
+  const Table train = make_table(1000, walk_truth, 0.002, 22);
+  const nlohmann::json good =
+      io::surface_to_json(*fit_bspline_surface(train.data(), BSplineFitOptions{}).surface);
+  const auto expect_error = [](const nlohmann::json& j, const std::string& needle) {
+    try {
+      (void)io::surface_from_json(j, "model.json: steps[1]");
+      ADD_FAILURE() << "no exception; expected one mentioning '" << needle << "'";
+    } catch (const std::runtime_error& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("model.json: steps[1]"), std::string::npos) << what;
+      EXPECT_NE(what.find(needle), std::string::npos) << what;
+    }
+  };
+  nlohmann::json j = good;
+  j.erase("coefficients");
+  expect_error(j, "coefficients");
+  j = good;
+  j["kind"] = "spline9";
+  expect_error(j, "spline9");
+  j = good;
+  j["version"] = 7;
+  expect_error(j, "version");
+  j = good;
+  j["axes"]["amplitude"]["intervals"] = "eight";
+  expect_error(j, "axes.amplitude.intervals");
+  j = good;
+  j["coefficients"].erase(0);
+  expect_error(j, "coefficients");
+  j = good;
+  j["domain"]["range_m"] = {3.0};
+  expect_error(j, "domain.range_m");
+  PolynomialFitOptions poly;
+  poly.order = 2;
+  nlohmann::json p = io::surface_to_json(*fit_polynomial_surface(train.data(), poly).surface);
+  p["exponents"][1] = {9, 9};
+  expect_error(p, "exponents[1]");
+}
+
+}  // namespace
+}  // namespace tofkit::calib
