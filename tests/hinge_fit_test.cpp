@@ -213,8 +213,8 @@ std::vector<ranging::Record> chain_records(std::size_t n, double noise_m, unsign
     ranging::Record r;
     r.truth.distance_m = dist(rng);
     r.raw.temperature_c = temp(rng);
-    r.raw.pulse_width_ns = correlated ? 3.0 + 0.25 * (r.raw.temperature_c - 5.0) + 0.5 * pw(rng) / 3
-                                      : pw(rng);
+    r.raw.pulse_width_ns =
+        correlated ? 3.0 + 0.25 * (r.raw.temperature_c - 5.0) + 0.5 * pw(rng) / 3 : pw(rng);
     const double e = true_error_m(r.raw.pulse_width_ns, r.raw.temperature_c) + noise(rng);
     r.raw.tof_ns = (r.truth.distance_m - e) / k;
     r.raw.distance_raw_m = r.truth.distance_m - e;

@@ -32,7 +32,8 @@ TEST(Statistics, ErrorStatsHandComputed) {
 TEST(Statistics, ThesisTablesObeyTheDefinitions) {
   // Oracle: the thesis's own tables (inches): RMS^2 = bias^2 + variance (Eq. 4.3)
   // and improvement = 100 (before - after) / before (Eqs. 4.10-4.11).
-  for (const char* name : {"fig4_18_point_fit.csv", "fig4_23_line_fit.csv", "fig4_27_checker_fit.csv"}) {
+  for (const char* name :
+       {"fig4_18_point_fit.csv", "fig4_23_line_fit.csv", "fig4_27_checker_fit.csv"}) {
     std::ifstream in(std::string(TOFKIT_REFERENCE_DIR) + "/" + name);
     ASSERT_TRUE(in) << name;
     std::string line;

@@ -326,18 +326,27 @@ double refine_knots(const ProfileSolver& solver, const std::vector<double>& grid
   return rss;
 }
 
-/// Candidate knots: quantiles of u, each leaving enough rows on both sides.
+/// Candidate knots, each leaving enough rows on both sides: quantiles of the
+/// rows, and quantiles of the distinct values of u. The second set matters when
+/// most rows share a few values (a calibration run where all plates sit at one
+/// temperature and only a short sweep spreads it): row quantiles would then all
+/// fall inside the cluster and never reach the sweep's knee.
 std::vector<double> knot_grid(const ProfileSolver& solver, int grid_points) {
-  const std::vector<double>& u = solver.u();
+  const std::vector<double>& u = solver.u();  // sorted
+  std::vector<double> distinct(u.begin(), u.end());
+  distinct.erase(std::unique(distinct.begin(), distinct.end()), distinct.end());
   std::vector<double> grid;
-  const std::size_t n = u.size();
-  for (int i = 1; i <= grid_points; ++i) {
-    const double q = static_cast<double>(i) / (grid_points + 1);
-    const auto index = static_cast<std::size_t>(std::lround(q * static_cast<double>(n - 1)));
-    const double candidate = u[index];
-    if (candidate >= u.back()) continue;
-    if (solver.supported({candidate})) grid.push_back(candidate);
+  for (const std::vector<double>* values : {&u, static_cast<const std::vector<double>*>(&distinct)}) {
+    const std::size_t n = values->size();
+    for (int i = 1; i <= grid_points; ++i) {
+      const double q = static_cast<double>(i) / (grid_points + 1);
+      const auto index = static_cast<std::size_t>(std::lround(q * static_cast<double>(n - 1)));
+      const double candidate = (*values)[index];
+      if (candidate >= u.back()) continue;
+      if (solver.supported({candidate})) grid.push_back(candidate);
+    }
   }
+  std::sort(grid.begin(), grid.end());
   grid.erase(std::unique(grid.begin(), grid.end()), grid.end());
   return grid;
 }

@@ -174,65 +174,129 @@ struct Grid {
   }
 };
 
-/// Normal equations G = B^T B, g = B^T y of the tensor-product basis; each row
-/// touches 4 x 4 (x 4) basis functions. Rows are split into a fixed number of
-/// chunks summed in order, so the result does not depend on the thread count.
+/// Basis functions touching one point (given in axis coordinates): their
+/// weights and first coefficient index along each axis, i.e. the point's cell.
+struct PointBasis {
+  BSplineSpan span[3];
+  [[nodiscard]] std::size_t cell(const Grid& grid) const {
+    const auto ir = static_cast<std::size_t>(span[0].first);
+    const auto ia = static_cast<std::size_t>(span[1].first);
+    const auto it = static_cast<std::size_t>(span[2].first);
+    const std::size_t nt = grid.dims == 3 ? static_cast<std::size_t>(grid.axes[2].intervals) : 1;
+    return (ir * static_cast<std::size_t>(grid.axes[1].intervals) + ia) * nt + it;
+  }
+};
+
+PointBasis point_basis(const Grid& grid, const double* inv, const double* u) {
+  PointBasis b;
+  for (int k = 0; k < grid.dims; ++k) b.span[k] = cubic_bspline_span(grid.axes[k], inv[k], u[k]);
+  if (grid.dims == 2) b.span[2].weight[0] = 1.0;
+  return b;
+}
+
+/// Normal equations G = B^T B, g = B^T y of the tensor-product basis. Every row
+/// touches only the 4 x 4 (x 4) basis functions of its cell, so rows are
+/// grouped by cell (a counting sort that also copies their axis coordinates
+/// into cell order) and each cell's local K x K block is a symmetric rank-m
+/// update W W^T of its rows' weights (a BLAS-3 product), added into G once per
+/// cell. Cells are processed in parallel in fixed groups and added in cell
+/// order, so the result does not depend on the thread count.
 void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& gram,
                                  VectorXd& rhs) {
   const Index p = static_cast<Index>(grid.parameters);
-  const std::size_t chunks = std::clamp<std::size_t>(c.rows / 65536, 1, 8);
-  std::vector<MatrixXd> grams(chunks, MatrixXd::Zero(p, p));
-  std::vector<VectorXd> rhss(chunks, VectorXd::Zero(p));
-  const bool use_t = grid.dims == 3;
-  double inv[3];
-  for (int k = 0; k < grid.dims; ++k) {
+  const int dims = grid.dims;
+  const int per_axis[3] = {4, 4, dims == 3 ? 4 : 1};
+  const Index local = per_axis[0] * per_axis[1] * per_axis[2];
+  double inv[3] = {0, 0, 0};
+  for (int k = 0; k < dims; ++k) {
     inv[k] = grid.axes[k].intervals / (grid.axes[k].hi - grid.axes[k].lo);
   }
-  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t chunk) {
-    const std::size_t begin = c.rows * chunk / chunks;
-    const std::size_t end = c.rows * (chunk + 1) / chunks;
-    double* g = grams[chunk].data();
-    double* b = rhss[chunk].data();
-    std::size_t idx[64];
-    double w[64];
-    for (std::size_t row = begin; row < end; ++row) {
-      const BSplineSpan sr =
-          cubic_bspline_span(grid.axes[0], inv[0], grid.axes[0].coordinate(c.range[row]));
-      const BSplineSpan sa =
-          cubic_bspline_span(grid.axes[1], inv[1], grid.axes[1].coordinate(c.amplitude[row]));
-      BSplineSpan st;
-      st.weight[0] = 1.0;
-      if (use_t) {
-        st = cubic_bspline_span(grid.axes[2], inv[2], grid.axes[2].coordinate(c.temperature[row]));
+  std::size_t cells = 1;
+  for (int k = 0; k < dims; ++k) cells *= static_cast<std::size_t>(grid.axes[k].intervals);
+
+  // Axis coordinates (log taken once) and cell of every row, then a counting
+  // sort that lays coordinates and errors out cell by cell.
+  const std::size_t stride = static_cast<std::size_t>(dims);
+  std::vector<double> coordinate(c.rows * stride);
+  std::vector<std::uint32_t> cell_of(c.rows);
+  std::vector<std::size_t> start(cells + 1, 0);
+  for (std::size_t row = 0; row < c.rows; ++row) {
+    double* u = coordinate.data() + row * stride;
+    u[0] = grid.axes[0].coordinate(c.range[row]);
+    u[1] = grid.axes[1].coordinate(c.amplitude[row]);
+    if (dims == 3) u[2] = grid.axes[2].coordinate(c.temperature[row]);
+    cell_of[row] = static_cast<std::uint32_t>(point_basis(grid, inv, u).cell(grid));
+    ++start[cell_of[row] + 1];
+  }
+  for (std::size_t k = 0; k < cells; ++k) start[k + 1] += start[k];
+  std::vector<double> sorted_coordinate(c.rows * stride), sorted_error(c.rows);
+  {
+    std::vector<std::size_t> next(start.begin(), start.end() - 1);
+    for (std::size_t row = 0; row < c.rows; ++row) {
+      const std::size_t to = next[cell_of[row]]++;
+      std::copy_n(coordinate.data() + row * stride, stride, sorted_coordinate.data() + to * stride);
+      sorted_error[to] = c.error[row];
+    }
+  }
+  coordinate = {};
+  cell_of = {};
+
+  gram = MatrixXd::Zero(p, p);
+  rhs = VectorXd::Zero(p);
+  constexpr std::size_t kGroup = 64;  // cells per parallel group (bounds memory)
+  constexpr Index kBatch = 256;       // rows per rank update
+  std::vector<MatrixXd> blocks(std::min(kGroup, cells), MatrixXd(local, local));
+  std::vector<VectorXd> block_rhs(blocks.size(), VectorXd(local));
+  for (std::size_t group = 0; group < cells; group += kGroup) {
+    const std::size_t group_end = std::min(cells, group + kGroup);
+    tbb::parallel_for(group, group_end, [&](std::size_t cell) {
+      MatrixXd& block = blocks[cell - group];
+      VectorXd& b = block_rhs[cell - group];
+      block.setZero();
+      b.setZero();
+      MatrixXd weights(local, kBatch);  // one column per row
+      for (std::size_t k = start[cell]; k < start[cell + 1]; k += kBatch) {
+        const Index m = static_cast<Index>(std::min<std::size_t>(kBatch, start[cell + 1] - k));
+        for (Index j = 0; j < m; ++j) {
+          const std::size_t row = k + static_cast<std::size_t>(j);
+          const PointBasis pb = point_basis(grid, inv, sorted_coordinate.data() + row * stride);
+          Index u = 0;
+          for (int i0 = 0; i0 < per_axis[0]; ++i0) {
+            for (int i1 = 0; i1 < per_axis[1]; ++i1) {
+              const double w01 = pb.span[0].weight[i0] * pb.span[1].weight[i1];
+              for (int i2 = 0; i2 < per_axis[2]; ++i2)
+                weights(u++, j) = w01 * pb.span[2].weight[i2];
+            }
+          }
+        }
+        block.selfadjointView<Eigen::Lower>().rankUpdate(weights.leftCols(m));
+        b.noalias() += weights.leftCols(m) * Eigen::Map<const VectorXd>(sorted_error.data() + k, m);
       }
-      const int nt = use_t ? 4 : 1;
-      int count = 0;
-      for (int i = 0; i < 4; ++i) {
-        for (int j = 0; j < 4; ++j) {
-          for (int k = 0; k < nt; ++k) {
-            idx[count] = grid.index(static_cast<std::size_t>(sr.first + i),
-                                    static_cast<std::size_t>(sa.first + j),
-                                    static_cast<std::size_t>(st.first + k));
-            w[count] = sr.weight[i] * sa.weight[j] * st.weight[k];
-            ++count;
+    });
+    // Scatter each cell's block into G, in cell order.
+    for (std::size_t cell = group; cell < group_end; ++cell) {
+      if (start[cell] == start[cell + 1]) continue;
+      const PointBasis pb = point_basis(grid, inv, sorted_coordinate.data() + start[cell] * stride);
+      std::size_t index[64];
+      Index u = 0;
+      for (int i0 = 0; i0 < per_axis[0]; ++i0) {
+        for (int i1 = 0; i1 < per_axis[1]; ++i1) {
+          for (int i2 = 0; i2 < per_axis[2]; ++i2) {
+            index[u++] = grid.index(static_cast<std::size_t>(pb.span[0].first + i0),
+                                    static_cast<std::size_t>(pb.span[1].first + i1),
+                                    static_cast<std::size_t>(pb.span[2].first + i2));
           }
         }
       }
-      const double y = c.error[row];
-      // idx is ascending, so v >= u fills the lower triangle only (G is symmetric).
-      for (int u = 0; u < count; ++u) {
-        b[idx[u]] += w[u] * y;
-        double* column = g + idx[u] * static_cast<std::size_t>(p);
-        const double wu = w[u];
-        for (int v = u; v < count; ++v) column[idx[v]] += wu * w[v];
+      const MatrixXd& block = blocks[cell - group];
+      for (Index v = 0; v < local; ++v) {
+        rhs(static_cast<Index>(index[v])) += block_rhs[cell - group](v);
+        for (Index w = v; w < local; ++w) {
+          // index[] is ascending, so (w, v) with w >= v lands in G's lower triangle.
+          gram(static_cast<Index>(index[w]), static_cast<Index>(index[v])) += block(w, v);
+        }
       }
     }
-  });
-  gram = std::move(grams[0]);
-  rhs = std::move(rhss[0]);
-  for (std::size_t k = 1; k < chunks; ++k) {
-    gram += grams[k];
-    rhs += rhss[k];
   }
   gram.triangularView<Eigen::StrictlyUpper>() = gram.transpose();
 }

@@ -15,10 +15,10 @@ DeviceConfig accurange_preset() {
   // response, so walk is strong near the threshold and weak far above it: the
   // thesis's "dark reads long by inches, light greys within a quarter inch".
   laser.pulse_width_ns = 0.3;
-  laser.repetition_hz = 312500.0;      // thesis: sampling rate = 312,500 / 2^N samples/s
-  laser.transmit_efficiency = 0.9;     // Assumption: uncoated collimator + window
-  laser.beam_divergence_mrad = 0.8;    // Assumption: with the exit diameter, a 3.0 mm
-  laser.exit_beam_diameter_mm = 2.6;   // footprint at 0.5 m (thesis: ~3 mm oval footprint)
+  laser.repetition_hz = 312500.0;         // thesis: sampling rate = 312,500 / 2^N samples/s
+  laser.transmit_efficiency = 0.9;        // Assumption: uncoated collimator + window
+  laser.beam_divergence_mrad = 0.8;       // Assumption: with the exit diameter, a 3.0 mm
+  laser.exit_beam_diameter_mm = 2.6;      // footprint at 0.5 m (thesis: ~3 mm oval footprint)
   laser.power_temp_coeff_per_c = -0.001;  // Assumption: automatic power control via the
                                           // diode's monitor photodiode leaves 0.1 %/C
   // Assumption: the first shots after switch-on read long (the diode's junction
@@ -29,16 +29,16 @@ DeviceConfig accurange_preset() {
 
   // ------------------------------------------------------------- receiver
   auto& rx = c.link.receiver;
-  rx.aperture_diameter_mm = 63.5;    // 2.5 in collecting lens (AccuRange 3000 class)
-  rx.optics_efficiency = 0.5;        // Assumption: lens, filter, coaxial mirror obstruction
-  rx.field_of_view_rad = 0.005;      // Assumption: 5 mrad field stop (short-range unit)
-  rx.filter_bandwidth_nm = 10.0;     // Assumption: 10 nm interference filter at 780 nm
-  rx.bandwidth_mhz = 70.0;           // Assumption: slow, low-noise TIA (see pulse_width_ns)
-  rx.responsivity_a_per_w = 0.5;     // Si at 780 nm (about 0.5 A/W unity gain)
-  rx.apd_gain = 30.0;                // Assumption: low gain, echoes are strong at < 1 m
-  rx.excess_noise_factor = 3.0;      // Si APD at M = 30 (k about 0.02-0.05)
-  rx.nep_w_per_sqrt_hz = 2.0e-14;    // same amplifier class as the paper's (Table 1)
-  rx.dark_current_na = 0.5;          // typical Si APD, as the paper preset
+  rx.aperture_diameter_mm = 63.5;  // 2.5 in collecting lens (AccuRange 3000 class)
+  rx.optics_efficiency = 0.5;      // Assumption: lens, filter, coaxial mirror obstruction
+  rx.field_of_view_rad = 0.005;    // Assumption: 5 mrad field stop (short-range unit)
+  rx.filter_bandwidth_nm = 10.0;   // Assumption: 10 nm interference filter at 780 nm
+  rx.bandwidth_mhz = 70.0;         // Assumption: slow, low-noise TIA (see pulse_width_ns)
+  rx.responsivity_a_per_w = 0.5;   // Si at 780 nm (about 0.5 A/W unity gain)
+  rx.apd_gain = 30.0;              // Assumption: low gain, echoes are strong at < 1 m
+  rx.excess_noise_factor = 3.0;    // Si APD at M = 30 (k about 0.02-0.05)
+  rx.nep_w_per_sqrt_hz = 2.0e-14;  // same amplifier class as the paper's (Table 1)
+  rx.dark_current_na = 0.5;        // typical Si APD, as the paper preset
   // Assumption: sets the echo scale: a grey-0 chart (rho 0.03) at 20 in gives
   // twice the threshold, so it is still seen at 22 in (training distance) and
   // fades out near 30 in ("grey 0 unusable" far away and at large angles).
@@ -46,9 +46,9 @@ DeviceConfig accurange_preset() {
   // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates at >= 15 in and
   // grey 204 (rho 0.58) below about 17 in (thesis: "very bright targets saturate").
   rx.saturation_v = 1.0;
-  rx.recovery_ns_per_neper = 2.0;   // Assumption, as the paper preset
-  rx.amplitude_noise_rel = 0.01;    // Assumption: 1 % peak-detector noise per output
-  rx.nominal_temperature_c = 25.0;  // gain specified at room temperature
+  rx.recovery_ns_per_neper = 2.0;          // Assumption, as the paper preset
+  rx.amplitude_noise_rel = 0.01;           // Assumption: 1 % peak-detector noise per output
+  rx.nominal_temperature_c = 25.0;         // gain specified at room temperature
   rx.breakdown_temp_coeff_v_per_c = 0.65;  // Si APD (DESIGN.md)
   rx.bias_margin_v = 10.0;                 // Assumption, as the paper preset
   rx.bias_temperature_compensated = true;  // Assumption: the temperature sensor in the unit

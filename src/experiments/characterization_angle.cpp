@@ -103,9 +103,8 @@ std::vector<Finding> AngleResult::findings() const {
 }
 
 ResultTable AngleResult::table() const {
-  ResultTable t{"points",
-                {"grey", "angle_deg", "mean_error_m", "sd_m", "mean_amplitude", "echo_share"},
-                {}};
+  ResultTable t{
+      "points", {"grey", "angle_deg", "mean_error_m", "sd_m", "mean_amplitude", "echo_share"}, {}};
   for (const auto& p : points) {
     t.rows.push_back(
         {double(p.grey), p.angle_deg, p.mean_error_m, p.sd_m, p.mean_amplitude, p.echo_share});

@@ -110,7 +110,8 @@ std::uint64_t derive_seed(std::uint64_t seed, std::uint64_t salt) {
 std::vector<double> range_errors_m(std::span<const ranging::Record> records) {
   std::vector<double> e(records.size(), ranging::kNaN);
   for (std::size_t i = 0; i < records.size(); ++i) {
-    if (records[i].raw.has_echo()) e[i] = records[i].raw.distance_raw_m - records[i].truth.distance_m;
+    if (records[i].raw.has_echo())
+      e[i] = records[i].raw.distance_raw_m - records[i].truth.distance_m;
   }
   return e;
 }

@@ -129,8 +129,8 @@ std::vector<Finding> MixedPixelResult::findings() const {
 
 ResultTable MixedPixelResult::table() const {
   ResultTable t{"steps",
-                {"beam_offset_mm", "near_fraction", "mean_range_m", "sd_range_m",
-                 "mean_amplitude", "samples"},
+                {"beam_offset_mm", "near_fraction", "mean_range_m", "sd_range_m", "mean_amplitude",
+                 "samples"},
                 {}};
   for (const auto& s : steps) {
     t.rows.push_back({s.beam_offset_mm, s.near_fraction, s.mean_range_m, s.sd_range_m,

@@ -105,8 +105,8 @@ ReflectanceResult run_reflectance(const device::VirtualRangefinder& device,
   std::vector<double> truth(result.records.size()), measured(result.records.size());
   for (std::size_t k = 0; k < result.records.size(); ++k) {
     truth[k] = result.records[k].truth.distance_m;
-    measured[k] = result.records[k].raw.has_echo() ? result.records[k].raw.distance_raw_m
-                                                   : ranging::kNaN;
+    measured[k] =
+        result.records[k].raw.has_echo() ? result.records[k].raw.distance_raw_m : ranging::kNaN;
   }
   result.line = fit_line(truth, measured);
   return result;
@@ -159,14 +159,14 @@ std::string ReflectanceResult::summary() const {
     }
     out += '\n';
   }
-  char line[320];
-  std::snprintf(line, sizeof line,
+  char text[320];
+  std::snprintf(text, sizeof text,
                 "  line fit: measured = %.4f true %+.4f in (thesis: 0.9804 T - 0.6732 in)\n"
                 "  RMS at %.0f in: all greys %.4f in (thesis 1.0693), grey >= %d %.4f in "
                 "(thesis 0.2281)\n",
                 line.slope, m_to_inches(line.intercept), m_to_inches(options.rms_distance_m),
                 m_to_inches(rms_all_m), options.light_grey_min, m_to_inches(rms_light_m));
-  return out + line;
+  return out + text;
 }
 
 }  // namespace tofkit::experiments

@@ -52,15 +52,16 @@ TurnOnResult run_turn_on(const device::VirtualRangefinder& device, const TurnOnO
   for (std::size_t b = 0; b < n; b += per_block) {
     const std::size_t e = std::min(n, b + per_block);
     const auto s = sample_stats(std::span<const double>(range).subspan(b, e - b));
-    result.blocks.push_back({static_cast<double>(b) * result.sample_period_ms, s.mean, s.sd, s.count});
+    result.blocks.push_back(
+        {static_cast<double>(b) * result.sample_period_ms, s.mean, s.sd, s.count});
   }
-  const auto plateau_begin =
-      static_cast<std::size_t>(std::floor((1.0 - options.plateau_fraction) * static_cast<double>(n)));
-  result.plateau_range_m =
-      sample_stats(std::span<const double>(range).subspan(plateau_begin)).mean;
+  const auto plateau_begin = static_cast<std::size_t>(
+      std::floor((1.0 - options.plateau_fraction) * static_cast<double>(n)));
+  result.plateau_range_m = sample_stats(std::span<const double>(range).subspan(plateau_begin)).mean;
   result.first_samples_bias_mm =
       (sample_stats(std::span<const double>(range).first(options.first_samples)).mean -
-       result.plateau_range_m) * 1e3;
+       result.plateau_range_m) *
+      1e3;
 
   // Time to plateau: end of the last block whose mean is off by more than the tolerance.
   std::size_t last_off = result.blocks.size();

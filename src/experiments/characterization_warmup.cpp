@@ -90,10 +90,11 @@ std::vector<Finding> WarmupResult::findings() const {
 }
 
 ResultTable WarmupResult::table() const {
-  ResultTable t{"minutes", {"minute", "mean_range_m", "sd_range_m", "temperature_c", "samples"}, {}};
+  ResultTable t{
+      "minutes", {"minute", "mean_range_m", "sd_range_m", "temperature_c", "samples"}, {}};
   for (const auto& m : minutes) {
-    t.rows.push_back({double(m.minute), m.mean_range_m, m.sd_range_m, m.mean_temperature_c,
-                      double(m.samples)});
+    t.rows.push_back(
+        {double(m.minute), m.mean_range_m, m.sd_range_m, m.mean_temperature_c, double(m.samples)});
   }
   return t;
 }
@@ -104,10 +105,10 @@ std::string WarmupResult::summary() const {
                 "cold-start warm-up at %.1f in, %d samples/min for %d min: the range %s by "
                 "%.2f mm (%.3f in) and settles within %.2f mm after %.0f min "
                 "(time constant %.1f min; thesis: 25-35 min)\n",
-                m_to_inches(options.distance_m), options.samples_per_minute,
-                options.duration_min, total_drift_mm >= 0 ? "inflates" : "shrinks",
-                std::abs(total_drift_mm), std::abs(total_drift_mm) / 25.4, options.tolerance_mm,
-                settle_time_min, time_constant_min);
+                m_to_inches(options.distance_m), options.samples_per_minute, options.duration_min,
+                total_drift_mm >= 0 ? "inflates" : "shrinks", std::abs(total_drift_mm),
+                std::abs(total_drift_mm) / 25.4, options.tolerance_mm, settle_time_min,
+                time_constant_min);
   return text;
 }
 

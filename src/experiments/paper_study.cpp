@@ -112,9 +112,10 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
                                options.extra_calibration_distances_m.end());
   for (double d : calibration_distances)
     for (double rho : reflectances)
-      for (int k = 0; k < repeats; ++k) plan.push_back(plate(d, rho, options.calibration_ambient_c));
-  const auto ambients = lin_spaced(options.ambient_min_c, options.ambient_max_c,
-                                   options.temperature_groups);
+      for (int k = 0; k < repeats; ++k)
+        plan.push_back(plate(d, rho, options.calibration_ambient_c));
+  const auto ambients =
+      lin_spaced(options.ambient_min_c, options.ambient_max_c, options.temperature_groups);
   for (double t : ambients)
     for (int k = 0; k < repeats; ++k)
       plan.push_back(plate(options.temperature_distance_m, options.temperature_reflectance, t));
@@ -160,8 +161,8 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
     const auto f = fixed_distances(records);
     for (std::size_t i = 0; i < f.size(); ++i)
       if (std::isfinite(f[i]) && std::isfinite(ranges[i].distance_m))
-        result.fixed_vs_float_max_diff_mm = std::max(
-            result.fixed_vs_float_max_diff_mm, 1e3 * std::abs(f[i] - ranges[i].distance_m));
+        result.fixed_vs_float_max_diff_mm = std::max(result.fixed_vs_float_max_diff_mm,
+                                                     1e3 * std::abs(f[i] - ranges[i].distance_m));
   };
   track_fixed_vs_float(result.calibration, result.calibration_corrected);
 
@@ -260,8 +261,7 @@ std::string PaperStudyResult::summary() const {
   std::ostringstream s;
   s.setf(std::ios::fixed);
   s.precision(2);
-  s << "range at SNR 10: " << range_at_snr10_m << " m; longest distance: " << max_range_m
-    << " m\n";
+  s << "range at SNR 10: " << range_at_snr10_m << " m; longest distance: " << max_range_m << " m\n";
   s << "gray-value at " << grayvalue.distance_m << " m: std " << grayvalue.std_mm
     << " mm, accuracy +-" << grayvalue.accuracy_mm << " mm (raw spread " << grayvalue.raw_spread_mm
     << " mm)\n";

@@ -16,8 +16,11 @@ struct SurfaceFitData {
 };
 
 struct PolynomialFitOptions {
-  int order = 4;        ///< total degree N: terms of (1 + r + i [+ t])^N
-  double rcond = 1e-2;  ///< relative singular-value cutoff (thesis: 1e-2); 0 keeps all
+  int order = 4;  ///< total degree N: terms of (1 + r + i [+ t])^N
+  /// Relative cutoff on the singular values of the scaled design A: those below
+  /// rcond * s_max are dropped; 0 keeps all. The thesis applied 1e-2 to the
+  /// spectrum of A^T A (the squares), which is rcond = 0.1 here.
+  double rcond = 1e-2;
   bool use_temperature = false;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;

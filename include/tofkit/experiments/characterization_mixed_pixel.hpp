@@ -21,8 +21,8 @@ namespace tofkit::experiments {
 [[nodiscard]] double disk_fraction_beyond_edge(double centre_offset_m, double footprint_diameter_m);
 
 struct MixedPixelOptions {
-  double near_distance_m = inches_to_m(19.0);  ///< the step's top surface
-  double step_height_m = inches_to_m(1.0);     ///< far surface = near + step. Assumption
+  double near_distance_m = inches_to_m(19.0);       ///< the step's top surface
+  double step_height_m = inches_to_m(1.0);          ///< far surface = near + step. Assumption
   double near_reflectance = grey_reflectance(153);  ///< Assumption: same mid-grey finish
   double far_reflectance = grey_reflectance(153);
   double scan_half_width_mm = 4.0;  ///< beam centre from -4 mm (on near) to +4 mm (on far)
@@ -48,8 +48,8 @@ struct MixedPixelResult {
   double footprint_diameter_m = 0;       ///< at the near surface
   std::vector<ranging::Record> records;  ///< truth: the near surface's distance and finish
   std::vector<MixedPixelStep> steps;
-  double near_range_m = ranging::kNaN;   ///< mean at the first step (fully on near)
-  double far_range_m = ranging::kNaN;    ///< mean at the last step (fully on far)
+  double near_range_m = ranging::kNaN;  ///< mean at the first step (fully on near)
+  double far_range_m = ranging::kNaN;   ///< mean at the last step (fully on far)
   int intermediate_steps = 0;  ///< steps whose mean lies between, 5 sd of a mean from each end
   double monotonicity_violation_mm = 0;  ///< largest rise of the mean against the expected trend
   double transition_width_mm = ranging::kNaN;  ///< beam travel from 10 % to 90 % of the jump

@@ -45,8 +45,8 @@ struct ReflectanceResult {
   std::vector<ranging::Record> records;  ///< grey outermost, then distance, then samples
   std::vector<ReflectancePoint> points;
   LineFit line;  ///< measured vs true range over every sample with an echo (metres)
-  double rms_all_m = ranging::kNaN;    ///< at rms_distance_m, about the truth, all greys
-  double rms_light_m = ranging::kNaN;  ///< same, grey >= light_grey_min
+  double rms_all_m = ranging::kNaN;          ///< at rms_distance_m, about the truth, all greys
+  double rms_light_m = ranging::kNaN;        ///< same, grey >= light_grey_min
   double darkest_error_m = ranging::kNaN;    ///< mean error of the darkest grey at rms distance
   double brightest_error_m = ranging::kNaN;  ///< of the brightest
   [[nodiscard]] std::vector<Finding> findings() const;

@@ -18,7 +18,7 @@ struct SamplingOptions {
   double distance_m = inches_to_m(20.0);       ///< thesis Fig. 4.4: 20 in
   double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
   double ambient_c = 20.0;
-  int min_exponent = 3;  ///< 2^3 = 8 shots: 39,062.5 samples/s (first row of Fig. 4.4)
+  int min_exponent = 3;   ///< 2^3 = 8 shots: 39,062.5 samples/s (first row of Fig. 4.4)
   int max_exponent = 11;  ///< 2^11 = 2048 shots: 152.6 samples/s (last row)
   int samples_per_setting = 200;
   /// Throws std::invalid_argument naming the bad field.
@@ -28,10 +28,10 @@ struct SamplingOptions {
 struct SamplingRow {
   int exponent = 0;  ///< N: 2^N shots per output
   int shots = 0;
-  double sampling_rate_hz = 0;              ///< repetition rate / 2^N
+  double sampling_rate_hz = 0;  ///< repetition rate / 2^N
   double mean_range_m = ranging::kNaN;
-  double sd_range_m = ranging::kNaN;        ///< spread of the outputs (resolution)
-  double rms_error_m = ranging::kNaN;       ///< about the true distance
+  double sd_range_m = ranging::kNaN;             ///< spread of the outputs (resolution)
+  double rms_error_m = ranging::kNaN;            ///< about the true distance
   double sd_times_sqrt_shots_m = ranging::kNaN;  ///< constant if sd ~ 1/sqrt(2^N)
 };
 

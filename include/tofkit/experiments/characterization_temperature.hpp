@@ -16,9 +16,9 @@ namespace tofkit::experiments {
 
 struct TemperatureOptions {
   std::vector<double> distances_m{inches_to_m(15), inches_to_m(17), inches_to_m(20),
-                                  inches_to_m(22)};  ///< the thesis's training distances
+                                  inches_to_m(22)};           ///< the thesis's training distances
   std::vector<double> ambient_c{10, 15, 20, 25, 30, 35, 40};  ///< Assumption: climate chamber
-  double reflectance = grey_reflectance(153);  ///< Assumption: a mid-grey target
+  double reflectance = grey_reflectance(153);                 ///< Assumption: a mid-grey target
   int samples_per_point = 50;
   int shots = 0;  ///< per sample; 0: the device's
   /// Throws std::invalid_argument naming the bad field.
@@ -48,7 +48,7 @@ struct TemperatureResult {
   std::vector<TemperatureSlope> slopes;  ///< one per distance
   double mean_slope_mm_per_c = ranging::kNaN;
   double slope_spread_mm_per_c = ranging::kNaN;  ///< max - min over distances
-  double slope_spread_se = ranging::kNaN;  ///< the spread in standard errors of a difference
+  double slope_spread_se = ranging::kNaN;        ///< the spread in standard errors of a difference
   [[nodiscard]] std::vector<Finding> findings() const;
   [[nodiscard]] ResultTable table() const;
   [[nodiscard]] std::string summary() const;

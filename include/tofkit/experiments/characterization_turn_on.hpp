@@ -18,10 +18,10 @@ struct TurnOnOptions {
   double distance_m = inches_to_m(19.0);       ///< as the warm-up run
   double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
   double ambient_c = 20.0;
-  double duration_ms = 500.0;  ///< record length after switch-on
-  int shots = 0;               ///< per sample; 0: the device's
-  double block_ms = 5.0;       ///< samples are averaged in blocks of this length
-  int first_samples = 10;      ///< "the first samples": their mean bias is reported
+  double duration_ms = 500.0;     ///< record length after switch-on
+  int shots = 0;                  ///< per sample; 0: the device's
+  double block_ms = 5.0;          ///< samples are averaged in blocks of this length
+  int first_samples = 10;         ///< "the first samples": their mean bias is reported
   double plateau_fraction = 0.4;  ///< the plateau is the mean of the last 40 % of the record
   double tolerance_mm = 0.25;     ///< on the plateau once every later block stays this close
   /// Throws std::invalid_argument naming the bad field.

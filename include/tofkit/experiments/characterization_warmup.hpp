@@ -15,13 +15,13 @@
 namespace tofkit::experiments {
 
 struct WarmupOptions {
-  double distance_m = inches_to_m(19.0);          ///< thesis: 19 in
-  double reflectance = grey_reflectance(204);     ///< Assumption: a light grey target
-  double ambient_c = 20.0;                        ///< laboratory
-  int duration_min = 120;                         ///< thesis: 2 h
-  int samples_per_minute = 500;                   ///< thesis: 500 samples each minute
-  int shots = 0;                                  ///< per sample; 0: the device's
-  int final_window_min = 30;  ///< the settled value is the mean of the last 30 minutes
+  double distance_m = inches_to_m(19.0);       ///< thesis: 19 in
+  double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
+  double ambient_c = 20.0;                     ///< laboratory
+  int duration_min = 120;                      ///< thesis: 2 h
+  int samples_per_minute = 500;                ///< thesis: 500 samples each minute
+  int shots = 0;                               ///< per sample; 0: the device's
+  int final_window_min = 30;   ///< the settled value is the mean of the last 30 minutes
   double tolerance_mm = 0.25;  ///< settled once every later minute mean stays this close
                                ///< (0.01 in, the thesis's reporting resolution)
   /// Throws std::invalid_argument naming the bad field.
@@ -30,20 +30,20 @@ struct WarmupOptions {
 
 /// One minute's samples.
 struct WarmupMinute {
-  int minute = 0;                         ///< since power-on (samples spread over the minute)
+  int minute = 0;  ///< since power-on (samples spread over the minute)
   double mean_range_m = ranging::kNaN;
-  double sd_range_m = ranging::kNaN;      ///< spread of single samples
+  double sd_range_m = ranging::kNaN;          ///< spread of single samples
   double mean_temperature_c = ranging::kNaN;  ///< the unit's sensor
-  std::size_t samples = 0;                ///< with an echo
+  std::size_t samples = 0;                    ///< with an echo
 };
 
 struct WarmupResult {
   WarmupOptions options;
   std::vector<ranging::Record> records;  ///< every sample, in time order
   std::vector<WarmupMinute> minutes;
-  double final_range_m = ranging::kNaN;   ///< mean over the final window
-  double total_drift_mm = ranging::kNaN;  ///< final minus first minute (> 0: range inflates)
-  double settle_time_min = ranging::kNaN; ///< end of the last minute outside the tolerance
+  double final_range_m = ranging::kNaN;      ///< mean over the final window
+  double total_drift_mm = ranging::kNaN;     ///< final minus first minute (> 0: range inflates)
+  double settle_time_min = ranging::kNaN;    ///< end of the last minute outside the tolerance
   double time_constant_min = ranging::kNaN;  ///< exponential fit of |mean - final|
   [[nodiscard]] std::vector<Finding> findings() const;
   [[nodiscard]] ResultTable table() const;

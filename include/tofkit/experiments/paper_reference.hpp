@@ -9,14 +9,14 @@
 
 namespace tofkit::experiments::paper {
 
-inline constexpr double kRangeAtSnr10_m = 10.0;         ///< Figure 3 (simulation)
-inline constexpr double kLongestDistance_m = 8.08;      ///< Section 5.3
-inline constexpr double kGrayvalueStd_mm = 4.60;        ///< Section 5.1, at 2355 mm
-inline constexpr double kGrayvalueAccuracy_mm = 9.0;    ///< Section 5.1, "within +-9 mm"
-inline constexpr double kGrayvalueKnee_ns = 6.5;        ///< Section 5.1, inflection
-inline constexpr double kTemperatureStd_mm = 4.70;      ///< Section 5.2, at 2402 mm
-inline constexpr double kTemperatureAccuracy_mm = 10.0; ///< Section 5.2
-inline constexpr double kTemperatureKnee_c = 16.0;      ///< Section 5.2
+inline constexpr double kRangeAtSnr10_m = 10.0;            ///< Figure 3 (simulation)
+inline constexpr double kLongestDistance_m = 8.08;         ///< Section 5.3
+inline constexpr double kGrayvalueStd_mm = 4.60;           ///< Section 5.1, at 2355 mm
+inline constexpr double kGrayvalueAccuracy_mm = 9.0;       ///< Section 5.1, "within +-9 mm"
+inline constexpr double kGrayvalueKnee_ns = 6.5;           ///< Section 5.1, inflection
+inline constexpr double kTemperatureStd_mm = 4.70;         ///< Section 5.2, at 2402 mm
+inline constexpr double kTemperatureAccuracy_mm = 10.0;    ///< Section 5.2
+inline constexpr double kTemperatureKnee_c = 16.0;         ///< Section 5.2
 inline constexpr double kTemperatureCoeff_mm_per_c = 3.8;  ///< Section 5.2
 inline constexpr double kVerificationAccuracy_mm = 11.0;   ///< Section 5.3, 1-8 m
 

@@ -58,7 +58,7 @@ struct PaperStudyOptions {
   std::vector<double> holdout_reflectances{0.05, 0.1, 0.2, 0.35, 0.6, 0.9};
   std::vector<double> holdout_ambient_c{5.0, 12.0, 20.0, 27.0, 34.0, 40.0};
 
-  int grayvalue_max_knots = 4;    ///< the fixed-point chain holds up to 4 knots per hinge
+  int grayvalue_max_knots = 4;  ///< the fixed-point chain holds up to 4 knots per hinge
   int temperature_max_knots = 2;
 
   /// Called with a stage name and the share of the study done (0..1).
@@ -68,8 +68,8 @@ struct PaperStudyOptions {
 /// One row of the Table 2-style comparison.
 struct VerificationRow {
   double actual_m = 0;
-  double measured_m = 0;    ///< mean corrected distance
-  double deviation_mm = 0;  ///< actual - measured (Table 2's sign)
+  double measured_m = 0;                    ///< mean corrected distance
+  double deviation_mm = 0;                  ///< actual - measured (Table 2's sign)
   double paper_measured_m = ranging::kNaN;  ///< reference/table2_accuracy.csv, when given
   double paper_deviation_mm = ranging::kNaN;
 };
@@ -112,8 +112,8 @@ struct PaperStudyResult {
   AccuracyFigures grayvalue;
   AccuracyFigures temperature;
   std::vector<VerificationRow> verification_rows;
-  calib::ErrorStats holdout_stats;        ///< true - corrected over the held-out grid
-  calib::ErrorStats holdout_raw_stats;    ///< true - c t / 2 (no correction) on the same rows
+  calib::ErrorStats holdout_stats;      ///< true - corrected over the held-out grid
+  calib::ErrorStats holdout_raw_stats;  ///< true - c t / 2 (no correction) on the same rows
   std::size_t holdout_rows_without_echo = 0;
 
   [[nodiscard]] std::string summary() const;

@@ -1,0 +1,91 @@
+// The paper's Section 5 on the default device: tofkit must reproduce the
+// paper's figures (reference/ranging_paper.md) and do better on data the fit
+// never saw.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "tofkit/experiments/paper_reference.hpp"
+#include "tofkit/experiments/paper_study.hpp"
+
+using namespace tofkit;
+using namespace tofkit::experiments;
+
+namespace {
+
+const PaperStudyResult& study() {
+  static const PaperStudyResult result =
+      run_paper_study(device::preset("paper"), PaperStudyOptions{}, paper::kTable2);
+  return result;
+}
+
+}  // namespace
+
+TEST(PaperStudy, EmbeddedTable2MatchesTheReferenceCsv) {
+  std::ifstream in(std::string(TOFKIT_REFERENCE_DIR) + "/table2_accuracy.csv");
+  ASSERT_TRUE(in) << "reference/table2_accuracy.csv";
+  std::string line;
+  std::getline(in, line);  // header
+  std::size_t i = 0;
+  while (std::getline(in, line)) {
+    std::replace(line.begin(), line.end(), ',', ' ');
+    std::istringstream fields(line);
+    double ranging = 0, actual = 0, deviation = 0;
+    fields >> ranging >> actual >> deviation;
+    ASSERT_LT(i, paper::kTable2.size());
+    EXPECT_DOUBLE_EQ(paper::kTable2[i].ranging_value_m, ranging);
+    EXPECT_DOUBLE_EQ(paper::kTable2[i].actual_value_m, actual);
+    EXPECT_DOUBLE_EQ(paper::kTable2[i].deviation_m, deviation);
+    ++i;
+  }
+  EXPECT_EQ(i, paper::kTable2.size());
+}
+
+TEST(PaperStudy, ReproducesThePapersFigures) {
+  const auto& r = study();
+  EXPECT_GT(r.range_at_snr10_m, 9.0);
+  EXPECT_LT(r.range_at_snr10_m, 11.0);
+  EXPECT_GT(r.max_range_m, 7.0);
+  EXPECT_LT(r.max_range_m, 10.5);
+  EXPECT_LE(r.grayvalue.std_mm, paper::kGrayvalueStd_mm);
+  EXPECT_LE(r.grayvalue.accuracy_mm, paper::kGrayvalueAccuracy_mm);
+  EXPECT_GE(r.grayvalue.rows, 50u);
+  EXPECT_GE(r.grayvalue.raw_spread_mm, 20.0);  // there was a walk to correct
+  EXPECT_LE(r.temperature.accuracy_mm, paper::kTemperatureAccuracy_mm);
+  ASSERT_EQ(r.verification_rows.size(), 8u);
+  for (const auto& row : r.verification_rows) {
+    EXPECT_LE(std::abs(row.deviation_mm), paper::kVerificationAccuracy_mm) << row.actual_m;
+    EXPECT_TRUE(std::isfinite(row.paper_deviation_mm)) << row.actual_m;  // paper column filled
+  }
+}
+
+TEST(PaperStudy, BeyondThePaperVerificationWithin3mm) {
+  for (const auto& row : study().verification_rows)
+    EXPECT_LE(std::abs(row.deviation_mm), 3.0) << row.actual_m;
+}
+
+TEST(PaperStudy, FindsThePapersKnees) {
+  const auto& fit = study().fit;
+  ASSERT_TRUE(fit.grayvalue.has_value());
+  ASSERT_TRUE(fit.temperature.has_value());
+  // Saturation bends the offset curve near 6.5 ns (paper Section 5.1).
+  double nearest = 1e9;
+  for (double k : fit.grayvalue->knots) nearest = std::min(nearest, std::abs(k - 6.5));
+  EXPECT_LT(nearest, 0.6);
+  // The delay drift starts at 16 C (paper Section 5.2).
+  nearest = 1e9;
+  for (double k : fit.temperature->knots) nearest = std::min(nearest, std::abs(k - 16.0));
+  EXPECT_LT(nearest, 2.0);
+}
+
+TEST(PaperStudy, HeldOutGridIsCorrectedAndFixedPointAgrees) {
+  const auto& r = study();
+  EXPECT_GT(r.holdout_stats.rows, 400u);
+  EXPECT_LT(r.holdout_stats.rms_m, 0.02 * r.holdout_raw_stats.rms_m);
+  EXPECT_LT(1e3 * r.holdout_stats.max_abs_m, 11.0);
+  // The integer chain agrees with the floating-point one on every demo row.
+  EXPECT_LT(r.fixed_vs_float_max_diff_mm, 0.5);
+}

@@ -1,0 +1,515 @@
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tofkit/calib/confidence_model.hpp"
+#include "tofkit/calib/surface_fit.hpp"
+#include "tofkit/io/firmware_export.hpp"
+#include "tofkit/io/model_json.hpp"
+#include "tofkit/physics/constants.hpp"
+#include "tofkit/ranging/fixed_point_chain.hpp"
+#include "tofkit/ranging/piecewise_linear.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/time_to_distance.hpp"
+
+namespace tofkit::ranging {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// A fresh directory per test under the system temp dir.
+fs::path scratch_dir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() /
+                       ("tofkit_ranging_test_" + name + "_" +
+                        std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+/// The paper's chain: 50 mm offset, gray value -36 / +70 mm/ns around 6.5 ns,
+/// temperature -3.8 mm/C above 16 C.
+Pipeline paper_pipeline() {
+  Pipeline p;
+  p.add_step(make_offset_step(0.050));
+  PiecewiseLinear g;
+  g.x0 = 6.5;
+  g.intercept = 0.0;
+  g.slope0 = -0.036;
+  g.knots = {6.5};
+  g.slopes = {0.106};
+  p.add_step(make_grayvalue_step(g, {3.0, 12.0}));
+  PiecewiseLinear h;
+  h.x0 = 20.0;
+  h.slope0 = 0.0;
+  h.knots = {16.0};
+  h.slopes = {-0.0038};
+  h.intercept = 0.0038 * 4.0;  // so h(20) = 0
+  p.add_step(make_temperature_step(h, {0.0, 40.0}));
+  p.set_residual_rms_m(0.003);
+  return p;
+}
+
+/// The paper's corrections written out independently of PiecewiseLinear.
+double paper_correction_m(double pulse_width_ns, double temperature_c) {
+  const double g =
+      pulse_width_ns < 6.5 ? -0.036 * (pulse_width_ns - 6.5) : 0.070 * (pulse_width_ns - 6.5);
+  const double h = temperature_c < 16.0 ? 0.0038 * 4.0 : -0.0038 * (temperature_c - 20.0);
+  return 0.050 + g + h;
+}
+
+RawMeasurement measurement(double tof_ns, double pulse_width_ns, double temperature_c,
+                           double amplitude = 0.5) {
+  RawMeasurement m;
+  m.tof_ns = tof_ns;
+  m.pulse_width_ns = pulse_width_ns;
+  m.temperature_c = temperature_c;
+  m.amplitude = amplitude;
+  m.shots_valid = 10;
+  return m;
+}
+
+TEST(TimeToDistance, GroupSpeedOfLightInAir) {
+  const TimeToDistance conversion;
+  // Group index of air at 905 nm, 20 C, 1013 hPa is about 1.00027 (IAG 1999).
+  const double n_g = physics::kSpeedOfLightVacuum_m_per_s / 2 * 1e-9 / metres_per_ns(conversion);
+  EXPECT_GT(n_g, 1.00024);
+  EXPECT_LT(n_g, 1.00030);
+  EXPECT_NEAR(tof_to_distance_m(66.7, conversion), 66.7 * metres_per_ns(conversion), 1e-15);
+  // Warmer air is thinner: the pulse is faster.
+  TimeToDistance hot = conversion;
+  hot.air.temperature_c = 40.0;
+  EXPECT_GT(metres_per_ns(hot), metres_per_ns(conversion));
+  TimeToDistance bad;
+  bad.wavelength_nm = 0;
+  EXPECT_THROW(bad.validate(), std::invalid_argument);
+}
+
+TEST(PiecewiseLinear, EvaluatesTheHingeFormula) {
+  PiecewiseLinear f;
+  f.x0 = 1.0;
+  f.intercept = 2.0;
+  f.slope0 = 0.5;
+  f.knots = {2.0, 4.0};
+  f.slopes = {1.0, -2.0};
+  EXPECT_DOUBLE_EQ(f(0.0), 1.5);
+  EXPECT_DOUBLE_EQ(f(3.0), 2.0 + 0.5 * 2 + 1.0);
+  EXPECT_DOUBLE_EQ(f(5.0), 2.0 + 0.5 * 4 + 3.0 - 2.0);
+  EXPECT_EQ(f.segment_slopes(), (std::vector<double>{0.5, 1.5, -0.5}));
+  EXPECT_DOUBLE_EQ(f.slope_at(4.5), -0.5);
+  // Continuity at the knots.
+  for (double k : f.knots) EXPECT_NEAR(f(k - 1e-9), f(k + 1e-9), 1e-8);
+  PiecewiseLinear bad = f;
+  bad.knots = {4.0, 2.0};
+  EXPECT_THROW(bad.validate(), std::invalid_argument);
+  bad.knots = {2.0};
+  EXPECT_THROW(bad.validate(), std::invalid_argument);
+}
+
+TEST(Pipeline, AppliesTheChainAsWrittenOut) {
+  const Pipeline p = paper_pipeline();
+  const double k = metres_per_ns(p.time_to_distance());
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> tof(5, 60), pw(3, 12), t(0, 40);
+  std::vector<RawMeasurement> in;
+  for (int i = 0; i < 1000; ++i) in.push_back(measurement(tof(rng), pw(rng), t(rng)));
+  std::vector<Range> out(in.size());
+  p.apply(in, out);
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    const double expected =
+        in[i].tof_ns * k + paper_correction_m(in[i].pulse_width_ns, in[i].temperature_c);
+    EXPECT_NEAR(out[i].distance_m, expected, 1e-12);
+    EXPECT_EQ(out[i].correction_flags, 0u);
+    EXPECT_EQ(out[i].sigma_m, 0.003);
+    const Range single = p.apply(in[i]);
+    EXPECT_EQ(single.distance_m, out[i].distance_m);
+  }
+}
+
+TEST(Pipeline, FlagsNoEchoOutOfDomainAndNaN) {
+  const Pipeline p = paper_pipeline();
+  const double k = metres_per_ns(p.time_to_distance());
+  std::vector<RawMeasurement> in{measurement(20, 5, 20),
+                                 measurement(20, 5, 20),
+                                 measurement(20, 14, 20),
+                                 measurement(20, 5, 45),
+                                 measurement(20, std::nan(""), 20),
+                                 measurement(std::nan(""), 5, 20)};
+  in[1].shots_valid = 0;
+  in[1].flags = kRawNoEcho;
+  in[5].distance_raw_m = 3.0;  // no time of flight: the reported distance is the start
+  std::vector<Range> out(in.size());
+  p.apply(in, out);
+  EXPECT_EQ(out[0].correction_flags, 0u);
+  EXPECT_TRUE(std::isnan(out[1].distance_m));
+  EXPECT_TRUE(std::isnan(out[1].sigma_m));
+  EXPECT_EQ(out[1].correction_flags, kCorrNoEcho);
+  // Outside the domain: flagged, and the hinge continues linearly.
+  EXPECT_EQ(out[2].correction_flags, kCorrOutOfDomain);
+  EXPECT_NEAR(out[2].distance_m, 20 * k + paper_correction_m(14, 20), 1e-12);
+  EXPECT_EQ(out[3].correction_flags, kCorrOutOfDomain);
+  EXPECT_NEAR(out[3].distance_m, 20 * k + paper_correction_m(5, 45), 1e-12);
+  EXPECT_TRUE(std::isnan(out[4].distance_m));
+  EXPECT_EQ(out[4].correction_flags, kCorrNonFinite);
+  EXPECT_NEAR(out[5].distance_m, 3.0 + paper_correction_m(5, 20), 1e-12);
+  std::vector<Range> short_out(2);
+  EXPECT_THROW(p.apply(in, short_out), std::invalid_argument);
+}
+
+/// range + amplitude surface for testing the surface step: C = 1e-3 r + 1e-2 a, clamped.
+class LinearSurface final : public calib::CorrectionSurface {
+ public:
+  LinearSurface() { domain_ = {1.0, 5.0, 0.1, 1.0, 0, 0}; }
+  std::string kind() const override { return "poly"; }
+  bool uses_temperature() const override { return false; }
+  const calib::SurfaceDomain& domain() const override { return domain_; }
+  void evaluate(const calib::SurfaceInputs& in, std::span<double> c,
+                std::span<std::uint8_t> ood) const override {
+    for (std::size_t i = 0; i < c.size(); ++i) {
+      const double r = std::clamp(in.range_m[i], domain_.range_min_m, domain_.range_max_m);
+      const double a = std::clamp(in.amplitude[i], domain_.amplitude_min, domain_.amplitude_max);
+      c[i] = 1e-3 * r + 1e-2 * a;
+      ood[i] = (r != in.range_m[i] || a != in.amplitude[i]) ? 1 : 0;
+    }
+  }
+
+ private:
+  calib::SurfaceDomain domain_;
+};
+
+class ConstantConfidence final : public calib::ConfidenceModel {
+ public:
+  std::string kind() const override { return "thesis"; }
+  void sigma(std::span<const double> range, std::span<const double> amplitude,
+             std::span<double> sigma) const override {
+    for (std::size_t i = 0; i < sigma.size(); ++i) sigma[i] = 0.001 * range[i] + amplitude[i] * 0;
+  }
+};
+
+TEST(Pipeline, SurfaceStepSeesTheDistanceBeforeIt) {
+  Pipeline p;
+  p.add_step(make_offset_step(0.5));
+  p.add_step(make_surface_step(std::make_shared<LinearSurface>()));
+  p.set_confidence(std::make_shared<ConstantConfidence>());
+  const double k = metres_per_ns(p.time_to_distance());
+  std::vector<RawMeasurement> in{measurement(2.0 / k, 5, 20, 0.5),
+                                 measurement(10.0 / k, 5, 20, 0.5),
+                                 measurement(2.0 / k, 5, 20, std::nan(""))};
+  std::vector<Range> out(in.size());
+  p.apply(in, out);
+  EXPECT_NEAR(out[0].distance_m, 2.5 + 1e-3 * 2.5 + 1e-2 * 0.5, 1e-12);
+  EXPECT_EQ(out[0].correction_flags, 0u);
+  EXPECT_NEAR(out[0].sigma_m, 0.001 * out[0].distance_m, 1e-15);
+  EXPECT_NEAR(out[1].distance_m, 10.5 + 1e-3 * 5.0 + 1e-2 * 0.5, 1e-12);  // clamped, flagged
+  EXPECT_EQ(out[1].correction_flags, kCorrOutOfDomain);
+  EXPECT_TRUE(std::isnan(out[2].distance_m));
+  EXPECT_EQ(out[2].correction_flags, kCorrNonFinite);
+}
+
+TEST(Pipeline, ValidatesSteps) {
+  Pipeline p;
+  EXPECT_THROW(p.add_step(make_offset_step(std::nan(""))), std::invalid_argument);
+  EXPECT_THROW(p.add_step(make_surface_step(nullptr)), std::invalid_argument);
+  EXPECT_THROW(p.add_step(make_grayvalue_step(PiecewiseLinear{}, {2.0, 1.0})),
+               std::invalid_argument);
+  EXPECT_EQ(step_kind_from_name("temperature"), StepKind::kTemperature);
+  EXPECT_THROW((void)step_kind_from_name("walk"), std::invalid_argument);
+}
+
+// ---- fixed point ----
+
+struct CodeSample {
+  std::vector<FixedPointInput> codes;
+};
+
+std::vector<FixedPointInput> random_codes(const FixedPointFormat& f, std::size_t n, unsigned seed,
+                                          double pw_lo = 3.0, double pw_hi = 12.0,
+                                          double t_lo = 0.0, double t_hi = 40.0) {
+  std::mt19937_64 rng(seed);
+  const auto code_range = [](double lo, double hi, double lsb) {
+    return std::uniform_int_distribution<int>(static_cast<int>(std::ceil(lo / lsb)),
+                                              static_cast<int>(std::floor(hi / lsb)));
+  };
+  auto tof = code_range(3.0, 70.0, f.tdc_lsb_ps * 1e-3);  // 0.45 - 10.5 m
+  auto pw = code_range(pw_lo, pw_hi, f.pulse_width_lsb_ps * 1e-3);
+  auto t = code_range(t_lo, t_hi, f.temperature_lsb_c);
+  std::vector<FixedPointInput> out(n);
+  for (auto& c : out) {
+    c.tof_code = tof(rng);
+    c.pulse_width_code = pw(rng);
+    c.temperature_code = t(rng);
+  }
+  return out;
+}
+
+double max_fixed_float_difference_m(const Pipeline& p, const FixedPointChain& chain,
+                                    const std::vector<FixedPointInput>& codes) {
+  std::vector<FixedPointOutput> fixed(codes.size());
+  chain.apply(codes, fixed);
+  std::vector<RawMeasurement> raw;
+  for (const auto& c : codes) raw.push_back(chain.to_raw(c));
+  std::vector<Range> floating(raw.size());
+  p.apply(raw, floating);
+  double worst = 0;
+  for (std::size_t i = 0; i < codes.size(); ++i) {
+    worst = std::max(worst, std::fabs(fixed[i].distance_um * 1e-6 - floating[i].distance_m));
+  }
+  return worst;
+}
+
+TEST(FixedPointChain, AgreesWithTheFloatChainOverTheDomain) {
+  const Pipeline p = paper_pipeline();
+  const FixedPointFormat format;  // 60 ps TDC and pulse width, 1/16 C, F = 16, K = 12
+  const FixedPointChain chain = FixedPointChain::from_pipeline(p, format);
+  const double worst = max_fixed_float_difference_m(p, chain, random_codes(format, 20000, 2));
+  EXPECT_LT(worst, 0.5e-3);   // the requirement
+  EXPECT_LT(worst, 0.01e-3);  // what integer micrometres with 16 fraction bits achieve
+  // A coarser TDC LSB and fewer fraction bits still meet the requirement.
+  FixedPointFormat coarse;
+  coarse.tdc_lsb_ps = 250;
+  coarse.pulse_width_lsb_ps = 250;
+  coarse.temperature_lsb_c = 0.5;
+  coarse.fraction_bits = 8;
+  coarse.knot_fraction_bits = 4;
+  const FixedPointChain coarse_chain = FixedPointChain::from_pipeline(p, coarse);
+  EXPECT_LT(max_fixed_float_difference_m(p, coarse_chain, random_codes(coarse, 20000, 3)), 0.5e-3);
+}
+
+TEST(FixedPointChain, FlagsAndNoEcho) {
+  const Pipeline p = paper_pipeline();
+  const FixedPointFormat format;
+  const FixedPointChain chain = FixedPointChain::from_pipeline(p, format);
+  // 2 - 14 ns pulse widths and -10 - 50 C cover inside and outside the domain.
+  auto codes = random_codes(format, 4000, 4, 2.0, 14.0, -10.0, 50.0);
+  codes[0].flags = kRawNoEcho;
+  std::vector<FixedPointOutput> fixed(codes.size());
+  chain.apply(codes, fixed);
+  EXPECT_EQ(fixed[0].distance_um, kFixedNoDistance);
+  EXPECT_EQ(fixed[0].correction_flags, kCorrNoEcho);
+  std::size_t compared = 0, flagged = 0;
+  for (std::size_t i = 1; i < codes.size(); ++i) {
+    const RawMeasurement m = chain.to_raw(codes[i]);
+    const Range r = p.apply(m);
+    const double pw_edge =
+        std::min(std::fabs(m.pulse_width_ns - 3.0), std::fabs(m.pulse_width_ns - 12.0));
+    const double t_edge = std::min(std::fabs(m.temperature_c), std::fabs(m.temperature_c - 40.0));
+    if (pw_edge < 0.03 || t_edge < 0.03) continue;  // within half an LSB of a bound
+    ++compared;
+    flagged += r.correction_flags != 0 ? 1 : 0;
+    EXPECT_EQ(fixed[i].correction_flags, r.correction_flags) << i;
+    EXPECT_NEAR(fixed[i].distance_um * 1e-6, r.distance_m, 1e-5);  // linear continuation too
+  }
+  EXPECT_GT(compared, 3500u);
+  EXPECT_GT(flagged, 500u);
+  // Codes round-trip through to_codes.
+  EXPECT_EQ(chain.to_codes(chain.to_raw(codes[5])).tof_code, codes[5].tof_code);
+}
+
+TEST(FixedPointChain, RejectsWhatItCannotRepresent) {
+  Pipeline p = paper_pipeline();
+  FixedPointFormat format;
+  format.tdc_lsb_ps = 1000;
+  format.fraction_bits = 30;
+  try {
+    (void)FixedPointChain::from_pipeline(p, format);
+    FAIL();
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("tof_scale_q"), std::string::npos) << e.what();
+  }
+  p.add_step(make_surface_step(std::make_shared<LinearSurface>()));
+  EXPECT_THROW((void)FixedPointChain::from_pipeline(p, FixedPointFormat{}), std::invalid_argument);
+  FixedPointFormat bad;
+  bad.temperature_lsb_c = 0;
+  EXPECT_THROW(bad.validate(), std::invalid_argument);
+}
+
+// ---- model file and firmware export ----
+
+TEST(ModelJson, RoundTripsTheChainBitExactly) {
+  const fs::path dir = scratch_dir("model");
+  const Pipeline p = paper_pipeline();
+  io::save_pipeline(dir / "model.json", p, {{"command", "test"}});
+  const Pipeline q = io::load_pipeline(dir / "model.json");
+  ASSERT_EQ(q.steps().size(), 3u);
+  EXPECT_EQ(q.residual_rms_m(), 0.003);
+  std::vector<RawMeasurement> in{measurement(20, 5, 20), measurement(33.3, 11.9, 39),
+                                 measurement(20, 15, -5)};
+  std::vector<Range> a(in.size()), b(in.size());
+  p.apply(in, a);
+  q.apply(in, b);
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    EXPECT_EQ(a[i].distance_m, b[i].distance_m);
+    EXPECT_EQ(a[i].correction_flags, b[i].correction_flags);
+  }
+  fs::remove_all(dir);
+}
+
+TEST(ModelJson, RoundTripsSurfaceAndConfidence) {
+  // A real polynomial surface and thesis confidence (calib/, io/surface_json).
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> r(1, 5), a(0.1, 1);
+  std::normal_distribution<double> noise(0, 0.002);
+  std::vector<double> range, amplitude, error, residual;
+  for (int i = 0; i < 400; ++i) {
+    range.push_back(r(rng));
+    amplitude.push_back(a(rng));
+    error.push_back(0.01 * range.back() - 0.02 * amplitude.back() + noise(rng));
+    residual.push_back(noise(rng) * (1 + amplitude.back()));
+  }
+  calib::PolynomialFitOptions poly;
+  poly.order = 2;
+  const auto fit = calib::fit_polynomial_surface({{range, amplitude, {}}, error}, poly);
+  Pipeline p;
+  p.add_step(make_offset_step(0.01));
+  p.add_step(make_surface_step(fit.surface));
+  p.set_confidence(calib::fit_thesis_confidence({range, amplitude, residual}));
+  p.set_residual_rms_m(fit.residual_rms_m);
+  const nlohmann::json j = io::pipeline_to_json(p);
+  EXPECT_EQ(j["steps"][1]["kind"], "surface");
+  EXPECT_TRUE(j.contains("confidence"));
+  const Pipeline q = io::pipeline_from_json(nlohmann::json::parse(j.dump()), "model.json");
+  const double k = metres_per_ns(p.time_to_distance());
+  std::vector<RawMeasurement> in;
+  for (int i = 0; i < 50; ++i)
+    in.push_back(measurement((1.0 + 0.1 * i) / k, 5, 20, 0.1 + 0.02 * i));
+  std::vector<Range> x(in.size()), y(in.size());
+  p.apply(in, x);
+  q.apply(in, y);
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    EXPECT_EQ(x[i].distance_m, y[i].distance_m) << i;
+    EXPECT_EQ(x[i].sigma_m, y[i].sigma_m) << i;
+    EXPECT_EQ(x[i].correction_flags, y[i].correction_flags) << i;
+  }
+}
+
+std::string load_error(const std::string& text) {
+  try {
+    (void)io::pipeline_from_json(nlohmann::json::parse(text), "model.json");
+  } catch (const std::runtime_error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(ModelJson, ErrorsNameTheFileAndField) {
+  nlohmann::json j = io::pipeline_to_json(paper_pipeline());
+  j["steps"][1]["function"]["knots"][0] = "six";
+  EXPECT_NE(load_error(j.dump()).find("model.json.steps[1].function.knots[0]: expected a number"),
+            std::string::npos)
+      << load_error(j.dump());
+  j = io::pipeline_to_json(paper_pipeline());
+  j["version"] = 7;
+  EXPECT_NE(load_error(j.dump()).find("model.json.version: unsupported version 7"),
+            std::string::npos);
+  j = io::pipeline_to_json(paper_pipeline());
+  j["steps"][0]["kind"] = "walk";
+  EXPECT_NE(load_error(j.dump()).find("model.json.steps[0].kind"), std::string::npos);
+  j = io::pipeline_to_json(paper_pipeline());
+  j["steps"][2]["function"]["slopes"] = nlohmann::json::array();
+  EXPECT_NE(load_error(j.dump()).find("model.json.steps[2]"), std::string::npos);
+  j = io::pipeline_to_json(paper_pipeline());
+  j.erase("time_to_distance");
+  EXPECT_NE(load_error(j.dump()).find("missing field 'time_to_distance'"), std::string::npos);
+  const fs::path dir = scratch_dir("bad");
+  std::ofstream(dir / "broken.json") << "{ not json";
+  try {
+    (void)io::load_pipeline(dir / "broken.json");
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("broken.json: not valid JSON"), std::string::npos);
+  }
+  EXPECT_THROW((void)io::load_pipeline(dir / "missing.json"), std::runtime_error);
+  fs::remove_all(dir);
+}
+
+TEST(FirmwareExport, JsonReadsBackBitExactly) {
+  const FixedPointChain chain =
+      FixedPointChain::from_pipeline(paper_pipeline(), FixedPointFormat{});
+  const fs::path dir = scratch_dir("firmware");
+  io::save_fixed_point_json(dir / "firmware.json", chain);
+  const FixedPointChain back = io::load_fixed_point_json(dir / "firmware.json");
+  const auto& a = chain.coefficients();
+  const auto& b = back.coefficients();
+  EXPECT_EQ(a.constant_q, b.constant_q);
+  EXPECT_EQ(a.tof_scale_q, b.tof_scale_q);
+  EXPECT_EQ(a.grayvalue.knots_q, b.grayvalue.knots_q);
+  EXPECT_EQ(a.temperature.slopes_q, b.temperature.slopes_q);
+  const auto codes = random_codes(FixedPointFormat{}, 5000, 6, 2.0, 14.0, -10.0, 50.0);
+  std::vector<FixedPointOutput> x(codes.size()), y(codes.size());
+  chain.apply(codes, x);
+  back.apply(codes, y);
+  for (std::size_t i = 0; i < codes.size(); ++i) {
+    ASSERT_EQ(x[i].distance_um, y[i].distance_um);
+    ASSERT_EQ(x[i].correction_flags, y[i].correction_flags);
+  }
+  nlohmann::json j = io::fixed_point_to_json(chain);
+  j["grayvalue"]["knots_q"][0] = 1.5;
+  try {
+    (void)io::fixed_point_from_json(j, "fw.json");
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("fw.json.grayvalue.knots_q[0]: expected an integer"),
+              std::string::npos)
+        << e.what();
+  }
+  fs::remove_all(dir);
+}
+
+TEST(FirmwareExport, CHeaderReproducesTheChain) {
+  const FixedPointChain chain =
+      FixedPointChain::from_pipeline(paper_pipeline(), FixedPointFormat{});
+  const std::string header = io::fixed_point_c_header(chain, "rf");
+  const auto& c = chain.coefficients();
+  EXPECT_NE(
+      header.find("static const int32_t rf_tof_scale_q = " + std::to_string(c.tof_scale_q) + ";"),
+      std::string::npos);
+  EXPECT_NE(
+      header.find("rf_grayvalue_knots_q[] = {" + std::to_string(c.grayvalue.knots_q[0]) + "}"),
+      std::string::npos);
+  EXPECT_THROW((void)io::fixed_point_c_header(chain, "9bad"), std::invalid_argument);
+  // Oracle: compile the header with the system C compiler and compare outputs.
+  if (std::system("cc --version > /dev/null 2>&1") != 0) GTEST_SKIP() << "no C compiler";
+  const fs::path dir = scratch_dir("header");
+  std::ofstream(dir / "chain.h") << header;
+  const auto codes = random_codes(FixedPointFormat{}, 200, 7, 2.0, 14.0, -10.0, 50.0);
+  {
+    std::ofstream main_c(dir / "main.c");
+    main_c << "#include <stdio.h>\n#include \"chain.h\"\nint main(void) {\n"
+           << "  static const int32_t in[][3] = {";
+    for (const auto& x : codes) {
+      main_c << "{" << x.tof_code << "," << x.pulse_width_code << "," << x.temperature_code << "},";
+    }
+    main_c << "};\n  for (unsigned i = 0; i < sizeof in / sizeof in[0]; ++i) {\n"
+           << "    uint32_t ood;\n    int32_t d = rf_distance_um(in[i][0], in[i][1], in[i][2], "
+              "&ood);\n"
+           << "    printf(\"%ld %u\\n\", (long)d, ood);\n  }\n  return 0;\n}\n";
+  }
+  const std::string cmd = "cc -std=c99 -Wall -Werror -o " + (dir / "chain").string() + " " +
+                          (dir / "main.c").string() + " && " + (dir / "chain").string() + " > " +
+                          (dir / "out.txt").string();
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  std::ifstream out(dir / "out.txt");
+  std::vector<FixedPointOutput> expected(codes.size());
+  chain.apply(codes, expected);
+  for (std::size_t i = 0; i < codes.size(); ++i) {
+    long d = 0;
+    unsigned ood = 0;
+    ASSERT_TRUE(out >> d >> ood);
+    EXPECT_EQ(d, expected[i].distance_um) << i;
+    EXPECT_EQ(ood != 0, expected[i].correction_flags != 0) << i;
+  }
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace tofkit::ranging
