@@ -175,6 +175,29 @@ TEST(HingeFit, RejectsTooFewRowsAndNoSpreadNamingTheColumn) {
                std::invalid_argument);
 }
 
+TEST(HingeFit, FindsTheKneeOfAShortSweepBesideAClusteredMajority) {
+  // 900 rows at one temperature (the plates) and a 100-row sweep over 0-40 C:
+  // row quantiles all fall in the cluster; the distinct-value grid reaches the knee.
+  const auto drift = [](double t) { return -0.0038 * std::max(0.0, t - 16.0); };
+  std::mt19937_64 rng(12);
+  std::normal_distribution<double> noise(0.0, 0.001);
+  Sample s;
+  for (int i = 0; i < 900; ++i) {
+    s.x.push_back(25.0);
+    s.y.push_back(drift(25.0) + noise(rng));
+  }
+  for (int i = 0; i < 100; ++i) {
+    s.x.push_back(0.4 * i);
+    s.y.push_back(drift(0.4 * i) + noise(rng));
+  }
+  HingeFitOptions options;
+  options.min_segment_fraction = 0.0;
+  options.robust.loss = RobustLoss::kNone;
+  const HingeFitResult r = fit_hinge(s.x, s.y, options);
+  ASSERT_EQ(r.knots.size(), 1u) << r.summary();
+  EXPECT_NEAR(r.knots[0], 16.0, 1.0);
+}
+
 TEST(HingeFit, SkipsNonFiniteRows) {
   Sample s = make_sample(100, 3.0, 12.0, 0.0, 10, paper_grayvalue_m);
   s.x[3] = std::nan("");

@@ -151,8 +151,12 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     throw std::invalid_argument(
         "--firmware exports the chain only: give --chain without --surface");
   }
-  const calib::ChainSteps steps =
-      o.chain.empty() ? calib::ChainSteps{} : calib::parse_chain_steps(o.chain);
+  calib::ChainSteps steps;
+  try {
+    if (!o.chain.empty()) steps = calib::parse_chain_steps(o.chain);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("--chain " + o.chain + ": " + e.what());
+  }
   const SurfaceSpec surface_spec = o.surface.empty() ? SurfaceSpec{} : parse_surface(o.surface);
   const device::DeviceConfig config = ctx.load_config();
   require_output_directory(o.out, "--out");

@@ -336,7 +336,8 @@ std::vector<double> knot_grid(const ProfileSolver& solver, int grid_points) {
   std::vector<double> distinct(u.begin(), u.end());
   distinct.erase(std::unique(distinct.begin(), distinct.end()), distinct.end());
   std::vector<double> grid;
-  for (const std::vector<double>* values : {&u, static_cast<const std::vector<double>*>(&distinct)}) {
+  for (const std::vector<double>* values :
+       {&u, static_cast<const std::vector<double>*>(&distinct)}) {
     const std::size_t n = values->size();
     for (int i = 1; i <= grid_points; ++i) {
       const double q = static_cast<double>(i) / (grid_points + 1);

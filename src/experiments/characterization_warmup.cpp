@@ -1,5 +1,6 @@
 #include "tofkit/experiments/characterization_warmup.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -16,6 +17,8 @@ void WarmupOptions::validate() const {
   if (final_window_min < 1 || final_window_min >= duration_min)
     fail("final_window_min must be in [1, duration_min)");
   if (!(tolerance_mm > 0)) fail("tolerance_mm must be > 0");
+  if (smoothing_min < 1 || smoothing_min > duration_min)
+    fail("smoothing_min must be in [1, duration_min]");
 }
 
 WarmupResult run_warmup(const device::VirtualRangefinder& device, const WarmupOptions& options,
@@ -59,11 +62,18 @@ WarmupResult run_warmup(const device::VirtualRangefinder& device, const WarmupOp
   result.final_range_m = sum / options.final_window_min;
   result.total_drift_mm = (result.final_range_m - result.minutes.front().mean_range_m) * 1e3;
 
-  // Settle time: after the last minute whose mean is off by more than the tolerance.
+  // Settle time: after the last minute whose (smoothed) mean is off by more than
+  // the tolerance. The centred running mean shrinks near the ends of the record.
+  const int n_minutes = options.duration_min;
+  const int half = options.smoothing_min / 2;
   int last_off = -1;
-  for (const auto& m : result.minutes) {
-    if (!(std::abs(m.mean_range_m - result.final_range_m) * 1e3 <= options.tolerance_mm))
-      last_off = m.minute;
+  for (int m = 0; m < n_minutes; ++m) {
+    const int w = std::min({half, m, n_minutes - 1 - m});
+    double s = 0;
+    for (int k = m - w; k <= m + w; ++k)
+      s += result.minutes[static_cast<std::size_t>(k)].mean_range_m;
+    const double smoothed = s / (2 * w + 1);
+    if (!(std::abs(smoothed - result.final_range_m) * 1e3 <= options.tolerance_mm)) last_off = m;
   }
   result.settle_time_min = last_off + 1.0;
 

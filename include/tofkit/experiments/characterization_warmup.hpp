@@ -24,6 +24,8 @@ struct WarmupOptions {
   int final_window_min = 30;   ///< the settled value is the mean of the last 30 minutes
   double tolerance_mm = 0.25;  ///< settled once every later minute mean stays this close
                                ///< (0.01 in, the thesis's reporting resolution)
+  int smoothing_min = 5;       ///< the minute means are judged through a centred running mean of
+                          ///< this many minutes (the thesis read the drift off a plotted curve)
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };

@@ -1,0 +1,145 @@
+// tofkit evaluate: accuracy of a corrected CSV against its truth (thesis
+// Eqs. 4.1-4.3, 4.10-4.11): per group of a column and overall, bias, variance,
+// RMS of true - distance_m and of true - distance_raw_m, improvement, max
+// |error|, and the share within 1 and 2 sigma overall and per amplitude tercile.
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "app.hpp"
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/io/raw_csv.hpp"
+
+namespace tofkit::app {
+namespace {
+
+struct EvaluateOptions {
+  std::string in;
+  std::string by;
+  bool json = false;
+};
+
+/// The value of a CSV column of a corrected row, by column name.
+double column_value(const io::CorrectedRow& row, const std::string& name) {
+  const auto& t = row.record.truth;
+  const auto& m = row.record.raw;
+  if (name == "distance_true_m") return t.distance_m;
+  if (name == "reflectance") return t.reflectance;
+  if (name == "angle_deg") return t.angle_deg;
+  if (name == "ambient_c") return t.ambient_c;
+  if (name == "tof_ns") return m.tof_ns;
+  if (name == "distance_raw_m") return m.distance_raw_m;
+  if (name == "pulse_width_ns") return m.pulse_width_ns;
+  if (name == "amplitude") return m.amplitude;
+  if (name == "temperature_c") return m.temperature_c;
+  if (name == "shots_valid") return m.shots_valid;
+  if (name == "flags") return m.flags;
+  if (name == "distance_m") return row.range.distance_m;
+  if (name == "sigma_m") return row.range.sigma_m;
+  if (name == "correction_flags") return row.range.correction_flags;
+  std::string known;
+  for (auto columns : {io::raw_csv_columns(), io::corrected_csv_columns()}) {
+    for (std::string_view c : columns) known += (known.empty() ? "" : ", ") + std::string(c);
+  }
+  throw std::invalid_argument("--by " + name + ": no such column (columns: " + known + ")");
+}
+
+nlohmann::json number(double v) {
+  return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json();
+}
+
+nlohmann::json stats_json(const calib::ErrorStats& s) {
+  return {{"rows", s.rows},
+          {"bias_m", number(s.bias_m)},
+          {"abs_bias_m", number(s.abs_bias_m)},
+          {"variance_m2", number(s.variance_m2)},
+          {"rms_m", number(s.rms_m)},
+          {"max_abs_m", number(s.max_abs_m)}};
+}
+
+nlohmann::json coverage_json(const calib::Coverage& c) {
+  nlohmann::json terciles = nlohmann::json::array();
+  for (std::size_t t = 0; t < 3; ++t) {
+    terciles.push_back({{"rows", c.tercile_rows[t]}, {"share", number(c.tercile_share[t])}});
+  }
+  return {{"k_sigma", c.k_sigma},
+          {"rows", c.rows},
+          {"share", number(c.share)},
+          {"amplitude_terciles", terciles}};
+}
+
+nlohmann::json group_json(const calib::GroupEvaluation& g) {
+  return {{"key", number(g.key)},
+          {"rows", g.rows},
+          {"rows_without_range", g.rows_without_range},
+          {"corrected", stats_json(g.corrected)},
+          {"raw", stats_json(g.raw)},
+          {"rms_improvement_pct", number(g.rms_improvement_pct)},
+          {"bias_improvement_pct", number(g.bias_improvement_pct)},
+          {"within_1_sigma", coverage_json(g.within_1_sigma)},
+          {"within_2_sigma", coverage_json(g.within_2_sigma)}};
+}
+
+void run_evaluate(const EvaluateOptions& o) {
+  if (!o.by.empty()) (void)column_value(io::CorrectedRow{}, o.by);  // unknown column: fail early
+  const std::vector<io::CorrectedRow> rows = io::read_corrected_csv(o.in);
+  std::vector<double> truth, distance, raw, sigma, amplitude, key;
+  for (const auto& r : rows) {
+    truth.push_back(r.record.truth.distance_m);
+    distance.push_back(r.range.distance_m);
+    raw.push_back(r.record.raw.distance_raw_m);
+    sigma.push_back(r.range.sigma_m);
+    amplitude.push_back(r.record.raw.amplitude);
+    if (!o.by.empty()) key.push_back(column_value(r, o.by));
+  }
+  std::size_t with_truth = 0;
+  for (double t : truth) with_truth += std::isfinite(t) ? 1 : 0;
+  if (with_truth == 0) {
+    throw std::runtime_error(o.in + ": no row has a distance_true_m; evaluate needs the truth");
+  }
+  const calib::Evaluation ev = calib::evaluate({truth, distance, raw, sigma, amplitude, key});
+  if (o.json) {
+    nlohmann::json j = {
+        {"input", o.in},
+        {"by", o.by.empty() ? nlohmann::json() : nlohmann::json(o.by)},
+        {"rows", rows.size()},
+        {"amplitude_terciles",
+         {{"lower", number(ev.terciles.lower)}, {"upper", number(ev.terciles.upper)}}},
+        {"overall", group_json(ev.overall)}};
+    nlohmann::json groups = nlohmann::json::array();
+    for (const auto& g : ev.groups) groups.push_back(group_json(g));
+    j["groups"] = groups;
+    fmt::print("{}\n", j.dump(2));
+    return;
+  }
+  fmt::print("{}: {} rows{}; error = true - distance (mm); raw = true - distance_raw_m\n", o.in,
+             rows.size(), o.by.empty() ? "" : ", grouped by " + o.by);
+  fmt::print("{}", ev.summary());
+  const auto& c1 = ev.overall.within_1_sigma;
+  const auto& c2 = ev.overall.within_2_sigma;
+  fmt::print(
+      "amplitude terciles (edges {:.4g}, {:.4g}): within 1 sigma {:.1f} / {:.1f} / {:.1f} %, "
+      "within 2 sigma {:.1f} / {:.1f} / {:.1f} %\n",
+      ev.terciles.lower, ev.terciles.upper, 100 * c1.tercile_share[0], 100 * c1.tercile_share[1],
+      100 * c1.tercile_share[2], 100 * c2.tercile_share[0], 100 * c2.tercile_share[1],
+      100 * c2.tercile_share[2]);
+}
+
+const bool registered = register_command("evaluate", [](CLI::App& sub, AppContext&) {
+  sub.description("accuracy of a corrected CSV against its truth, per group and overall");
+  auto o = std::make_shared<EvaluateOptions>();
+  sub.add_option("--in", o->in, "corrected CSV (from tofkit correct)")->required();
+  sub.add_option("--by", o->by, "group rows by this column (e.g. reflectance, distance_true_m)");
+  sub.add_flag("--json", o->json, "print JSON instead of a table");
+  sub.callback([o] { run_evaluate(*o); });
+});
+
+}  // namespace
+}  // namespace tofkit::app

@@ -1,0 +1,253 @@
+// Round trip through the `tofkit` binary: fit -> correct -> evaluate on a
+// synthetic calibration CSV generated here from a known hinge chain + noise.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/io/firmware_export.hpp"
+#include "tofkit/io/model_json.hpp"
+#include "tofkit/io/raw_csv.hpp"
+#include "tofkit/ranging/time_to_distance.hpp"
+
+namespace tofkit {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr double kNoise_m = 0.001;
+
+/// Known chain: e = true - c_air tof / 2 = -120 mm + g(pulse width) + h(temperature),
+/// g: -36 mm/ns below the 6.5 ns inflection, +70 mm/ns above (paper Section 5.1);
+/// h: 0 below 16 C, -3.8 mm/C above (Section 5.2).
+double true_error_m(double pulse_width_ns, double temperature_c) {
+  const double g = -0.036 * (pulse_width_ns - 6.5) + 0.106 * std::max(0.0, pulse_width_ns - 6.5);
+  const double h = -0.0038 * std::max(0.0, temperature_c - 16.0);
+  return -0.120 + g + h;
+}
+
+/// Plates of 10 reflectances (pulse width rises with reflectance) at 4 distances
+/// and 9 temperatures, `count` measurements each.
+std::vector<ranging::Record> synthetic_records(int count, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, kNoise_m), pw_noise(0.0, 0.02);
+  const double k = ranging::metres_per_ns(ranging::TimeToDistance{});
+  std::vector<ranging::Record> out;
+  for (double d : {1.0, 2.0, 3.0, 4.0}) {
+    for (int p = 0; p < 10; ++p) {
+      const double rho = 0.02 + 0.1 * p;
+      for (double t = 0; t <= 40; t += 5) {
+        for (int i = 0; i < count; ++i) {
+          ranging::Record r;
+          r.truth = {d, rho, 0.0, t};
+          r.raw.pulse_width_ns = 3.0 + 9.0 * std::sqrt(rho) + pw_noise(rng);
+          r.raw.temperature_c = t + 2.0;  // sensor reads a little above ambient
+          r.raw.amplitude = 0.05 + rho / (d * d);
+          const double measured =
+              d - true_error_m(r.raw.pulse_width_ns, r.raw.temperature_c) + noise(rng);
+          r.raw.tof_ns = measured / k;
+          r.raw.distance_raw_m = measured;
+          r.raw.shots_valid = 100;
+          out.push_back(r);
+        }
+      }
+    }
+  }
+  return out;
+}
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+class ChainCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("tofkit_chain_cli_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  RunResult run(const std::string& args) const {
+    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
+    const std::string cmd = std::string("\"") + TOFKIT_BINARY + "\" " + args + " > \"" +
+                            out.string() + "\" 2> \"" + err.string() + "\"";
+    const int status = std::system(cmd.c_str());
+    RunResult r;
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    const auto slurp = [](const fs::path& p) {
+      std::ifstream in(p);
+      std::stringstream ss;
+      ss << in.rdbuf();
+      return ss.str();
+    };
+    r.out = slurp(out);
+    r.err = slurp(err);
+    return r;
+  }
+  std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  fs::path dir_;
+};
+
+TEST_F(ChainCli, FitCorrectEvaluateRoundTrip) {
+  io::write_raw_csv(path("calib.csv"), synthetic_records(3, 1));
+  io::write_raw_csv(path("test.csv"), synthetic_records(1, 2));
+
+  const RunResult fit = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+                            " --chain offset,grayvalue,temperature");
+  ASSERT_EQ(fit.exit_code, 0) << fit.err;
+  const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+  ASSERT_EQ(model.steps().size(), 3u);
+  const auto& g = model.steps()[1].function;
+  const auto& h = model.steps()[2].function;
+  ASSERT_EQ(g.knots.size(), 1u) << model.summary();
+  ASSERT_EQ(h.knots.size(), 1u) << model.summary();
+  EXPECT_NEAR(g.knots[0], 6.5, 0.15);
+  EXPECT_NEAR(h.knots[0], 16.0, 1.0);
+  EXPECT_NEAR(g.segment_slopes()[0], -0.036, 1e-3);
+  EXPECT_NEAR(g.segment_slopes()[1], 0.070, 1e-3);
+  EXPECT_NEAR(h.segment_slopes()[1], -0.0038, 1e-4);
+
+  const RunResult correct = run("correct --model " + path("model.json") + " --in " +
+                                path("test.csv") + " --out " + path("corrected.csv"));
+  ASSERT_EQ(correct.exit_code, 0) << correct.err;
+  const auto rows = io::read_corrected_csv(path("corrected.csv"));
+  ASSERT_EQ(rows.size(), 360u);
+  double sum2 = 0;
+  for (const auto& r : rows) {
+    const double e = r.record.truth.distance_m - r.range.distance_m;
+    sum2 += e * e;
+  }
+  const double rms = std::sqrt(sum2 / static_cast<double>(rows.size()));
+  EXPECT_LT(rms, 1.3 * kNoise_m);  // corrected errors at the noise level
+  EXPECT_GT(rms, 0.7 * kNoise_m);
+
+  const RunResult eval = run("evaluate --in " + path("corrected.csv") + " --by reflectance --json");
+  ASSERT_EQ(eval.exit_code, 0) << eval.err;
+  const nlohmann::json j = nlohmann::json::parse(eval.out);
+  // Independent computation per reflectance: bias and RMS of true - distance_m.
+  std::map<double, std::vector<double>> by_reflectance, raw_by_reflectance;
+  for (const auto& r : rows) {
+    by_reflectance[r.record.truth.reflectance].push_back(r.record.truth.distance_m -
+                                                         r.range.distance_m);
+    raw_by_reflectance[r.record.truth.reflectance].push_back(r.record.truth.distance_m -
+                                                             r.record.raw.distance_raw_m);
+  }
+  ASSERT_EQ(j["groups"].size(), by_reflectance.size());
+  std::size_t gi = 0;
+  for (const auto& [rho, errors] : by_reflectance) {
+    const auto& group = j["groups"][gi++];
+    EXPECT_DOUBLE_EQ(group["key"].get<double>(), rho);
+    double sum = 0, squares = 0;
+    for (double e : errors) {
+      sum += e;
+      squares += e * e;
+    }
+    const double n = static_cast<double>(errors.size());
+    EXPECT_EQ(group["rows"].get<std::size_t>(), errors.size());
+    EXPECT_NEAR(group["corrected"]["bias_m"].get<double>(), sum / n, 1e-12);
+    EXPECT_NEAR(group["corrected"]["rms_m"].get<double>(), std::sqrt(squares / n), 1e-12);
+    double raw_squares = 0;
+    for (double e : raw_by_reflectance[rho]) raw_squares += e * e;
+    const double raw_rms = std::sqrt(raw_squares / n);
+    EXPECT_NEAR(group["raw"]["rms_m"].get<double>(), raw_rms, 1e-12);
+    EXPECT_NEAR(group["rms_improvement_pct"].get<double>(),
+                100 * (raw_rms - std::sqrt(squares / n)) / raw_rms, 1e-9);
+  }
+  // Overall coverage: sigma is the fit's residual RMS, so about 68 % / 95 % of
+  // Gaussian errors fall within 1 / 2 sigma.
+  EXPECT_EQ(j["overall"]["rows"].get<std::size_t>(), rows.size());
+  EXPECT_NEAR(j["overall"]["within_1_sigma"]["share"].get<double>(), 0.68, 0.08);
+  EXPECT_NEAR(j["overall"]["within_2_sigma"]["share"].get<double>(), 0.95, 0.04);
+  EXPECT_EQ(j["overall"]["within_2_sigma"]["amplitude_terciles"].size(), 3u);
+
+  const RunResult text = run("evaluate --in " + path("corrected.csv"));
+  ASSERT_EQ(text.exit_code, 0) << text.err;
+  EXPECT_NE(text.out.find("all"), std::string::npos);
+}
+
+TEST_F(ChainCli, ConfidenceAndFirmwareOutputs) {
+  io::write_raw_csv(path("calib.csv"), synthetic_records(2, 3));
+  const RunResult fit =
+      run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+          " --chain offset,grayvalue,temperature --confidence thesis --confidence-fraction 0.25"
+          " --firmware " +
+          path("fw"));
+  ASSERT_EQ(fit.exit_code, 0) << fit.err;
+  const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+  ASSERT_TRUE(model.confidence());
+  EXPECT_EQ(model.confidence()->kind(), "thesis");
+  std::ifstream model_file(path("model.json"));
+  const nlohmann::json j = nlohmann::json::parse(model_file);
+  // Every 4th of the 360 truth groups is held out: 90 groups of 2 rows.
+  EXPECT_EQ(j["fit"]["confidence"]["rows"].get<std::size_t>(), 180u);
+  EXPECT_EQ(j["fit"]["rows_fit"].get<std::size_t>(), 540u);
+  // The fixed-point export reproduces the float chain.
+  const ranging::FixedPointChain fixed = io::load_fixed_point_json(path("fw.json"));
+  EXPECT_TRUE(fs::exists(path("fw.h")));
+  for (const auto& r : synthetic_records(1, 4)) {
+    const auto out = fixed.apply(fixed.to_codes(r.raw));
+    const auto codes_raw = fixed.to_raw(fixed.to_codes(r.raw));
+    EXPECT_NEAR(out.distance_um * 1e-6, model.apply(codes_raw).distance_m, 0.5e-3);
+  }
+}
+
+TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
+  const auto expect_failure = [&](const std::vector<ranging::Record>& records,
+                                  const std::string& chain, const std::string& message) {
+    io::write_raw_csv(path("bad.csv"), records);
+    const RunResult r =
+        run("fit --in " + path("bad.csv") + " --out " + path("model.json") + " --chain " + chain);
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.err.find(message), std::string::npos) << r.err;
+    if (message.find("--chain") == std::string::npos) {
+      EXPECT_NE(r.err.find("bad.csv: "), std::string::npos) << r.err;
+    }
+    EXPECT_FALSE(fs::exists(path("model.json")));
+  };
+  auto records = synthetic_records(1, 5);
+  expect_failure({records.begin(), records.begin() + 7}, "offset", "too few rows: 7 usable");
+  auto flat_pw = records;
+  for (auto& r : flat_pw) r.raw.pulse_width_ns = 5.2;
+  expect_failure(flat_pw, "offset,grayvalue,temperature",
+                 "no spread in pulse_width_ns (all 5.20 ns): the grayvalue step needs plates of "
+                 "different reflectance");
+  auto flat_t = records;
+  for (auto& r : flat_t) r.raw.temperature_c = 21.0;
+  expect_failure(flat_t, "offset,grayvalue,temperature",
+                 "no spread in temperature_c (all 21.00 C)");
+  expect_failure(records, "offset,walk", "--chain offset,walk: unknown chain step \"walk\"");
+
+  // A model that cannot be read is named, and nothing is written.
+  std::ofstream(path("broken.json")) << "{\"kind\": \"tofkit.pipeline\", \"version\": 1}";
+  io::write_raw_csv(path("raw.csv"), records);
+  const RunResult c = run("correct --model " + path("broken.json") + " --in " + path("raw.csv") +
+                          " --out " + path("corrected.csv"));
+  EXPECT_NE(c.exit_code, 0);
+  EXPECT_NE(c.err.find("broken.json: missing field 'time_to_distance'"), std::string::npos)
+      << c.err;
+  EXPECT_FALSE(fs::exists(path("corrected.csv")));
+  const RunResult e = run("evaluate --in " + path("raw.csv") + " --by colour");
+  EXPECT_NE(e.exit_code, 0);
+  EXPECT_NE(e.err.find("--by colour: no such column"), std::string::npos) << e.err;
+}
+
+}  // namespace
+}  // namespace tofkit

@@ -1,0 +1,357 @@
+// The thesis's characterization findings (reference/characterization_thesis.md,
+// Section 4.4) arising on the accurange preset, each checked against an oracle
+// that could fail: closed forms from the preset's own parameters (first-order
+// warm-up and turn-on decay, 1/sqrt(N) averaging, the delay coefficient), the
+// thesis's numbers and Fig. 4.4, a plain-plate measurement for the mixed
+// pixel's ends, and numerical integration for the footprint share.
+#include "tofkit/experiments/characterization.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tofkit/device/accurange_preset.hpp"
+#include "tofkit/physics/link_budget.hpp"
+
+using namespace tofkit;
+using namespace tofkit::experiments;
+
+namespace {
+
+bool sanitized() {
+  return std::getenv("TOFKIT_SANITIZED") != nullptr;
+}
+
+/// Scale a sample count down under the sanitizers.
+int scaled(int n, int minimum = 2) {
+  return sanitized() ? std::max(minimum, n / 5) : n;
+}
+
+const device::VirtualRangefinder& accurange() {
+  static const device::VirtualRangefinder dev(device::accurange_preset());
+  return dev;
+}
+
+std::vector<std::vector<double>> read_csv_numbers(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);  // header
+  std::vector<std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::vector<double> row;
+    std::stringstream ss(line);
+    std::string cell;
+    while (std::getline(ss, cell, ',')) row.push_back(cell.empty() ? NAN : std::stod(cell));
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+}  // namespace
+
+TEST(AccurangePreset, IsValidAndCarriesTheThesisDevice) {
+  const auto c = device::accurange_preset();
+  EXPECT_TRUE(device::validate(c).empty());
+  EXPECT_EQ(c.name, "accurange");
+  EXPECT_DOUBLE_EQ(c.link.laser.wavelength_nm, 780.0);
+  EXPECT_DOUBLE_EQ(c.link.laser.peak_power_w, 0.020);
+  EXPECT_DOUBLE_EQ(c.link.receiver.aperture_diameter_mm, 63.5);
+  // ~3 mm footprint over the 0.3-0.6 m working range.
+  for (const double r : {0.3, 0.6}) {
+    const double d_mm = physics::footprint_diameter_m(c.link.laser, r) * 1e3;
+    EXPECT_GT(d_mm, 2.5);
+    EXPECT_LT(d_mm, 3.5);
+  }
+  // Range falls with temperature over the working temperatures (knee below them).
+  EXPECT_LT(c.thermal.delay_coeff_mm_per_c, 0.0);
+  EXPECT_LT(c.thermal.knee_c, 10.0);
+  EXPECT_EQ(output_rate_hz(accurange(), 16), 312500.0 / 16);
+}
+
+TEST(GreyChart, MapsLevelsToDocumentedReflectances) {
+  EXPECT_NEAR(grey_reflectance(0), 0.030, 1e-12);
+  EXPECT_NEAR(grey_reflectance(255), 0.930, 1e-12);
+  EXPECT_NEAR(grey_reflectance(153), 0.03 + 0.9 * std::pow(0.6, 2.2), 1e-12);
+  for (int g = 1; g <= 255; ++g) EXPECT_GT(grey_reflectance(g), grey_reflectance(g - 1));
+  EXPECT_THROW((void)grey_reflectance(256), std::invalid_argument);
+  EXPECT_THROW((void)grey_reflectance(-1), std::invalid_argument);
+}
+
+TEST(Warmup, RangeInflatesAndSettlesWithin25To35Minutes) {
+  WarmupOptions o;
+  o.samples_per_minute = scaled(100, 20);
+  const auto r = run_warmup(accurange(), o, 7);
+  ASSERT_EQ(r.minutes.size(), 120u);
+  ASSERT_EQ(r.records.size(), 120u * static_cast<std::size_t>(o.samples_per_minute));
+  // Thesis: 25-35 min warm-up; range inflates while the electronics warm.
+  EXPECT_GE(r.settle_time_min, 25.0);
+  EXPECT_LE(r.settle_time_min, 35.0);
+  EXPECT_GT(r.total_drift_mm, 5.0);
+  // Oracle: first-order warm-up of the preset: drift S (k_settled - k_warmup) and a
+  // settle time tau ln(|drift| / tolerance).
+  const auto& th = accurange().config().thermal;
+  const double drift_mm =
+      th.self_heating_c * (th.delay_coeff_mm_per_c - th.warmup_delay_coeff_mm_per_c);
+  const double tau = th.warmup_time_constant_min;
+  const double predicted_drift = drift_mm * std::exp(-0.5 / tau);  // first minute's centre
+  EXPECT_NEAR(r.total_drift_mm, predicted_drift, 0.05 * std::abs(predicted_drift));
+  EXPECT_NEAR(r.settle_time_min, tau * std::log(std::abs(drift_mm) / o.tolerance_mm), 4.0);
+  EXPECT_NEAR(r.time_constant_min, tau, 0.15 * tau);
+  // Settled: the last hour is flat.
+  std::vector<double> t, y;
+  for (const auto& m : r.minutes) {
+    if (m.minute < 60) continue;
+    t.push_back(m.minute);
+    y.push_back(m.mean_range_m * 1e3);
+  }
+  EXPECT_LT(std::abs(fit_line(t, y).slope), 0.002);  // mm per minute
+}
+
+TEST(TurnOn, FirstSamplesAreBiasedThenAPlateau) {
+  TurnOnOptions o;
+  if (sanitized()) o.duration_ms = 300;
+  const auto r = run_turn_on(accurange(), o, 5);
+  const auto& laser = accurange().config().link.laser;
+  // Oracle: the first 10 samples span 0.5 ms, << the time constant: the full bias.
+  EXPECT_NEAR(r.first_samples_bias_mm, laser.turn_on_bias_mm, 0.1 * laser.turn_on_bias_mm);
+  EXPECT_NEAR(r.time_constant_ms, laser.turn_on_time_constant_ms,
+              0.15 * laser.turn_on_time_constant_ms);
+  const double predicted =
+      laser.turn_on_time_constant_ms * std::log(laser.turn_on_bias_mm / o.tolerance_mm);
+  EXPECT_NEAR(r.time_to_plateau_ms, predicted, 4 * o.block_ms);
+  // The bias decays monotonically: block means fall while they are well off the
+  // plateau (> 2 mm: a 5 ms block then falls by >= 0.23 mm, noise 0.07 mm).
+  for (std::size_t k = 1; k < r.blocks.size(); ++k) {
+    if (r.blocks[k].mean_range_m - r.plateau_range_m < 2e-3) break;
+    EXPECT_LT(r.blocks[k].mean_range_m, r.blocks[k - 1].mean_range_m) << k;
+  }
+  // The plateau is flat: block means over its last 40 % scatter by noise only
+  // (their spread matches the single-sample spread / sqrt(samples per block)).
+  std::vector<double> means;
+  double noise = 0;
+  for (const auto& b : r.blocks) {
+    if (b.start_ms < (1.0 - o.plateau_fraction) * o.duration_ms || b.samples < 10) continue;
+    means.push_back(b.mean_range_m);
+    noise += b.sd_range_m / std::sqrt(double(b.samples));
+  }
+  ASSERT_GT(means.size(), 5u);
+  noise /= double(means.size());
+  EXPECT_NEAR(sample_stats(means).sd / noise, 1.0, 0.5);
+}
+
+TEST(Sampling, SpreadFallsAsOneOverSqrtShotsAndRatesMatchFig44) {
+  SamplingOptions o;
+  o.samples_per_setting = scaled(200, 40);
+  if (sanitized()) o.max_exponent = 8;
+  const auto r = run_sampling(accurange(), o, 3);
+  ASSERT_EQ(r.rows.size(), static_cast<std::size_t>(o.max_exponent - o.min_exponent + 1));
+  EXPECT_NEAR(r.log_slope, -0.5, sanitized() ? 0.1 : 0.05);
+  const double first = r.rows.front().sd_times_sqrt_shots_m;
+  for (const auto& row : r.rows) {
+    EXPECT_NEAR(row.sd_times_sqrt_shots_m / first, 1.0, 0.2) << row.shots;
+  }
+  // Thesis Fig. 4.4: sampling rate = 312,500 / 2^N for N = 3..11.
+  const auto fig = read_csv_numbers(std::string(TOFKIT_REFERENCE_DIR) + "/fig4_4_sampling.csv");
+  ASSERT_EQ(fig.size(), 9u);
+  for (const auto& row : r.rows) {
+    const auto& thesis = fig[static_cast<std::size_t>(row.exponent - 3)];
+    EXPECT_NEAR(row.sampling_rate_hz / thesis[1], 1.0, 1e-6) << row.exponent;
+  }
+}
+
+TEST(Temperature, DriftSlopeIsTheSameAtEveryDistance) {
+  TemperatureOptions o;
+  o.samples_per_point = scaled(50, 10);
+  const auto r = run_temperature(accurange(), o, 9);
+  ASSERT_EQ(r.slopes.size(), o.distances_m.size());
+  // Thesis: range decreases 0.25-0.60 in per 10 C.
+  const double in_per_10c = r.mean_slope_mm_per_c * 10.0 / 25.4;
+  EXPECT_LT(in_per_10c, -0.25);
+  EXPECT_GT(in_per_10c, -0.60);
+  // Oracle: the delay coefficient of the preset (a delay does not depend on distance).
+  const double coeff = accurange().config().thermal.delay_coeff_mm_per_c;
+  for (const auto& s : r.slopes) {
+    EXPECT_NEAR(s.slope_mm_per_c, coeff, 0.05 * std::abs(coeff)) << s.distance_m;
+  }
+  // Equal within noise: the spread is a few standard errors at most.
+  EXPECT_LT(r.slope_spread_se, 4.0);
+  EXPECT_LT(r.slope_spread_mm_per_c, 0.03);
+  // The unit's sensor follows the ambient temperature plus self-heating.
+  for (const auto& p : r.points) {
+    EXPECT_NEAR(p.mean_sensor_c - p.ambient_c, accurange().config().thermal.self_heating_c, 0.1);
+  }
+}
+
+TEST(MixedPixel, FootprintShareMatchesNumericalIntegration) {
+  const double d = 3e-3;
+  EXPECT_DOUBLE_EQ(disk_fraction_beyond_edge(0.0, d), 0.5);
+  EXPECT_DOUBLE_EQ(disk_fraction_beyond_edge(-2e-3, d), 1.0);
+  EXPECT_DOUBLE_EQ(disk_fraction_beyond_edge(2e-3, d), 0.0);
+  for (const double x : {-1.2e-3, -0.5e-3, 0.3e-3, 1.0e-3, 1.45e-3}) {
+    // Midpoint rule over the disk: share of its area at x' < 0 for centre x.
+    const int n = 800;
+    int inside = 0, beyond = 0;
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        const double u = (i + 0.5) / n * d - d / 2, v = (j + 0.5) / n * d - d / 2;
+        if (u * u + v * v > d * d / 4) continue;
+        ++inside;
+        beyond += (x + u) < 0;
+      }
+    }
+    EXPECT_NEAR(disk_fraction_beyond_edge(x, d), double(beyond) / inside, 2e-3) << x;
+    EXPECT_NEAR(disk_fraction_beyond_edge(x, d) + disk_fraction_beyond_edge(-x, d), 1.0, 1e-12);
+  }
+}
+
+TEST(MixedPixel, RangesPassMonotonicallyBetweenTheTwoSurfaces) {
+  MixedPixelOptions o;
+  o.samples_per_step = scaled(500, 50);
+  const auto r = run_mixed_pixel(accurange(), o, 11);
+  EXPECT_NEAR(r.footprint_diameter_m, 3e-3, 0.3e-3);  // thesis: ~3 mm footprint
+  ASSERT_EQ(r.steps.size(), 17u);
+  // Oracle for the ends: the same device on each plain plate.
+  const auto plate = [&](double distance) {
+    std::vector<device::MeasureRequest> req(
+        200, {device::Target::plate(distance, o.near_reflectance), {}, 0});
+    std::vector<ranging::GroundTruth> truth(req.size());
+    const auto rec = measure_records(accurange(), req, truth, 99);
+    std::vector<double> range;
+    for (const auto& x : rec) range.push_back(x.raw.distance_raw_m);
+    return sample_stats(range).mean;
+  };
+  EXPECT_NEAR(r.near_range_m, plate(o.near_distance_m), 0.3e-3);
+  EXPECT_NEAR(r.far_range_m, plate(o.near_distance_m + o.step_height_m), 0.3e-3);
+  // Monotone from near to far (within the noise of a step mean) and between them.
+  const double se = r.steps.front().sd_range_m / std::sqrt(double(r.steps.front().samples));
+  EXPECT_LT(r.monotonicity_violation_mm, 1e3 * 5 * se);
+  for (const auto& s : r.steps) {
+    EXPECT_GT(s.mean_range_m, r.near_range_m - 5 * se) << s.beam_offset_mm;
+    EXPECT_LT(s.mean_range_m, r.far_range_m + 5 * se) << s.beam_offset_mm;
+  }
+  // Where the footprint straddles the edge, the range is in between.
+  EXPECT_GE(r.intermediate_steps, 4);
+  for (const auto& s : r.steps) {
+    if (s.near_fraction > 0.2 && s.near_fraction < 0.8) {
+      EXPECT_GT(s.mean_range_m, r.near_range_m + 2e-3) << s.beam_offset_mm;
+      EXPECT_LT(s.mean_range_m, r.far_range_m - 2e-3) << s.beam_offset_mm;
+    }
+  }
+  // The transition spans about the footprint, not more.
+  EXPECT_GT(r.transition_width_mm, 0.5);
+  EXPECT_LT(r.transition_width_mm, r.footprint_diameter_m * 1e3 + 0.5);
+}
+
+TEST(Reflectance, DarkReadsLongBrightSaturatesAndReadsShortLineNearOne) {
+  ReflectanceOptions o;
+  o.samples_per_point = scaled(20, 5);
+  const auto r = run_reflectance(accurange(), o, 13);
+  const auto distances = o.distances();
+  ASSERT_EQ(r.points.size(), o.grey_levels.size() * distances.size());
+  auto point = [&](std::size_t grey_index, std::size_t distance_index) -> const auto& {
+    return r.points[grey_index * distances.size() + distance_index];
+  };
+  for (std::size_t k = 0; k < distances.size(); ++k) {
+    const double inches = m_to_inches(distances[k]);
+    if (inches < 15 - 1e-9 || inches > 22 + 1e-9) continue;  // the thesis's working distances
+    // Walk: the error falls monotonically with grey level.
+    for (std::size_t g = 1; g < o.grey_levels.size(); ++g) {
+      EXPECT_LT(point(g, k).mean_error_m, point(g - 1, k).mean_error_m) << inches << " in";
+    }
+    EXPECT_GT(point(5, k).saturated_share, 0.99) << inches << " in";  // grey 255
+    EXPECT_EQ(point(0, k).saturated_share, 0.0);
+    EXPECT_EQ(point(0, k).echo_share, 1.0);
+  }
+  // At 20 in (vendor zero on mid-grey): dark reads long, the saturated white short.
+  EXPECT_GT(r.darkest_error_m, 25e-3);
+  EXPECT_LT(r.brightest_error_m, -5e-3);
+  // Thesis: RMS 1.07 in over all greys, 0.23 in for grey >= 102: an inch, a quarter inch.
+  EXPECT_GT(m_to_inches(r.rms_all_m), 0.7);
+  EXPECT_LT(m_to_inches(r.rms_all_m), 1.6);
+  EXPECT_LT(m_to_inches(r.rms_light_m), 0.45);
+  EXPECT_LT(r.rms_light_m, 0.5 * r.rms_all_m);
+  // Mean range linear in true range, slope near 1 (thesis 0.9804).
+  EXPECT_NEAR(r.line.slope, 1.0, 0.15);
+  EXPECT_LT(r.line.residual_sd, 0.1 * (distances.back() - distances.front()));
+}
+
+TEST(Angle, ErrorGrowsWithAngleFastestForDarkGreys) {
+  AngleOptions o;
+  o.samples_per_point = scaled(20, 5);
+  const auto r = run_angle(accurange(), o, 17);
+  ASSERT_EQ(r.growth.size(), 6u);
+  const std::size_t na = o.angles_deg.size();
+  for (std::size_t g = 0; g < r.growth.size(); ++g) {
+    // Non-decreasing with angle while usable, within 3 standard errors of the difference.
+    for (std::size_t a = 1; a < na; ++a) {
+      const auto& p = r.points[g * na + a];
+      const auto& q = r.points[g * na + a - 1];
+      if (p.echo_share < 1.0) break;
+      const double se = std::hypot(p.sd_m, q.sd_m) / std::sqrt(double(o.samples_per_point));
+      EXPECT_GT(p.mean_error_m, q.mean_error_m - 3 * se) << r.growth[g].grey << " " << p.angle_deg;
+    }
+    // Beyond 30 deg it has clearly grown.
+    const auto& zero = r.points[g * na];
+    for (std::size_t a = 4; a < na; ++a) {
+      const auto& p = r.points[g * na + a];
+      if (p.echo_share < 1.0) break;
+      EXPECT_GT(p.mean_error_m, zero.mean_error_m) << r.growth[g].grey << " " << p.angle_deg;
+    }
+    EXPECT_GT(r.growth[g].slope_mm_per_deg, 0.0);
+  }
+  // Faster for darker greys; dark greys become unusable at large angles.
+  for (std::size_t g = 1; g < r.growth.size(); ++g) {
+    EXPECT_LT(r.growth[g].slope_mm_per_deg, r.growth[g - 1].slope_mm_per_deg) << g;
+    EXPECT_GE(r.growth[g].max_usable_angle_deg, r.growth[g - 1].max_usable_angle_deg) << g;
+  }
+  EXPECT_GT(r.growth[0].slope_mm_per_deg, 5 * r.growth[5].slope_mm_per_deg);
+  EXPECT_LT(r.growth[0].max_usable_angle_deg, 70.0);
+  EXPECT_GE(r.growth[5].max_usable_angle_deg, 80.0);
+}
+
+TEST(Characterization, ReproducibleFromTheSeedAndOptionsValidated) {
+  SamplingOptions o;
+  o.samples_per_setting = 10;
+  o.max_exponent = 5;
+  const auto a = run_sampling(accurange(), o, 21);
+  const auto b = run_sampling(accurange(), o, 21);
+  const auto c = run_sampling(accurange(), o, 22);
+  ASSERT_EQ(a.records.size(), b.records.size());
+  for (std::size_t i = 0; i < a.records.size(); ++i) {
+    EXPECT_EQ(a.records[i].raw.tof_ns, b.records[i].raw.tof_ns);
+  }
+  EXPECT_NE(a.records[0].raw.tof_ns, c.records[0].raw.tof_ns);
+
+  WarmupOptions w;
+  w.final_window_min = 200;
+  EXPECT_THROW((void)run_warmup(accurange(), w, 1), std::invalid_argument);
+  MixedPixelOptions m;
+  m.step_mm = 0;
+  EXPECT_THROW((void)run_mixed_pixel(accurange(), m, 1), std::invalid_argument);
+  AngleOptions an;
+  an.angles_deg = {10, 20};
+  EXPECT_THROW((void)run_angle(accurange(), an, 1), std::invalid_argument);
+  TemperatureOptions t;
+  t.ambient_c = {20};
+  EXPECT_THROW((void)run_temperature(accurange(), t, 1), std::invalid_argument);
+}
+
+TEST(Characterization, ResultsExposeFindingsTablesAndSummaries) {
+  TurnOnOptions o;
+  o.duration_ms = 50;
+  const auto r = run_turn_on(accurange(), o, 1);
+  const auto f = r.findings();
+  ASSERT_FALSE(f.empty());
+  EXPECT_EQ(f.front().name, "first_samples_bias_mm");
+  EXPECT_DOUBLE_EQ(f.front().value, r.first_samples_bias_mm);
+  const auto t = r.table();
+  EXPECT_EQ(t.rows.size(), r.blocks.size());
+  for (const auto& row : t.rows) EXPECT_EQ(row.size(), t.columns.size());
+  EXPECT_NE(r.summary().find("turn-on"), std::string::npos);
+}
