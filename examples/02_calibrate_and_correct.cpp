@@ -25,6 +25,5 @@ int main() {
 
   const auto raw = rangefinder.measure(device::Target::plate(5.0, 0.3), {}, 2, 0);
   const auto range = fit.pipeline.apply(raw);
-  std::printf("true 5.000 m: raw %.4f m, corrected %.4f m\n", raw.distance_raw_m,
-              range.distance_m);
+  std::printf("true 5.000 m: raw %.4f m, corrected %.4f m\n", raw.distance_raw_m, range.distance_m);
 }

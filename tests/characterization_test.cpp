@@ -7,16 +7,21 @@
 #include "tofkit/experiments/characterization.hpp"
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "tofkit/device/accurange_preset.hpp"
+#include "tofkit/io/raw_csv.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
 using namespace tofkit;
@@ -354,4 +359,38 @@ TEST(Characterization, ResultsExposeFindingsTablesAndSummaries) {
   EXPECT_EQ(t.rows.size(), r.blocks.size());
   for (const auto& row : t.rows) EXPECT_EQ(row.size(), t.columns.size());
   EXPECT_NE(r.summary().find("turn-on"), std::string::npos);
+}
+
+TEST(CharacterizeCommand, WritesRecordsAndFindingsAndMatchesTheLibrary) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("tofkit_characterize_test_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string command = "cd '" + dir.string() +
+                              "' && '" TOFKIT_BINARY
+                              "' characterize temperature --seed 5 --out . --json "
+                              ">stdout.txt 2>stderr.txt";
+  const int raw = std::system(command.c_str());
+  ASSERT_TRUE(WIFEXITED(raw) && WEXITSTATUS(raw) == 0) << command;
+  // The files hold what the library returns for the same device and seed.
+  const auto expected = run_temperature(accurange(), {}, 5);
+  const auto records = io::read_raw_csv(dir / "temperature.csv");
+  ASSERT_EQ(records.size(), expected.records.size());
+  EXPECT_EQ(records.back().raw.tof_ns, expected.records.back().raw.tof_ns);
+  std::ifstream json_file(dir / "temperature.json");
+  const auto j = nlohmann::json::parse(json_file);
+  EXPECT_EQ(j["device"], "accurange");
+  EXPECT_DOUBLE_EQ(j["findings"]["mean_slope_mm_per_c"].get<double>(),
+                   expected.mean_slope_mm_per_c);
+  EXPECT_EQ(j["tables"]["points"]["rows"].size(), expected.points.size());
+  std::ifstream out_file(dir / "stdout.txt");
+  const auto printed = nlohmann::json::parse(out_file);
+  EXPECT_EQ(printed["experiment"], "temperature");
+  // An unknown experiment is refused.
+  const std::string bad =
+      "cd '" + dir.string() + "' && '" TOFKIT_BINARY "' characterize nonsense >/dev/null 2>&1";
+  const int bad_raw = std::system(bad.c_str());
+  EXPECT_TRUE(WIFEXITED(bad_raw) && WEXITSTATUS(bad_raw) != 0);
+  std::error_code ec;
+  fs::remove_all(dir, ec);
 }

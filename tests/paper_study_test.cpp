@@ -1,6 +1,8 @@
 // The paper's Section 5 on the default device: tofkit must reproduce the
 // paper's figures (reference/ranging_paper.md) and do better on data the fit
 // never saw.
+#include "tofkit/experiments/paper_study.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -9,7 +11,6 @@
 #include <sstream>
 
 #include "tofkit/experiments/paper_reference.hpp"
-#include "tofkit/experiments/paper_study.hpp"
 
 using namespace tofkit;
 using namespace tofkit::experiments;

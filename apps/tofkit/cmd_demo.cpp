@@ -1,10 +1,10 @@
 // `tofkit demo`: the main job. Runs the paper's Section 5 end to end on the
 // built-in virtual rangefinder, prints a Table 2-style comparison, and writes
 // summary.json, the CSVs, model.json, plots and report.html.
-#include <CLI/CLI.hpp>
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -14,6 +14,9 @@
 
 #include "app.hpp"
 #include "demo_report.hpp"
+#include "demo_thesis.hpp"
+#include "tofkit/device/accurange_preset.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/paper_reference.hpp"
 #include "tofkit/experiments/paper_study.hpp"
 #include "tofkit/io/atomic_file.hpp"
@@ -44,7 +47,9 @@ class Progress {
   bool tty_;
 };
 
-std::string mark(bool ok) { return ok ? "yes" : "NO"; }
+std::string mark(bool ok) {
+  return ok ? "yes" : "NO";
+}
 
 void print_table(const experiments::PaperStudyResult& r) {
   namespace paper = experiments::paper;
@@ -72,14 +77,15 @@ void print_table(const experiments::PaperStudyResult& r) {
     worst = std::max(worst, std::abs(row.deviation_mm));
   }
   fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14.2f}\n", "worst", "", "+-11", "", worst);
-  fmt::print("\nheld out ({} rows: 0.5-9 m x rho 0.05-0.9 x 5-40 C; {} without a reliable echo): "
-             "max |error| {:.2f} mm, RMS {:.2f} mm (uncorrected RMS {:.1f} mm)\n",
-             r.holdout_stats.rows, r.holdout_rows_without_echo, 1e3 * r.holdout_stats.max_abs_m,
-             1e3 * r.holdout_stats.rms_m, 1e3 * r.holdout_raw_stats.rms_m);
+  fmt::print(
+      "\nheld out ({} rows: 0.5-9 m x rho 0.05-0.9 x 5-40 C; {} without a reliable echo): "
+      "max |error| {:.2f} mm, RMS {:.2f} mm (uncorrected RMS {:.1f} mm)\n",
+      r.holdout_stats.rows, r.holdout_rows_without_echo, 1e3 * r.holdout_stats.max_abs_m,
+      1e3 * r.holdout_stats.rms_m, 1e3 * r.holdout_raw_stats.rms_m);
   fmt::print("fixed point vs floating point: max difference {:.3f} mm\n",
              r.fixed_vs_float_max_diff_mm);
-  fmt::print("every verification row within +-11 mm: {}; within +-3 mm: {}\n",
-             mark(worst <= 11.0), mark(worst <= 3.0));
+  fmt::print("every verification row within +-11 mm: {}; within +-3 mm: {}\n", mark(worst <= 11.0),
+             mark(worst <= 3.0));
 }
 
 nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
@@ -127,10 +133,15 @@ void run_demo(const DemoOptions& options, const AppContext& ctx) {
   experiments::PaperStudyOptions study_options;
   study_options.seed = options.seed;
   study_options.progress = [&](std::string_view stage, double done) {
-    progress(stage, 0.9 * done);
+    progress(stage, 0.7 * done);
   };
   const auto result =
       experiments::run_paper_study(config, study_options, experiments::paper::kTable2);
+
+  // The thesis's protocol on its own device (AccuRange-like preset).
+  progress("thesis protocol", 0.72);
+  const device::VirtualRangefinder accurange(device::accurange_preset());
+  const auto thesis = experiments::run_thesis_protocol(accurange, {}, options.seed);
 
   progress("writing results", 0.92);
   const auto& out = options.out;
@@ -144,20 +155,27 @@ void run_demo(const DemoOptions& options, const AppContext& ctx) {
   io::write_corrected_csv(out / "holdout.csv", result.holdout, result.holdout_corrected);
   io::write_raw_csv(out / "max_range.csv", result.max_range_scan);
   write_demo_model(out, result);
+  io::write_raw_csv(out / "thesis.csv", thesis.all_records());
   auto summary = summary_json(result);
+  summary["thesis"] = thesis_summary_json(thesis);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   summary["seconds"] = seconds;
   summary["seed"] = options.seed;
   summary["device"] = config.name;
-  const auto figures = write_demo_plots(out, result, options.plots);
-  write_demo_report(out, result, summary, figures);
+  auto figures = write_demo_plots(out, result, options.plots);
+  const auto thesis_figures = write_thesis_plots(out, thesis, options.plots);
+  figures.insert(figures.end(), thesis_figures.begin(), thesis_figures.end());
+  write_demo_report(out, result, summary, figures, thesis.summary());
   io::write_file_atomically(out / "summary.json", summary.dump(2) + "\n");
   progress("done", 1.0);
   print_table(result);
-  fmt::print("\nwrote {} (summary.json, CSVs, model.json, firmware/, {} plots, report.html) in "
-             "{:.1f} s\n",
-             out.string(), figures.size(), seconds);
+  fmt::print("\nthe thesis's protocol (AccuRange-like preset, grey chart, test at 19 in):\n{}",
+             thesis.summary());
+  fmt::print(
+      "\nwrote {} (summary.json, CSVs, model.json, firmware/, {} plots, report.html) in "
+      "{:.1f} s\n",
+      out.string(), figures.size(), seconds);
 }
 
 const bool registered = register_command("demo", [](CLI::App& sub, AppContext& ctx) {

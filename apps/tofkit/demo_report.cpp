@@ -31,10 +31,17 @@ std::string html_escape(const std::string& s) {
   std::string out;
   for (char c : s) {
     switch (c) {
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '&': out += "&amp;"; break;
-      default: out += c;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '&':
+        out += "&amp;";
+        break;
+      default:
+        out += c;
     }
   }
   return out;
@@ -57,8 +64,15 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
   const auto* temp = find_step(pipeline, ranging::StepKind::kTemperature);
 
   {  // Figure 3: SNR and received power vs distance.
-    PlotSpec s{"fig3_link_budget", "Link budget, rho = 0.1 (paper Fig. 3)", "distance (m)", "SNR",
-               "received power (W)", false, true, true, {}};
+    PlotSpec s{"fig3_link_budget",
+               "Link budget, rho = 0.1 (paper Fig. 3)",
+               "distance (m)",
+               "SNR",
+               "received power (W)",
+               false,
+               true,
+               true,
+               {}};
     PlotSeries snr{"SNR", {}, {}, "linespoints pt 7 ps 0.5", false};
     PlotSeries pr{"received power", {}, {}, "lines dt 2", true};
     PlotSeries ten{"SNR = 10", {0.5, 15.0}, {10.0, 10.0}, "lines lc rgb 'gray'", false};
@@ -74,8 +88,15 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                         r.range_at_snr10_m));
   }
   {  // Figure 6: offset vs pulse width with the fitted hinge.
-    PlotSpec s{"fig6_offset_vs_pulse_width", "Offset vs echo pulse width (paper Fig. 6)",
-               "echo pulse width (ns)", "true - c t / 2 (mm)", "", false, false, false, {}};
+    PlotSpec s{"fig6_offset_vs_pulse_width",
+               "Offset vs echo pulse width (paper Fig. 6)",
+               "echo pulse width (ns)",
+               "true - c t / 2 (mm)",
+               "",
+               false,
+               false,
+               false,
+               {}};
     PlotSeries pts{"calibration plates", {}, {}, "points pt 7 ps 0.4", false};
     double lo = 1e300, hi = -1e300;
     for (std::size_t i = 0; i < r.calibration.size(); ++i) {
@@ -105,8 +126,15 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                         knots));
   }
   {  // Figure 7: gray-value test through the fixed-point chain.
-    PlotSpec s{"fig7_fixed_point", "Gray-value correction at 2.355 m, fixed point (paper Fig. 7)",
-               "reflectance", "error (mm)", "", true, false, false, {}};
+    PlotSpec s{"fig7_fixed_point",
+               "Gray-value correction at 2.355 m, fixed point (paper Fig. 7)",
+               "reflectance",
+               "error (mm)",
+               "",
+               true,
+               false,
+               false,
+               {}};
     PlotSeries raw{"uncorrected - mean offset", {}, {}, "points pt 6", false};
     PlotSeries fx{"fixed-point corrected", {}, {}, "linespoints pt 7 ps 0.6", false};
     double mean_raw = 0;
@@ -126,9 +154,15 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                         r.grayvalue.std_mm, r.grayvalue.accuracy_mm, r.grayvalue.raw_spread_mm));
   }
   {  // Figure 8: offset vs temperature.
-    PlotSpec s{"fig8_offset_vs_temperature", "Offset vs temperature (paper Fig. 8)",
-               "sensor temperature (C)", "true - c t / 2 - offset - g(width) (mm)", "", false,
-               false, false, {}};
+    PlotSpec s{"fig8_offset_vs_temperature",
+               "Offset vs temperature (paper Fig. 8)",
+               "sensor temperature (C)",
+               "true - c t / 2 - offset - g(width) (mm)",
+               "",
+               false,
+               false,
+               false,
+               {}};
     PlotSeries pts{"temperature sweep at 2.402 m", {}, {}, "points pt 7 ps 0.6", false};
     double lo = 1e300, hi = -1e300;
     for (const auto& rec : r.calibration) {
@@ -155,16 +189,23 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                         knots));
   }
   {  // Figure 9: temperature test.
-    PlotSpec s{"fig9_temperature_test", "Temperature test at 2.402 m (paper Fig. 9)",
-               "ambient temperature (C)", "error (mm)", "", false, false, false, {}};
+    PlotSpec s{"fig9_temperature_test",
+               "Temperature test at 2.402 m (paper Fig. 9)",
+               "ambient temperature (C)",
+               "error (mm)",
+               "",
+               false,
+               false,
+               false,
+               {}};
     PlotSeries raw{"gray-value corrected only", {}, {}, "points pt 6", false};
     PlotSeries full{"gray-value + temperature corrected", {}, {}, "linespoints pt 7", false};
     for (std::size_t i = 0; i < r.temperature_test.size(); ++i) {
       const auto& rec = r.temperature_test[i];
       const double corrected = r.temperature_corrected[i].distance_m;
       raw.x.push_back(rec.truth.ambient_c);
-      raw.y.push_back(1e3 * (corrected - step_value(temp, rec.raw.temperature_c) -
-                             rec.truth.distance_m));
+      raw.y.push_back(1e3 *
+                      (corrected - step_value(temp, rec.raw.temperature_c) - rec.truth.distance_m));
       full.x.push_back(rec.truth.ambient_c);
       full.y.push_back(1e3 * (corrected - rec.truth.distance_m));
     }
@@ -174,23 +215,37 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                         r.temperature.std_mm, r.temperature.accuracy_mm));
   }
   {  // Figure 10: longest distance.
-    PlotSpec s{"fig10_longest_distance", "Longest achievable distance, rho = 0.1 (paper Fig. 10)",
-               "distance (m)", "share of shots with an echo", "", false, false, false, {}};
+    PlotSpec s{"fig10_longest_distance",
+               "Longest achievable distance, rho = 0.1 (paper Fig. 10)",
+               "distance (m)",
+               "share of shots with an echo",
+               "",
+               false,
+               false,
+               false,
+               {}};
     PlotSeries share{"echo share", {}, {}, "linespoints pt 7 ps 0.4", false};
     for (const auto& rec : r.max_range_scan) {
       share.x.push_back(rec.truth.distance_m);
       share.y.push_back(rec.raw.shots_valid / 1000.0);
     }
-    PlotSeries limit{"longest distance", {r.max_range_m, r.max_range_m}, {0.0, 1.0},
-                     "lines lw 2", false};
+    PlotSeries limit{
+        "longest distance", {r.max_range_m, r.max_range_m}, {0.0, 1.0}, "lines lw 2", false};
     s.series = {share, limit};
     emit(s, fmt::format("Share of shots that return an echo from the black foam plate; at least "
                         "90 % up to {:.2f} m (paper: 8.08 m achieved, 10 m simulated).",
                         r.max_range_m));
   }
   {  // Verification and held-out errors.
-    PlotSpec s{"verification_and_holdout", "Corrected error, verification and held-out grid",
-               "true distance (m)", "true - corrected (mm)", "", false, false, false, {}};
+    PlotSpec s{"verification_and_holdout",
+               "Corrected error, verification and held-out grid",
+               "true distance (m)",
+               "true - corrected (mm)",
+               "",
+               false,
+               false,
+               false,
+               {}};
     PlotSeries hold{"held out (rho 0.05-0.9, 5-40 C)", {}, {}, "points pt 7 ps 0.3", false};
     for (std::size_t i = 0; i < r.holdout.size(); ++i) {
       if (!r.holdout[i].raw.has_echo()) continue;
@@ -217,7 +272,8 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
 }
 
 void write_demo_report(const std::filesystem::path& dir, const experiments::PaperStudyResult& r,
-                       const nlohmann::json& summary, const std::vector<Figure>& figures) {
+                       const nlohmann::json& summary, const std::vector<Figure>& figures,
+                       const std::string& thesis_summary) {
   namespace paper = experiments::paper;
   std::ostringstream h;
   h << "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -256,6 +312,8 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
         "<tr><td>{:.3f}</td><td>{:.3f}</td><td>{:.1f}</td><td>{:.4f}</td><td>{:.2f}</td></tr>\n",
         v.actual_m, v.paper_measured_m, v.paper_deviation_mm, v.measured_m, v.deviation_mm);
   h << "</table>\n<h2>Fitted chain</h2><pre>" << html_escape(r.fit.summary()) << "</pre>\n";
+  h << "<h2>The thesis's protocol (AccuRange-like preset)</h2><pre>" << html_escape(thesis_summary)
+    << "</pre>\n";
   h << "<h2>Figures</h2>\n";
   for (const auto& f : figures) {
     if (f.file.ends_with(".png"))

@@ -29,6 +29,6 @@ void write_demo_model(const std::filesystem::path& dir,
 /// report.html: the tables and the figures, readable offline.
 void write_demo_report(const std::filesystem::path& dir,
                        const experiments::PaperStudyResult& result, const nlohmann::json& summary,
-                       const std::vector<Figure>& figures);
+                       const std::vector<Figure>& figures, const std::string& thesis_summary);
 
 }  // namespace tofkit::app

@@ -7,6 +7,8 @@
 #include <type_traits>
 #include <utility>
 
+#include "tofkit/device/accurange_preset.hpp"
+
 namespace tofkit::device {
 namespace {
 
@@ -48,59 +50,6 @@ bool in_range(const ConfigField& f, double v) {
   if (!std::isfinite(v)) return false;
   if (f.min_exclusive ? !(v > f.min) : !(v >= f.min)) return false;
   return v <= f.max;
-}
-
-/// First version of an AccuRange-3000-like unit (reference/characterization_thesis.md:
-/// 780 nm, 20 mW, 80 MHz timing clock, ~3 mm footprint, 25-35 min warm-up, range
-/// decreasing 0.25-0.60 in per 10 C). Numbers the thesis does not state are
-/// assumptions, to be tuned against the thesis's figures.
-DeviceConfig accurange_config() {
-  DeviceConfig c;
-  c.name = "accurange";
-
-  auto& laser = c.link.laser;
-  laser.wavelength_nm = 780.0;             // thesis title: 780 nm
-  laser.peak_power_w = 0.02;               // thesis title: 20 mW
-  laser.pulse_width_ns = 5.0;              // assumption
-  laser.repetition_hz = 312500.0;          // thesis: sampling rate = 312,500 / 2^N samples/s
-  laser.transmit_efficiency = 0.9;         // assumption
-  laser.beam_divergence_mrad = 0.5;        // assumption: keeps the ~3 mm footprint at 0.5-1 m
-  laser.exit_beam_diameter_mm = 2.5;       // thesis: ~3 mm oval footprint
-  laser.power_temp_coeff_per_c = -0.005;   // 780 nm diodes, assumption
-  laser.turn_on_bias_mm = 5.0;             // thesis: first samples after switch-on are wrong
-  laser.turn_on_time_constant_ms = 100.0;  // assumption
-
-  auto& rx = c.link.receiver;
-  rx.aperture_diameter_mm = 63.5;  // 2.5 in collecting lens
-  rx.optics_efficiency = 0.5;      // assumption
-  rx.field_of_view_rad = 0.005;    // assumption
-  rx.filter_bandwidth_nm = 10.0;   // assumption
-  rx.bandwidth_mhz = 100.0;        // assumption
-  rx.responsivity_a_per_w = 0.5;   // Si at 780 nm
-  rx.apd_gain = 10.0;              // assumption: low gain, bright short-range echoes
-  rx.excess_noise_factor = 2.5;    // Si APD at low gain, assumption
-  rx.transimpedance_kohm = 5.0;    // assumption
-  rx.saturation_v = 1.6;           // assumption; very bright targets saturate (thesis)
-  rx.bias_temperature_compensated = true;
-
-  auto& env = c.link.environment;
-  env.solar_irradiance_w_per_m2_um = 0.0;  // indoor laboratory: no sunlight
-  env.atmospheric_transmission = 1.0;      // < 1 m of indoor air
-
-  c.discriminator.threshold_v = 0.005;  // assumption
-  c.tdc.coarse_clock_mhz = 80.0;        // thesis: 80 MHz timing clock
-  c.tdc.lsb_ps = 100.0;                 // assumption
-
-  // Thesis: range decreases 0.25-0.60 in (6.4-15 mm) per 10 C, roughly linear.
-  c.thermal.knee_c = -40.0;  // no knee in the operating range
-  c.thermal.delay_coeff_mm_per_c = -1.0;
-  c.thermal.below_knee_coeff_mm_per_c2 = 0.0;
-  c.thermal.self_heating_c = 8.0;                // assumption
-  c.thermal.warmup_time_constant_min = 7.5;      // thesis: 25-35 min to settle (~4 tau)
-  c.thermal.warmup_delay_coeff_mm_per_c = -0.5;  // thesis: range inflates while cold
-
-  c.measurement.shots = 16;  // N = 4 -> 19531 samples/s
-  return c;
 }
 
 }  // namespace
@@ -268,7 +217,7 @@ std::vector<std::string> validate(const DeviceConfig& config) {
 
 DeviceConfig preset(std::string_view name) {
   if (name == "paper") return DeviceConfig{};
-  if (name == "accurange") return accurange_config();
+  if (name == "accurange") return accurange_preset();
   std::string names;
   for (const auto& n : preset_names()) names += (names.empty() ? "" : ", ") + n;
   throw std::invalid_argument("unknown preset '" + std::string(name) + "' (known: " + names + ")");

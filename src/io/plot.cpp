@@ -61,9 +61,9 @@ PlotFiles write_plot(const std::filesystem::path& dir, const PlotSpec& spec, boo
   gp << "plot ";
   for (std::size_t i = 0; i < spec.series.size(); ++i) {
     const auto& s = spec.series[i];
-    gp << (i ? ", \\\n     " : "") << quoted(spec.name + ".dat") << " index " << i
-       << " using 1:2" << (s.second_axis ? " axes x1y2" : "") << " with " << s.style
-       << " title " << quoted(s.title);
+    gp << (i ? ", \\\n     " : "") << quoted(spec.name + ".dat") << " index " << i << " using 1:2"
+       << (s.second_axis ? " axes x1y2" : "") << " with " << s.style << " title "
+       << quoted(s.title);
   }
   gp << "\n";
   write_file_atomically(files.script, gp.str());

@@ -23,23 +23,25 @@ struct BlockBuffers {
   std::array<double, kBlock> scratch_a;
   std::array<double, kBlock> scratch_b;
   std::array<double, kBlock> scratch_c;
+  std::array<double, kBlock> outside;  ///< 1.0 once an input is outside a step's domain (a
+                                       ///< double, so the domain checks vectorize)
   std::array<std::uint32_t, kBlock> flags;
   std::array<std::uint8_t, kBlock> out_of_domain;
 };
 
 /// distance += y(x) for a hinge folded to y = c + b0 x + sum_k s_k max(0, x - knot_k);
-/// x outside the fitted domain is flagged but still corrected (linear continuation).
+/// x outside the fitted domain is marked (outside = 1) but still corrected (linear continuation).
 /// NaN x propagates into the distance (flagged non-finite at the end).
-void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double* x,
-               double* distance, std::uint32_t* flags, std::size_t n) {
+void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double* __restrict x,
+               double* __restrict distance, double* __restrict outside, std::size_t n) {
   const double constant = f.intercept - f.slope0 * f.x0;
   const double slope0 = f.slope0;
   const double lo = domain.min;
   const double hi = domain.max;
+  for (std::size_t i = 0; i < n; ++i) distance[i] += constant + slope0 * x[i];
   for (std::size_t i = 0; i < n; ++i) {
-    const double xi = x[i];
-    distance[i] += constant + slope0 * xi;
-    flags[i] |= (xi < lo || xi > hi) ? kCorrOutOfDomain : 0u;
+    // A double select (and/andnot) vectorizes where a double -> integer flag does not.
+    outside[i] = (x[i] < lo || x[i] > hi) ? 1.0 : outside[i];
   }
   for (std::size_t k = 0; k < f.knots.size(); ++k) {
     const double knot = f.knots[k];
@@ -90,7 +92,7 @@ void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::
       continue;
     }
     b.distance[i] += correction[i];
-    b.flags[i] |= b.out_of_domain[i] != 0 ? kCorrOutOfDomain : 0u;
+    b.outside[i] = b.out_of_domain[i] != 0 ? 1.0 : b.outside[i];
   }
 }
 
@@ -248,6 +250,7 @@ void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) c
       const double start = std::isfinite(m.tof_ns) ? m.tof_ns * metres_per_ns_ : m.distance_raw_m;
       b.distance[i] = echo ? start : kNaN;
       b.flags[i] = echo ? 0u : kCorrNoEcho;
+      b.outside[i] = 0.0;
       b.pulse_width[i] = m.pulse_width_ns;
       b.temperature[i] = m.temperature_c;
       b.amplitude[i] = m.amplitude;
@@ -261,11 +264,11 @@ void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) c
         }
         case StepKind::kGrayvalue:
           add_hinge(step.function, step.domain, b.pulse_width.data(), b.distance.data(),
-                    b.flags.data(), n);
+                    b.outside.data(), n);
           break;
         case StepKind::kTemperature:
           add_hinge(step.function, step.domain, b.temperature.data(), b.distance.data(),
-                    b.flags.data(), n);
+                    b.outside.data(), n);
           break;
         case StepKind::kSurface:
           add_surface(*step.surface, b, n);
@@ -275,13 +278,15 @@ void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) c
     fill_sigma(confidence, residual_rms_m_, b, n, sigma.data());
     Range* o = out.data() + begin;
     for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t no_echo = b.flags[i] & kCorrNoEcho;
-      // Only rows with an echo can be non-finite; no-echo rows carry their own flag.
+      const std::uint32_t flags = b.flags[i];
+      // Only rows with an echo can be non-finite or outside; no-echo rows carry their own flag.
+      const bool echo = (flags & kCorrNoEcho) == 0;
       const std::uint32_t non_finite =
-          (no_echo == 0 && !std::isfinite(b.distance[i])) ? kCorrNonFinite : 0u;
+          (echo && !std::isfinite(b.distance[i])) ? kCorrNonFinite : 0u;
+      const std::uint32_t outside = (echo && b.outside[i] != 0.0) ? kCorrOutOfDomain : 0u;
       o[i].distance_m = b.distance[i];
       o[i].sigma_m = sigma[i];
-      o[i].correction_flags = b.flags[i] | non_finite;
+      o[i].correction_flags = flags | non_finite | outside;
     }
   }
 }
