@@ -89,11 +89,10 @@ double memcpy_items_per_s() {
     std::memset(static_cast<void*>(src.data()), 1, kRows * sizeof(T));
     double best = 1e30;
     for (int rep = 0; rep < 7; ++rep) {
-      const auto start = std::chrono::steady_clock::now();
+      const double start = thread_cpu_s();
       std::memcpy(static_cast<void*>(dst.data()), src.data(), kRows * sizeof(T));
       benchmark::ClobberMemory();
-      best = std::min(
-          best, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+      best = std::min(best, thread_cpu_s() - start);
     }
     return static_cast<double>(kRows) / best;
   }();

@@ -30,8 +30,7 @@ namespace fs = std::filesystem;
 /// A fresh directory per test under the system temp dir.
 fs::path scratch_dir(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() /
-                       ("tofkit_ranging_test_" + name + "_" +
-                        std::to_string(::getpid()));
+                       ("tofkit_ranging_test_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;

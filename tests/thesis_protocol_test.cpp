@@ -102,7 +102,7 @@ TEST(ThesisProtocol, ScansAreTheThesisDesignAndIndependent) {
   EXPECT_NE(other.test.front().raw.tof_ns, r.test.front().raw.tof_ns);
 }
 
-TEST(ThesisProtocol, RawErrorIsOfTheThesissOrder) {
+TEST(ThesisProtocol, RawErrorIsOfTheThesisOrder) {
   const auto& r = result();
   const auto fig = fig4_18();
   ASSERT_FALSE(fig.empty());

@@ -38,6 +38,7 @@ struct FitOptions {
   std::string confidence = "none";
   double confidence_fraction = 0.25;
   std::string firmware;  // stem: writes STEM.json and STEM.h
+  bool rcond_given = false;
 };
 
 /// The conversion the device uses for distance_raw_m (nominal c in air).
@@ -143,6 +144,14 @@ SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
 void run_fit(const FitOptions& o, const AppContext& ctx) {
   if (o.chain.empty() && o.surface.empty()) {
     throw std::invalid_argument("give --chain STEPS and/or --surface poly:N|bspline");
+  }
+  if (o.rcond_given && o.surface.rfind("poly:", 0) != 0) {
+    throw std::invalid_argument("--rcond applies to --surface poly:N only");
+  }
+  if (o.surface_temperature && o.surface.empty()) {
+    throw std::invalid_argument(
+        "--temperature adds a temperature axis to a --surface; the chain's temperature step is "
+        "--chain ...,temperature");
   }
   if (!(o.confidence_fraction > 0 && o.confidence_fraction <= 0.5)) {
     throw std::invalid_argument("--confidence-fraction must be in (0, 0.5]");
@@ -301,9 +310,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
   sub.add_option("--surface", o->surface,
                  "correction surface: poly:N (thesis Section 4.6) or bspline; after --chain it "
                  "fits the chain's residual");
-  sub.add_option("--rcond", o->rcond, "poly: relative singular-value cutoff (thesis: 1e-2)")
-      ->check(CLI::Range(0.0, 1.0))
-      ->capture_default_str();
+  CLI::Option* rcond =
+      sub.add_option("--rcond", o->rcond, "poly: relative singular-value cutoff (thesis: 1e-2)")
+          ->check(CLI::Range(0.0, 1.0))
+          ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
   sub.add_option("--confidence", o->confidence,
                  "confidence model: none, thesis (Section 4.8) or calibrated")
@@ -315,7 +325,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
       ->capture_default_str();
   sub.add_option("--firmware", o->firmware,
                  "also export the chain in fixed point: STEM.json and STEM.h (C header)");
-  sub.callback([o, &ctx] { run_fit(*o, ctx); });
+  sub.callback([o, rcond, &ctx] {
+    o->rcond_given = rcond->count() > 0;
+    run_fit(*o, ctx);
+  });
 });
 
 }  // namespace

@@ -65,6 +65,17 @@ double hinge_from_coefficients(const Eigen::VectorXd& beta, Eigen::Index first, 
   return at_reference;
 }
 
+/// The joint solve uses the least aggressive loss of the fitted hinges
+/// (none < Huber < bisquare), so a hinge fitted by plain least squares (e.g. a
+/// temperature sweep beside many plates at one temperature) is not downweighted
+/// in the joint solve either.
+RobustOptions joint_robust_options(const ChainSteps& steps, const RobustOptions& g,
+                                   const RobustOptions& h) {
+  if (!steps.grayvalue) return h;
+  if (!steps.temperature) return g;
+  return static_cast<int>(h.loss) < static_cast<int>(g.loss) ? h : g;
+}
+
 }  // namespace
 
 ChainSteps parse_chain_steps(std::string_view list) {
@@ -173,7 +184,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   // for those knots, so correlated inputs do not slow the iteration down.
   const Eigen::VectorXd ev =
       Eigen::Map<const Eigen::VectorXd>(e.data(), static_cast<Eigen::Index>(n));
-  const RobustOptions& robust = steps.grayvalue ? g_options.robust : h_options.robust;
+  const RobustOptions robust = joint_robust_options(steps, g_options.robust, h_options.robust);
   std::vector<double> g_values(n, 0.0), h_values(n, 0.0), partial(n);
   std::vector<double> g_knots, h_knots;
   Eigen::Index g_first = 1, h_first = 1;

@@ -43,8 +43,8 @@ DeviceConfig accurange_preset() {
   // twice the threshold, so it is still seen at 22 in (training distance) and
   // fades out near 30 in ("grey 0 unusable" far away and at large angles).
   rx.transimpedance_kohm = 32.0;
-  // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates at >= 15 in and
-  // grey 204 (rho 0.58) below about 17 in (thesis: "very bright targets saturate").
+  // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates out to 22 in and
+  // grey 204 (rho 0.58) inside about 17 in (thesis: "very bright targets saturate").
   rx.saturation_v = 1.0;
   rx.recovery_ns_per_neper = 2.0;          // Assumption, as the paper preset
   rx.amplitude_noise_rel = 0.01;           // Assumption: 1 % peak-detector noise per output
@@ -64,10 +64,11 @@ DeviceConfig accurange_preset() {
   env.relative_humidity_pct = 50.0;
 
   // ----------------------------------------------------- discriminator, TDC
-  c.discriminator.threshold_v = 0.020;  // Assumption: 8 x the noise floor (no false alarms)
+  c.discriminator.threshold_v = 0.020;  // Assumption: 17 x the noise (no false alarms)
   c.tdc.coarse_clock_mhz = 80.0;        // thesis: 80 MHz timing clock
-  c.tdc.lsb_ps = 25.0;                  // Assumption: fine interpolator (0.55 mm per count
-                                        // at N = 16; thesis Fig. 4.4 resolutions)
+  c.tdc.lsb_ps = 25.0;                  // Assumption: carry-chain interpolator, 3.7 mm of
+                                        // range per code; with the laser firing asynchronously
+                                        // 8-shot outputs spread < 1 mm (thesis Fig. 4.4)
   c.tdc.inl_lsb = 0.5;                  // Assumption, as the paper preset
 
   // -------------------------------------------------------------- thermal
@@ -79,7 +80,7 @@ DeviceConfig accurange_preset() {
   c.thermal.below_knee_coeff_mm_per_c2 = 0.01;  // Assumption: small, as the paper's
   c.thermal.self_heating_c = 8.0;               // Assumption: enclosed electronics
   // Thesis: 25-35 min warm-up before the range is stable. With tau = 7.75 min the
-  // warm-up drift (8 C x (-2.5 + 1.0) mm/C = 12 mm = 0.47 in) falls below 0.25 mm
+  // warm-up drift (8 C x (2.5 - 1.0) mm/C = 12 mm = 0.47 in) falls below 0.25 mm
   // after ln(48) tau = 30 min.
   c.thermal.warmup_time_constant_min = 7.75;
   // Assumption: the timing electronics lag the sensor and drift faster than the

@@ -62,17 +62,18 @@ WarmupResult run_warmup(const device::VirtualRangefinder& device, const WarmupOp
   result.final_range_m = sum / options.final_window_min;
   result.total_drift_mm = (result.final_range_m - result.minutes.front().mean_range_m) * 1e3;
 
-  // Settle time: after the last minute whose (smoothed) mean is off by more than
-  // the tolerance. The centred running mean shrinks near the ends of the record.
+  // Settle time: after the last minute whose smoothed mean is off by more than
+  // the tolerance. The running mean always spans smoothing_min minutes (centred,
+  // shifted inward at the ends of the record), so its noise is the same everywhere.
   const int n_minutes = options.duration_min;
-  const int half = options.smoothing_min / 2;
+  const int width = options.smoothing_min;
   int last_off = -1;
   for (int m = 0; m < n_minutes; ++m) {
-    const int w = std::min({half, m, n_minutes - 1 - m});
+    const int first = std::clamp(m - width / 2, 0, n_minutes - width);
     double s = 0;
-    for (int k = m - w; k <= m + w; ++k)
+    for (int k = first; k < first + width; ++k)
       s += result.minutes[static_cast<std::size_t>(k)].mean_range_m;
-    const double smoothed = s / (2 * w + 1);
+    const double smoothed = s / width;
     if (!(std::abs(smoothed - result.final_range_m) * 1e3 <= options.tolerance_mm)) last_off = m;
   }
   result.settle_time_min = last_off + 1.0;

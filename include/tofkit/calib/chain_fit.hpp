@@ -15,7 +15,10 @@
 /// converges slowly when pulse width and temperature are correlated, so once
 /// the knots are known all linear coefficients are refitted together on one
 /// design matrix [1, hinge basis of g, hinge basis of h] by robust least
-/// squares (QR), which is the exact joint optimum for those knots.
+/// squares (QR), which is the exact joint optimum for those knots. Knots are
+/// re-searched on the partial residuals of that joint solve until they settle.
+/// The joint solve uses the least aggressive robust loss of the hinges fitted
+/// (none < Huber < bisquare).
 
 #include <cstddef>
 #include <optional>

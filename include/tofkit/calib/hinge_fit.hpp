@@ -34,6 +34,7 @@
 
 namespace tofkit::calib {
 
+/// Ordered from the least to the most aggressive downweighting.
 enum class RobustLoss { kNone, kHuber, kBisquare };
 
 struct RobustOptions {
