@@ -10,25 +10,17 @@
 #include <vector>
 
 #include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/json_fields.hpp"
 
 namespace tofkit::io {
 namespace {
 
+using json_fields::fail;
+using json_fields::field;
 using nlohmann::json;
 
 constexpr const char* kKind = "tofkit.fixed_point_chain";
 constexpr int kVersion = 1;
-
-[[noreturn]] void fail(const std::string& where, const std::string& what) {
-  throw std::runtime_error(where + ": " + what);
-}
-
-const json& field(const json& j, const char* key, const std::string& where) {
-  if (!j.is_object()) fail(where, "expected an object");
-  const auto it = j.find(key);
-  if (it == j.end()) fail(where, std::string("missing field '") + key + "'");
-  return *it;
-}
 
 std::int64_t integer(const json& j, const std::string& where, std::int64_t lo, std::int64_t hi) {
   if (!j.is_number_integer()) fail(where, "expected an integer");

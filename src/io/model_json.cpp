@@ -9,35 +9,19 @@
 #include <vector>
 
 #include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/json_fields.hpp"
 #include "tofkit/io/surface_json.hpp"
 
 namespace tofkit::io {
 namespace {
 
+using json_fields::fail;
+using json_fields::field;
+using json_fields::number;
 using nlohmann::json;
 
 constexpr const char* kKind = "tofkit.pipeline";
 constexpr int kVersion = 1;
-
-[[noreturn]] void fail(const std::string& where, const std::string& what) {
-  throw std::runtime_error(where + ": " + what);
-}
-
-const json& field(const json& j, const char* key, const std::string& where) {
-  if (!j.is_object()) fail(where, "expected an object");
-  const auto it = j.find(key);
-  if (it == j.end()) fail(where, std::string("missing field '") + key + "'");
-  return *it;
-}
-
-double number(const json& j, const std::string& where) {
-  if (!j.is_number()) fail(where, "expected a number");
-  return j.get<double>();
-}
-
-double number(const json& j, const char* key, const std::string& where) {
-  return number(field(j, key, where), where + "." + key);
-}
 
 /// null (or absent) -> `missing`.
 double number_or(const json& j, const char* key, const std::string& where, double missing) {
