@@ -248,7 +248,8 @@ TEST(BSplineSurface, StaysNearLinearContinuationBeyondTheDataEdge) {
     spline_worst = std::max(spline_worst, std::abs(s[k] - probe.error_m[k]));
     poly_worst = std::max(poly_worst, std::abs(p[k] - probe.error_m[k]));
   }
-  std::printf("beyond the edge: worst error bspline %.2f mm, poly6 %.2f mm\n", 1e3 * spline_worst, 1e3 * poly_worst);
+  std::printf("beyond the edge: worst error bspline %.2f mm, poly6 %.2f mm\n", 1e3 * spline_worst,
+              1e3 * poly_worst);
   EXPECT_LT(spline_worst, 0.005);  // bounded: within a few noise sigmas of the continuation
   EXPECT_GT(poly_worst, 2.0 * spline_worst);
 }

@@ -65,20 +65,6 @@ LineFit fit_line(std::span<const double> x, std::span<const double> y) {
   return f;
 }
 
-std::vector<ranging::Record> measure_records(const device::VirtualRangefinder& device,
-                                             std::span<const device::MeasureRequest> requests,
-                                             std::span<const ranging::GroundTruth> truths,
-                                             std::uint64_t seed) {
-  if (requests.size() != truths.size()) {
-    throw std::invalid_argument("measure_records: requests and truths differ in length");
-  }
-  std::vector<ranging::RawMeasurement> raw(requests.size());
-  device.measure_batch(requests, seed, raw);
-  std::vector<ranging::Record> records(requests.size());
-  for (std::size_t i = 0; i < raw.size(); ++i) records[i] = {truths[i], raw[i]};
-  return records;
-}
-
 ranging::GroundTruth plate_truth(const device::Target& target,
                                  const device::Conditions& conditions) {
   ranging::GroundTruth t;

@@ -83,7 +83,10 @@ TurnOnResult run_turn_on(const device::VirtualRangefinder& device, const TurnOnO
     log_offset.push_back(std::log(off_mm));
   }
   const auto fit = fit_line(t, log_offset);
-  if (fit.slope < 0) result.time_constant_ms = -1.0 / fit.slope;
+  if (fit.slope < 0) {
+    result.time_constant_ms = -1.0 / fit.slope;
+    result.time_to_plateau_fit_ms = (std::log(options.tolerance_mm) - fit.intercept) / fit.slope;
+  }
   return result;
 }
 
@@ -91,6 +94,7 @@ std::vector<Finding> TurnOnResult::findings() const {
   return {{"first_samples_bias_mm", first_samples_bias_mm, "mm"},
           {"first_samples_bias_in", first_samples_bias_mm / 25.4, "in"},
           {"time_to_plateau_ms", time_to_plateau_ms, "ms"},
+          {"time_to_plateau_fit_ms", time_to_plateau_fit_ms, "ms"},
           {"time_constant_ms", time_constant_ms, "ms"},
           {"plateau_range_m", plateau_range_m, "m"},
           {"sample_period_ms", sample_period_ms, "ms"}};
@@ -108,10 +112,10 @@ std::string TurnOnResult::summary() const {
   std::snprintf(text, sizeof text,
                 "laser turn-on at %.1f in, %zu samples every %.4f ms: the first %d samples are "
                 "off by %+.2f mm (%+.3f in); the range stays within %.2f mm of its plateau "
-                "after %.0f ms (time constant %.1f ms)\n",
+                "after %.0f ms (exponential fit: %.0f ms, time constant %.1f ms)\n",
                 m_to_inches(options.distance_m), records.size(), sample_period_ms,
                 options.first_samples, first_samples_bias_mm, first_samples_bias_mm / 25.4,
-                options.tolerance_mm, time_to_plateau_ms, time_constant_ms);
+                options.tolerance_mm, time_to_plateau_ms, time_to_plateau_fit_ms, time_constant_ms);
   return text;
 }
 

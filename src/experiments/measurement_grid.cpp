@@ -1,6 +1,7 @@
 #include "tofkit/experiments/measurement_grid.hpp"
 
 #include <cmath>
+#include <stdexcept>
 
 namespace tofkit::experiments {
 
@@ -14,16 +15,30 @@ PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c
   return p;
 }
 
+std::vector<ranging::Record> measure_records(const device::VirtualRangefinder& device,
+                                             std::span<const device::MeasureRequest> requests,
+                                             std::span<const ranging::GroundTruth> truths,
+                                             std::uint64_t seed) {
+  if (requests.size() != truths.size())
+    throw std::invalid_argument("measure_records: requests and truths differ in length");
+  std::vector<ranging::RawMeasurement> raw(requests.size());
+  device.measure_batch(requests, seed, raw);
+  std::vector<ranging::Record> records(requests.size());
+  for (std::size_t i = 0; i < raw.size(); ++i) records[i] = {truths[i], raw[i]};
+  return records;
+}
+
 std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                  std::span<const PlannedMeasurement> plan, std::uint64_t seed) {
   std::vector<device::MeasureRequest> requests;
+  std::vector<ranging::GroundTruth> truths;
   requests.reserve(plan.size());
-  for (const auto& p : plan) requests.push_back(p.request);
-  std::vector<ranging::RawMeasurement> raw(plan.size());
-  device.measure_batch(requests, seed, raw);
-  std::vector<ranging::Record> records(plan.size());
-  for (std::size_t i = 0; i < plan.size(); ++i) records[i] = {plan[i].truth, raw[i]};
-  return records;
+  truths.reserve(plan.size());
+  for (const auto& p : plan) {
+    requests.push_back(p.request);
+    truths.push_back(p.truth);
+  }
+  return measure_records(device, requests, truths, seed);
 }
 
 std::vector<double> log_spaced(double first, double last, int count) {

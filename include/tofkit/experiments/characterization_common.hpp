@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/measurement_grid.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
 
 namespace tofkit::experiments {
@@ -48,12 +49,6 @@ struct LineFit {
 };
 /// Throws std::invalid_argument when x and y differ in length.
 [[nodiscard]] LineFit fit_line(std::span<const double> x, std::span<const double> y);
-
-/// Measure every request (request i on random stream i, all cores) and pair it
-/// with its truth. Throws std::invalid_argument when the spans differ in length.
-[[nodiscard]] std::vector<ranging::Record> measure_records(
-    const device::VirtualRangefinder& device, std::span<const device::MeasureRequest> requests,
-    std::span<const ranging::GroundTruth> truths, std::uint64_t seed);
 
 /// The truth of a one-surface target under given conditions.
 [[nodiscard]] ranging::GroundTruth plate_truth(const device::Target& target,

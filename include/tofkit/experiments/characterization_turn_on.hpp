@@ -41,9 +41,11 @@ struct TurnOnResult {
   std::vector<ranging::Record> records;  ///< consecutive samples from switch-on
   std::vector<TurnOnBlock> blocks;
   double plateau_range_m = ranging::kNaN;
-  double first_samples_bias_mm = ranging::kNaN;  ///< mean of the first samples minus plateau
-  double time_to_plateau_ms = ranging::kNaN;     ///< end of the last block off the plateau
-  double time_constant_ms = ranging::kNaN;       ///< exponential fit of the block offsets
+  double first_samples_bias_mm = ranging::kNaN;   ///< mean of the first samples minus plateau
+  double time_to_plateau_ms = ranging::kNaN;      ///< end of the last block off the plateau
+  double time_to_plateau_fit_ms = ranging::kNaN;  ///< where the fitted exponential meets the
+                                                  ///< tolerance (less noisy)
+  double time_constant_ms = ranging::kNaN;        ///< exponential fit of the block offsets
   [[nodiscard]] std::vector<Finding> findings() const;
   [[nodiscard]] ResultTable table() const;
   [[nodiscard]] std::string summary() const;

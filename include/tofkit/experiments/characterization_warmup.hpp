@@ -43,10 +43,12 @@ struct WarmupResult {
   WarmupOptions options;
   std::vector<ranging::Record> records;  ///< every sample, in time order
   std::vector<WarmupMinute> minutes;
-  double final_range_m = ranging::kNaN;      ///< mean over the final window
-  double total_drift_mm = ranging::kNaN;     ///< final minus first minute (> 0: range inflates)
-  double settle_time_min = ranging::kNaN;    ///< end of the last minute outside the tolerance
-  double time_constant_min = ranging::kNaN;  ///< exponential fit of |mean - final|
+  double final_range_m = ranging::kNaN;        ///< mean over the final window
+  double total_drift_mm = ranging::kNaN;       ///< final minus first minute (> 0: range inflates)
+  double settle_time_min = ranging::kNaN;      ///< end of the last minute outside the tolerance
+  double settle_time_fit_min = ranging::kNaN;  ///< where the fitted exponential meets the
+                                               ///< tolerance (less noisy than settle_time_min)
+  double time_constant_min = ranging::kNaN;    ///< exponential fit of |mean - final|
   [[nodiscard]] std::vector<Finding> findings() const;
   [[nodiscard]] ResultTable table() const;
   [[nodiscard]] std::string summary() const;

@@ -21,6 +21,12 @@ struct PlannedMeasurement {
 [[nodiscard]] PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c,
                                        double angle_deg = 0.0, int shots = 0);
 
+/// Measures every request (request i on random stream i, all cores) and pairs
+/// it with its truth. Throws std::invalid_argument when the spans differ in length.
+[[nodiscard]] std::vector<ranging::Record> measure_records(
+    const device::VirtualRangefinder& device, std::span<const device::MeasureRequest> requests,
+    std::span<const ranging::GroundTruth> truths, std::uint64_t seed);
+
 /// Measures every plan on all cores (reproducible for a seed, any thread count).
 [[nodiscard]] std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                                std::span<const PlannedMeasurement> plan,
