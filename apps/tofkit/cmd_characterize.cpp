@@ -43,7 +43,9 @@ struct Outcome {
 
 template <typename Result>
 Outcome outcome_of(Result&& r) {
-  return {std::move(r.records), r.findings(), {r.table()}, r.summary()};
+  Outcome o{{}, r.findings(), {r.table()}, r.summary()};  // before the records move out
+  o.records = std::move(r.records);
+  return o;
 }
 
 using Runner = std::function<Outcome(const device::VirtualRangefinder&, std::uint64_t)>;

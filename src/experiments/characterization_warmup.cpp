@@ -125,7 +125,7 @@ std::string WarmupResult::summary() const {
                 m_to_inches(options.distance_m), options.samples_per_minute, options.duration_min,
                 total_drift_mm >= 0 ? "inflates" : "shrinks", std::abs(total_drift_mm),
                 std::abs(total_drift_mm) / 25.4, options.tolerance_mm, settle_time_min,
-                time_constant_min);
+                settle_time_fit_min, time_constant_min);
   return text;
 }
 
