@@ -65,6 +65,24 @@ LineFit fit_line(std::span<const double> x, std::span<const double> y) {
   return f;
 }
 
+ExponentialSettling fit_exponential_settling(std::span<const double> time,
+                                             std::span<const double> offset_mm,
+                                             double tolerance_mm) {
+  std::vector<double> t, log_offset;
+  for (std::size_t i = 0; i < time.size() && i < offset_mm.size(); ++i) {
+    if (!(offset_mm[i] > 2.0 * tolerance_mm)) continue;
+    t.push_back(time[i]);
+    log_offset.push_back(std::log(offset_mm[i]));
+  }
+  ExponentialSettling out;
+  const auto fit = fit_line(t, log_offset);
+  if (fit.slope < 0) {
+    out.time_constant = -1.0 / fit.slope;
+    out.time_to_tolerance = (std::log(tolerance_mm) - fit.intercept) / fit.slope;
+  }
+  return out;
+}
+
 ranging::GroundTruth plate_truth(const device::Target& target,
                                  const device::Conditions& conditions) {
   ranging::GroundTruth t;

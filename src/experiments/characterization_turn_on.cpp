@@ -74,18 +74,17 @@ TurnOnResult run_turn_on(const device::VirtualRangefinder& device, const TurnOnO
   result.time_to_plateau_ms =
       last_off == result.blocks.size() ? 0.0 : result.blocks[last_off].start_ms + block_length_ms;
 
-  // Exponential decay of the bias: ln|offset| linear in time, over blocks well off the plateau.
-  std::vector<double> t, log_offset;
+  // Exponential decay of the bias, over the blocks up to the last one off the plateau.
+  std::vector<double> t, offset_mm;
   for (std::size_t k = 0; k < result.blocks.size() && last_off != result.blocks.size(); ++k) {
-    const double off_mm = std::abs(result.blocks[k].mean_range_m - result.plateau_range_m) * 1e3;
-    if (k > last_off || !(off_mm > 2.0 * options.tolerance_mm)) continue;
+    if (k > last_off) continue;
     t.push_back(result.blocks[k].start_ms + 0.5 * block_length_ms);
-    log_offset.push_back(std::log(off_mm));
+    offset_mm.push_back(std::abs(result.blocks[k].mean_range_m - result.plateau_range_m) * 1e3);
   }
-  const auto fit = fit_line(t, log_offset);
-  if (fit.slope < 0) {
-    result.time_constant_ms = -1.0 / fit.slope;
-    result.time_to_plateau_fit_ms = (std::log(options.tolerance_mm) - fit.intercept) / fit.slope;
+  const auto settling = fit_exponential_settling(t, offset_mm, options.tolerance_mm);
+  if (std::isfinite(settling.time_constant)) {
+    result.time_constant_ms = settling.time_constant;
+    result.time_to_plateau_fit_ms = settling.time_to_tolerance;
   }
   return result;
 }

@@ -78,21 +78,19 @@ WarmupResult run_warmup(const device::VirtualRangefinder& device, const WarmupOp
   }
   result.settle_time_min = last_off + 1.0;
 
-  // First-order settling: ln|mean - final| falls linearly, slope -1/tau; fitted
-  // over the minutes still well above the tolerance (the noise would bend it).
-  std::vector<double> t, log_offset;
+  // First-order settling over the minutes before the last one off the final value;
+  // the fitted time uses every minute, so it scatters less than the last crossing
+  // of the noisy curve.
+  std::vector<double> t, offset_mm;
   for (const auto& m : result.minutes) {
-    const double off_mm = std::abs(m.mean_range_m - result.final_range_m) * 1e3;
-    if (m.minute >= last_off || !(off_mm > 2.0 * options.tolerance_mm)) continue;
+    if (m.minute >= last_off) continue;
     t.push_back(m.minute + 0.5);
-    log_offset.push_back(std::log(off_mm));
+    offset_mm.push_back(std::abs(m.mean_range_m - result.final_range_m) * 1e3);
   }
-  const auto fit = fit_line(t, log_offset);
-  if (fit.slope < 0) {
-    result.time_constant_min = -1.0 / fit.slope;
-    // Where the fitted exponential falls to the tolerance: uses every minute, so
-    // it scatters less than the last crossing of the noisy curve.
-    result.settle_time_fit_min = (std::log(options.tolerance_mm) - fit.intercept) / fit.slope;
+  const auto settling = fit_exponential_settling(t, offset_mm, options.tolerance_mm);
+  if (std::isfinite(settling.time_constant)) {
+    result.time_constant_min = settling.time_constant;
+    result.settle_time_fit_min = settling.time_to_tolerance;
   }
   return result;
 }

@@ -50,6 +50,17 @@ struct LineFit {
 /// Throws std::invalid_argument when x and y differ in length.
 [[nodiscard]] LineFit fit_line(std::span<const double> x, std::span<const double> y);
 
+/// First-order settling of a drift towards its final value: ln|offset| falls
+/// linearly in time with slope -1/tau. Fitted over the points still well above
+/// the tolerance (more than twice it), where the noise does not bend the line.
+struct ExponentialSettling {
+  double time_constant = ranging::kNaN;      ///< tau, in the unit of `time`
+  double time_to_tolerance = ranging::kNaN;  ///< where the fitted offset falls to the tolerance
+};
+[[nodiscard]] ExponentialSettling fit_exponential_settling(std::span<const double> time,
+                                                           std::span<const double> offset_mm,
+                                                           double tolerance_mm);
+
 /// The truth of a one-surface target under given conditions.
 [[nodiscard]] ranging::GroundTruth plate_truth(const device::Target& target,
                                                const device::Conditions& conditions);
