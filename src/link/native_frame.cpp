@@ -99,18 +99,18 @@ struct NativePolicy {
     have_last = true;
     last_sequence = seq;
     f.sequence = seq;
-    f.device_time_s = static_cast<double>(time_us(detail::le32(p + 8))) * 1e-6;
+    f.device_time_s = static_cast<double>(time_us(detail::le32(p + 8))) / 1e6;
 
     ranging::RawMeasurement& m = f.raw;
     const std::uint32_t tof_fs = detail::le32(p + 12);
     const std::uint32_t amplitude_uv = detail::le32(p + 16);
     const std::uint16_t width_ps = detail::le16(p + 20);
     const auto temperature = static_cast<std::int16_t>(detail::le16(p + 22));
-    m.tof_ns = tof_fs == kNone32 ? ranging::kNaN : static_cast<double>(tof_fs) * 1e-6;
+    m.tof_ns = tof_fs == kNone32 ? ranging::kNaN : static_cast<double>(tof_fs) / 1e6;
     m.distance_raw_m = m.tof_ns * metres_per_ns;
     m.amplitude =
-        amplitude_uv == kNone32 ? ranging::kNaN : static_cast<double>(amplitude_uv) * 1e-6;
-    m.pulse_width_ns = width_ps == kNone16 ? ranging::kNaN : static_cast<double>(width_ps) * 1e-3;
+        amplitude_uv == kNone32 ? ranging::kNaN : static_cast<double>(amplitude_uv) / 1e6;
+    m.pulse_width_ns = width_ps == kNone16 ? ranging::kNaN : static_cast<double>(width_ps) / 1e3;
     m.temperature_c =
         temperature == kNoTemperature ? ranging::kNaN : temperature * kTemperatureLsbC;
     m.shots_valid = detail::le16(p + 24);

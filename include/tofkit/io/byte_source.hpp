@@ -1,0 +1,71 @@
+#pragma once
+/// \file Byte streams of a device link: reading a serial port, a pseudo-
+/// terminal, a capture file or stdin in chunks as they arrive, and creating a
+/// pseudo-terminal for an emulated device to write to. POSIX only.
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+
+namespace tofkit::io {
+
+/// Puts a terminal in raw mode (no echo, no line editing, no CR/LF
+/// translation, 8 data bits, no parity, 1 stop bit) and, when baud > 0, sets
+/// its speed. Throws std::runtime_error naming `name` (a baud rate termios
+/// does not offer, a failing tcsetattr).
+void configure_raw_terminal(int fd, int baud, const std::string& name);
+
+/// A readable byte stream: "-" is stdin; a terminal (serial port, pty) is put
+/// in raw mode at --baud; anything else is read as a file or pipe.
+class ByteSource {
+ public:
+  /// Throws std::runtime_error naming the path (missing, unreadable, --baud
+  /// given for something that is not a terminal).
+  ByteSource(const std::string& path, int baud);
+  ~ByteSource();
+  ByteSource(const ByteSource&) = delete;
+  ByteSource& operator=(const ByteSource&) = delete;
+
+  enum class Status { kData, kTimeout, kEnd };
+  /// Waits up to timeout_ms for bytes; `got` is how many were read into `buffer`.
+  /// kEnd at end of file, or when the other side of a pty has closed.
+  Status read(std::span<std::uint8_t> buffer, int timeout_ms, std::size_t& got);
+
+  [[nodiscard]] bool is_terminal() const { return terminal_; }
+  [[nodiscard]] int fd() const { return fd_; }
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+  bool owned_ = false;
+  bool terminal_ = false;
+};
+
+/// A new pseudo-terminal pair in raw mode: the emulator writes to the master,
+/// a host program opens slave_path() as if it were a serial port.
+class PseudoTerminal {
+ public:
+  PseudoTerminal();  ///< throws std::runtime_error
+  ~PseudoTerminal();
+  PseudoTerminal(const PseudoTerminal&) = delete;
+  PseudoTerminal& operator=(const PseudoTerminal&) = delete;
+
+  [[nodiscard]] const std::string& slave_path() const { return slave_path_; }
+  /// Waits until a reader has taken every byte written (up to timeout_ms);
+  /// returns the bytes still unread. Closing the master earlier would hang up
+  /// the line and could discard them.
+  std::size_t wait_drained(int timeout_ms) const;
+  [[nodiscard]] int master_fd() const { return master_; }
+
+ private:
+  int master_ = -1;
+  int slave_ = -1;  // held open so the raw settings stay while no reader is attached
+  std::string slave_path_;
+};
+
+/// Writes all of `bytes` to fd (retrying short writes and EINTR); throws
+/// std::runtime_error naming `name` on failure (a closed reader: EPIPE / EIO).
+void write_all(int fd, std::span<const std::uint8_t> bytes, const std::string& name);
+
+}  // namespace tofkit::io
