@@ -1,0 +1,283 @@
+// `tofkit emulate` and `tofkit stream` end to end. Oracles: `tofkit measure`
+// + `tofkit correct` with the same seed (the offline path), the native frame's
+// encoder applied to measure's rows (the exact quantization on the wire), and
+// the sequence numbers (no frame lost).
+//
+// The pty run lasts TOFKIT_LINK_E2E_SECONDS (default 1.5 s) at 10 kHz; the
+// acceptance run is TOFKIT_LINK_E2E_SECONDS=10.
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "tofkit/io/model_json.hpp"
+#include "tofkit/io/raw_csv.hpp"
+#include "tofkit/link/decoder.hpp"
+#include "tofkit/link/native_frame.hpp"
+#include "tofkit/link/tfmini.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+
+namespace fs = std::filesystem;
+
+namespace tofkit {
+namespace {
+
+class StreamCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    dir_ = fs::temp_directory_path() /
+           ("tofkit_stream_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  struct Result {
+    int status = -1;
+    std::string err;
+  };
+
+  // `tofkit <args>` in the test's directory; stdout to `out`, stderr captured.
+  Result run(const std::string& args, const std::string& out = "stdout.txt") const {
+    const std::string command = "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args +
+                                " >'" + out + "' 2>stderr.txt";
+    const int raw = std::system(command.c_str());
+    return {WIFEXITED(raw) ? WEXITSTATUS(raw) : -1, read("stderr.txt")};
+  }
+  [[nodiscard]] std::string read(const std::string& name) const {
+    std::ifstream in(dir_ / name, std::ios::binary);
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+  [[nodiscard]] std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  // A model fitted on the device's own calibration run.
+  void make_model() const {
+    ASSERT_EQ(run("measure --distance 1:10:1 --reflectance 0.05,0.2,0.5,0.9 --temperature 10,20,30 "
+                  "--count 3 --shots 100 --seed 5 --out cal.csv")
+                  .status,
+              0);
+    ASSERT_EQ(run("fit --in cal.csv --out model.json --chain offset,grayvalue,temperature").status,
+              0);
+  }
+
+  fs::path dir_;
+};
+
+// One CSV table by header name.
+struct Table {
+  std::vector<std::string> header;
+  std::vector<std::vector<std::string>> rows;
+  [[nodiscard]] std::size_t column(const std::string& name) const {
+    for (std::size_t i = 0; i < header.size(); ++i) {
+      if (header[i] == name) return i;
+    }
+    ADD_FAILURE() << "no column " << name;
+    return 0;
+  }
+  [[nodiscard]] double number(std::size_t row, const std::string& name) const {
+    const std::string& s = rows[row][column(name)];
+    return s.empty() ? ranging::kNaN : std::stod(s);
+  }
+};
+
+std::vector<std::string> split(const std::string& line) {
+  std::vector<std::string> fields;
+  std::stringstream s(line);
+  std::string f;
+  while (std::getline(s, f, ',')) fields.push_back(f);
+  if (!line.empty() && line.back() == ',') fields.emplace_back();
+  return fields;
+}
+
+Table read_table(const std::string& file) {
+  std::ifstream in(file);
+  Table t;
+  std::string line;
+  std::getline(in, line);
+  t.header = split(line);
+  while (std::getline(in, line)) t.rows.push_back(split(line));
+  return t;
+}
+
+bool same(double a, double b) {
+  return (std::isnan(a) && std::isnan(b)) || a == b;
+}
+
+TEST_F(StreamCli, EmulatorThroughAPtyEqualsMeasureAndCorrect) {
+  make_model();
+  const char* env = std::getenv("TOFKIT_LINK_E2E_SECONDS");
+  const double seconds = env != nullptr ? std::atof(env) : 1.5;
+  const int rate = 10'000;
+  const int frames = static_cast<int>(seconds * rate);
+  // Eight grid points (inside and outside the calibration) of frames / 8 repeats each.
+  const std::string grid = "--distance 0.7,3,8.5,40 --reflectance 0.1,0.9 --count " +
+                           std::to_string(frames / 8) + " --shots 100 --seed 42";
+
+  // emulate in the background on a new pty; its first stdout line is the path.
+  const std::string emulate = "cd '" + dir_.string() +
+                              "' && '" TOFKIT_BINARY "' emulate --format native --rate " +
+                              std::to_string(rate) + " " + grid + " >pty.txt 2>emulate.txt &";
+  ASSERT_EQ(std::system(emulate.c_str()), 0);
+  std::string pty;
+  for (int i = 0; i < 500 && pty.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    const std::string text = read("pty.txt");
+    if (text.find('\n') != std::string::npos) pty = text.substr(0, text.find('\n'));
+  }
+  ASSERT_FALSE(pty.empty()) << read("emulate.txt");
+  const auto streamed =
+      run("stream --format native --in " + pty + " --model model.json --out live.csv --stats");
+  ASSERT_EQ(streamed.status, 0) << streamed.err;
+  std::cout << read("emulate.txt") << streamed.err;
+
+  ASSERT_EQ(run("measure " + grid + " --out raw.csv").status, 0);
+  ASSERT_EQ(run("correct --model model.json --in raw.csv --out corrected.csv").status, 0);
+
+  const Table live = read_table(path("live.csv"));
+  const auto offline = io::read_corrected_csv(path("corrected.csv"));
+  const auto raw = io::read_raw_csv(path("raw.csv"));
+  ASSERT_EQ(live.rows.size(), offline.size());
+  ASSERT_EQ(live.rows.size(), static_cast<std::size_t>(frames / 8 * 8));
+  EXPECT_NE(streamed.err.find("checksum_failures 0"), std::string::npos);
+  EXPECT_NE(streamed.err.find("sequence_gaps 0"), std::string::npos);
+
+  // The offline path through the wire's quantization: measure's rows encoded
+  // as native frames, decoded, corrected with the same model -> bit-identical.
+  const ranging::Pipeline pipeline = io::load_pipeline(path("model.json"));
+  auto decoder = link::make_decoder(link::Format::kNative);
+  std::vector<link::Frame> decoded;
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    decoder->feed(link::encode_native({static_cast<std::uint32_t>(i), 0, raw[i].raw}), decoded);
+  }
+  ASSERT_EQ(decoded.size(), raw.size());
+  // The wire's half resolution steps through each step's steepest slope.
+  double tolerance_m = 0.5e-6 * 0.15;  // 0.5 fs of time of flight
+  for (const auto& step : pipeline.steps()) {
+    double steepest = 0;
+    for (const double slope : step.function.segment_slopes()) {
+      steepest = std::max(steepest, std::abs(slope));
+    }
+    if (step.kind == ranging::StepKind::kGrayvalue) tolerance_m += steepest * 0.5e-3;
+    if (step.kind == ranging::StepKind::kTemperature) tolerance_m += steepest * 0.5 / 128;
+  }
+  std::size_t with_echo = 0;
+  for (std::size_t i = 0; i < live.rows.size(); ++i) {
+    SCOPED_TRACE(i);
+    ASSERT_EQ(std::stoull(live.rows[i][live.column("sequence")]), i);  // no frame lost, in order
+    const ranging::Range r = pipeline.apply(decoded[i].raw);
+    ASSERT_TRUE(same(live.number(i, "distance_m"), r.distance_m));
+    ASSERT_TRUE(same(live.number(i, "sigma_m"), r.sigma_m));
+    ASSERT_EQ(live.number(i, "correction_flags"), r.correction_flags);
+    // And against `correct` itself: equal up to the wire's resolution.
+    const double d = offline[i].range.distance_m;
+    ASSERT_EQ(std::isnan(live.number(i, "distance_m")), std::isnan(d));
+    if (!std::isnan(d)) {
+      ++with_echo;
+      ASSERT_NEAR(live.number(i, "distance_m"), d, tolerance_m);
+    }
+  }
+  EXPECT_GT(with_echo, live.rows.size() / 2);
+}
+
+TEST_F(StreamCli, CorruptionChangesBytesNeverValues) {
+  const std::string grid =
+      "--format native --rate 1000000 --distance 2,6 --reflectance 0.3 "
+      "--count 2000 --shots 50 --seed 9 --out -";
+  ASSERT_EQ(run("emulate " + grid, "clean.bin").status, 0);
+  ASSERT_EQ(run("emulate " + grid + " --corrupt 0.01", "dirty.bin").status, 0);
+  const std::string clean = read("clean.bin"), dirty = read("dirty.bin");
+  ASSERT_EQ(clean.size(), dirty.size());
+  ASSERT_EQ(clean.size(), 4000 * link::kNativeFrameBytes);
+  std::size_t differing = 0;
+  for (std::size_t i = 0; i < clean.size(); ++i) differing += clean[i] != dirty[i] ? 1 : 0;
+  EXPECT_NEAR(static_cast<double>(differing) / static_cast<double>(clean.size()), 0.01, 0.002);
+
+  ASSERT_EQ(run("stream --format native --in clean.bin --out clean.csv").status, 0);
+  const auto s = run("stream --format native --in dirty.bin --out dirty.csv --stats");
+  ASSERT_EQ(s.status, 0);
+  const Table a = read_table(path("clean.csv")), b = read_table(path("dirty.csv"));
+  ASSERT_EQ(a.rows.size(), 4000u);
+  EXPECT_LT(b.rows.size(), a.rows.size());
+  EXPECT_GT(b.rows.size(), 2800u);  // 0.99^30 = 74 % of 30-byte frames are untouched
+  // Every frame that got through carries exactly the clean run's values.
+  for (std::size_t i = 0; i < b.rows.size(); ++i) {
+    const auto seq = std::stoull(b.rows[i][0]);
+    std::vector<std::string> row_b = b.rows[i], row_a = a.rows[seq];
+    row_b.back() = row_a.back() = "";  // link_status: a sequence gap before it
+    ASSERT_EQ(row_b, row_a) << seq;
+  }
+}
+
+TEST_F(StreamCli, TfminiCaptureFromStdinInAnyOrderOfArrival) {
+  // A TFmini capture: three frames, one with a stray false header before it
+  // and one reporting -1 (no echo: an empty distance, never a fake range).
+  std::string bytes = "\x59\x59\x07";
+  for (const link::TfminiReading r :
+       {link::TfminiReading{123, 900, 2256}, link::TfminiReading{link::kTfminiLowSignal, 20, 2256},
+        link::TfminiReading{4567, 150, 2264}}) {
+    const auto f = link::encode_tfmini(r);
+    bytes.append(f.begin(), f.end());
+  }
+  std::ofstream(dir_ / "tf.bin", std::ios::binary) << bytes;
+  const std::string command = "cd '" + dir_.string() +
+                              "' && '" TOFKIT_BINARY
+                              "' stream --format tfmini --in - --out tf.csv <tf.bin 2>stderr.txt";
+  ASSERT_EQ(std::system(command.c_str()), 0) << read("stderr.txt");
+  const Table t = read_table(path("tf.csv"));
+  ASSERT_EQ(t.rows.size(), 3u);
+  EXPECT_DOUBLE_EQ(t.number(0, "distance_raw_m"), 1.23);
+  EXPECT_DOUBLE_EQ(t.number(0, "amplitude"), 900);
+  EXPECT_DOUBLE_EQ(t.number(0, "temperature_c"), 26);
+  EXPECT_TRUE(std::isnan(t.number(1, "distance_raw_m")));
+  EXPECT_EQ(t.number(1, "flags"), ranging::kRawNoEcho);
+  EXPECT_EQ(t.number(1, "link_status"), link::kLinkLowSignal);
+  EXPECT_DOUBLE_EQ(t.number(2, "distance_raw_m"), 45.67);
+  // The rows read back as a raw CSV (truth columns empty).
+  const auto records = io::read_raw_csv(path("tf.csv"));
+  ASSERT_EQ(records.size(), 3u);
+  EXPECT_TRUE(std::isnan(records[0].truth.distance_m));
+}
+
+TEST_F(StreamCli, BadInputFailsWithAMessageAndNoOutput) {
+  auto r = run("stream --format native --in missing.bin --out out.csv");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("missing.bin"), std::string::npos);
+  EXPECT_FALSE(fs::exists(dir_ / "out.csv"));
+
+  std::ofstream(dir_ / "capture.bin") << "x";
+  r = run("stream --format native --in capture.bin --baud 115200 --out out.csv");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("not a serial port"), std::string::npos);
+  EXPECT_FALSE(fs::exists(dir_ / "out.csv"));
+
+  r = run("stream --format native --in capture.bin --out capture.bin");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_EQ(read("capture.bin"), "x");
+
+  r = run("stream --format native --in capture.bin --model nope.json --out out.csv");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("nope.json"), std::string::npos);
+  EXPECT_FALSE(fs::exists(dir_ / "out.csv"));
+
+  r = run("emulate --format native --distance 1 --reflectance 0.5 --shots 70000 --out -");
+  EXPECT_NE(r.status, 0);
+}
+
+}  // namespace
+}  // namespace tofkit
