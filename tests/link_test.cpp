@@ -236,6 +236,20 @@ TEST(LinkNative, RejectsValuesThatDoNotFit) {
   EXPECT_THROW((void)encode_native({0, 0, m}), std::out_of_range);
 }
 
+TEST(LinkNative, AFrameWithoutEchoCarriesNoRange) {
+  // Found by fuzzing: a frame whose flags say "no echo" but whose tof field
+  // holds a number must not produce a distance (REP-117).
+  ranging::RawMeasurement m;
+  m.tof_ns = 12.5;
+  m.shots_valid = 0;
+  m.flags = ranging::kRawNoEcho;
+  const auto frame = encode_native({0, 0, m});
+  const auto frames = decode(Format::kNative, Bytes(frame.begin(), frame.end()), {});
+  ASSERT_EQ(frames.size(), 1u);
+  EXPECT_TRUE(std::isnan(frames[0].raw.tof_ns));
+  EXPECT_TRUE(std::isnan(frames[0].raw.distance_raw_m));
+}
+
 TEST(LinkNative, SequenceAndClockUnwrapAndGapsAreCounted) {
   Bytes bytes;
   const std::uint32_t start = 0xFFFFFFFE;

@@ -115,6 +115,11 @@ struct NativePolicy {
         temperature == kNoTemperature ? ranging::kNaN : temperature * kTemperatureLsbC;
     m.shots_valid = detail::le16(p + 24);
     m.flags = detail::le16(p + 26);
+    if (!m.has_echo()) {
+      // A frame that says "no echo" carries no range, whatever its tof field holds (REP-117).
+      m.tof_ns = ranging::kNaN;
+      m.distance_raw_m = ranging::kNaN;
+    }
     return {Verdict::kFrame, length};
   }
 };
