@@ -5,10 +5,12 @@
 namespace tofkit::link {
 namespace {
 
-// Slicing-by-2 tables for the MSB-first polynomial 0x1021: table[0][b] is the
-// CRC of byte b, table[1][b] that of b followed by a zero byte.
+// Slicing-by-8 tables for the MSB-first polynomial 0x1021: t[k][b] is the CRC
+// (from a zero register) of byte b followed by k zero bytes. By linearity the
+// CRC of eight bytes is the XOR of eight independent lookups, the register's
+// two bytes folded into the first two: a short dependency chain per 8 bytes.
 struct Tables {
-  std::array<std::array<std::uint16_t, 256>, 2> t{};
+  std::array<std::array<std::uint16_t, 256>, 8> t{};
   constexpr Tables() {
     for (unsigned b = 0; b < 256; ++b) {
       auto crc = static_cast<std::uint16_t>(b << 8);
@@ -17,8 +19,11 @@ struct Tables {
       }
       t[0][b] = crc;
     }
-    for (unsigned b = 0; b < 256; ++b) {
-      t[1][b] = static_cast<std::uint16_t>((t[0][b] << 8) ^ t[0][t[0][b] >> 8]);
+    for (std::size_t k = 1; k < 8; ++k) {
+      for (unsigned b = 0; b < 256; ++b) {
+        const std::uint16_t prev = t[k - 1][b];
+        t[k][b] = static_cast<std::uint16_t>((prev << 8) ^ t[0][prev >> 8]);
+      }
     }
   }
 };
@@ -28,16 +33,15 @@ constexpr Tables kTables;
 
 std::uint16_t crc16_update(std::uint16_t crc, std::span<const std::uint8_t> bytes) {
   const auto& t = kTables.t;
-  std::size_t i = 0;
-  // Two bytes per step: the CRC register's two bytes meet the next two data
-  // bytes and each goes through its own table (independent lookups).
-  for (; i + 2 <= bytes.size(); i += 2) {
-    const unsigned hi = (crc >> 8) ^ bytes[i];
-    const unsigned lo = (crc & 0xFF) ^ bytes[i + 1];
-    crc = static_cast<std::uint16_t>(t[1][hi] ^ t[0][lo]);
+  const std::uint8_t* p = bytes.data();
+  std::size_t n = bytes.size();
+  for (; n >= 8; p += 8, n -= 8) {
+    crc = static_cast<std::uint16_t>(t[7][(crc >> 8) ^ p[0]] ^ t[6][(crc & 0xFF) ^ p[1]] ^
+                                     t[5][p[2]] ^ t[4][p[3]] ^ t[3][p[4]] ^ t[2][p[5]] ^
+                                     t[1][p[6]] ^ t[0][p[7]]);
   }
-  for (; i < bytes.size(); ++i) {
-    crc = static_cast<std::uint16_t>((crc << 8) ^ t[0][((crc >> 8) ^ bytes[i]) & 0xFF]);
+  for (; n > 0; ++p, --n) {
+    crc = static_cast<std::uint16_t>((crc << 8) ^ t[0][((crc >> 8) ^ *p) & 0xFF]);
   }
   return crc;
 }
