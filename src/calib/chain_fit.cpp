@@ -11,6 +11,22 @@ namespace tofkit::calib {
 namespace {
 
 constexpr std::size_t kMinChainRows = 10;
+/// Largest |value| a fit accepts: squares and sums of squares over any
+/// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
+/// value is a corrupt cell, not a measurement.
+constexpr double kMaxFitMagnitude = 1e100;
+
+/// Throws std::invalid_argument naming the column and the data row (1-based)
+/// when a finite value is too large to fit.
+void require_fit_magnitude(double v, const char* column, std::size_t index) {
+  if (std::isfinite(v) && std::fabs(v) > kMaxFitMagnitude) {
+    char buffer[160];
+    std::snprintf(buffer, sizeof buffer,
+                  "%s = %.6g in data row %zu is too large to fit (|value| must be below %.0e)",
+                  column, v, index + 1, kMaxFitMagnitude);
+    throw std::invalid_argument(buffer);
+  }
+}
 
 double median_of(std::vector<double> v) {
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
@@ -131,6 +147,11 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
     const double start = result.pipeline.start_distance_m(r.raw);
+    require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
+    require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
+    require_fit_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
+    if (steps.grayvalue) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (steps.temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
     const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
                     (!steps.grayvalue || std::isfinite(r.raw.pulse_width_ns)) &&
                     (!steps.temperature || std::isfinite(r.raw.temperature_c));
