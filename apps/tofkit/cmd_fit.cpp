@@ -39,6 +39,8 @@ struct FitOptions {
   double confidence_fraction = 0.25;
   std::string firmware;  // stem: writes STEM.json and STEM.h
   bool rcond_given = false;
+  std::string knots = "auto";      // bspline: "auto" (GCV) or RxA[xT] knot intervals
+  std::string smoothing = "auto";  // bspline: "auto" (GCV) or a penalty weight
 };
 
 /// The conversion the device uses for distance_raw_m (nominal c in air).
@@ -110,6 +112,73 @@ SurfaceSpec parse_surface(const std::string& spec) {
     if (used == n.size() && order >= 1 && order <= 12) return {true, order};
   }
   throw std::invalid_argument("--surface " + spec + ": expected poly:N (N = 1..12) or bspline");
+}
+
+/// --knots auto|RxA[xT] and --smoothing auto|VALUE -> B-spline options.
+calib::BSplineFitOptions bspline_options(const FitOptions& o) {
+  calib::BSplineFitOptions b;
+  b.use_temperature = o.surface_temperature;
+  if (o.knots == "auto") {
+    b.choose_intervals_by_gcv = true;
+  } else {
+    int counts[3] = {0, 0, 0};
+    int parsed = 0;
+    std::size_t begin = 0;
+    bool ok = true;
+    while (ok && begin <= o.knots.size() && parsed < 3) {
+      const std::size_t x = std::min(o.knots.find('x', begin), o.knots.size());
+      const std::string part = o.knots.substr(begin, x - begin);
+      std::size_t used = 0;
+      try {
+        counts[parsed++] = std::stoi(part, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      ok = used == part.size() && !part.empty();
+      begin = x + 1;
+    }
+    const int expected = o.surface_temperature ? 3 : 2;
+    if (!ok || parsed != expected || begin <= o.knots.size()) {
+      throw std::invalid_argument("--knots " + o.knots + ": expected auto or " +
+                                  (o.surface_temperature ? "RxAxT" : "RxA") +
+                                  " (knot intervals per axis, e.g. 6x8)");
+    }
+    b.intervals_range = counts[0];
+    b.intervals_amplitude = counts[1];
+    b.intervals_temperature = o.surface_temperature ? counts[2] : b.intervals_temperature;
+  }
+  if (o.smoothing == "auto") {
+    b.choose_smoothing_by_gcv = true;
+  } else {
+    std::size_t used = 0;
+    double v = -1;
+    try {
+      v = std::stod(o.smoothing, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != o.smoothing.size() || !std::isfinite(v) || v < 0) {
+      throw std::invalid_argument("--smoothing " + o.smoothing +
+                                  ": expected auto or a finite number >= 0");
+    }
+    b.smoothing = v;
+  }
+  b.validate();
+  return b;
+}
+
+/// A surface over range needs calibration plates at two or more true distances.
+void require_two_distances(const std::vector<ranging::Record>& records) {
+  double first = ranging::kNaN;
+  for (const auto& r : records) {
+    if (!std::isfinite(r.truth.distance_m)) continue;
+    if (std::isnan(first)) first = r.truth.distance_m;
+    if (r.truth.distance_m != first) return;
+  }
+  throw std::invalid_argument(fmt::format(
+      "--surface bspline: range axis undetermined: every row has distance_true_m = {} m (one "
+      "distinct distance); measure plates at two or more distances, or fit --chain only",
+      first));
 }
 
 /// Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
@@ -226,8 +295,8 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
         poly.use_temperature = o.surface_temperature;
         surface = calib::fit_polynomial_surface(data, poly);
       } else {
-        calib::BSplineFitOptions bspline;
-        bspline.use_temperature = o.surface_temperature;
+        require_two_distances(fit_rows);
+        calib::BSplineFitOptions bspline = bspline_options(o);
         surface = calib::fit_bspline_surface(data, bspline);
       }
       ranging::Step step = ranging::make_surface_step(surface.surface);
@@ -236,12 +305,17 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
       pipeline.add_step(std::move(step));
       pipeline.set_residual_rms_m(surface.residual_rms_m);
       report += surface.summary() + "\n";
-      fit_info["surface"] = {{"spec", o.surface},
-                             {"rows", surface.rows},
-                             {"parameters", surface.parameters},
-                             {"rank", surface.rank},
-                             {"residual_rms_m", surface.residual_rms_m},
-                             {"error_before", stats_json(calib::error_stats(rows.error))}};
+      fit_info["surface"] = {
+          {"spec", o.surface},
+          {"rows", surface.rows},
+          {"parameters", surface.parameters},
+          {"rank", surface.rank},
+          {"knot_intervals", std::vector<int>(surface.intervals,
+                                              surface.intervals + (o.surface_temperature ? 3 : 2))},
+          {"smoothing", surface.smoothing},
+          {"cv_rms_m", surface.cv_rms_m},
+          {"residual_rms_m", surface.residual_rms_m},
+          {"error_before", stats_json(calib::error_stats(rows.error))}};
     }
     if (o.confidence != "none") {
       std::vector<ranging::RawMeasurement> raw;
@@ -315,6 +389,13 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
           ->check(CLI::Range(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
+  sub.add_option("--knots", o->knots,
+                 "bspline: knot intervals per axis, RxA[xT], or auto (chosen by generalized "
+                 "cross-validation)")
+      ->capture_default_str();
+  sub.add_option("--smoothing", o->smoothing,
+                 "bspline: penalty weight, or auto (chosen by generalized cross-validation)")
+      ->capture_default_str();
   sub.add_option("--confidence", o->confidence,
                  "confidence model: none, thesis (Section 4.8) or calibrated")
       ->check(CLI::IsMember({"none", "thesis", "calibrated"}))
