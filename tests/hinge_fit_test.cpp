@@ -349,5 +349,39 @@ TEST(ChainFit, ClearErrorsForDegenerateData) {
   EXPECT_NE(fit_error(records, "offset").find("too few rows: 8 usable of 20"), std::string::npos);
 }
 
+// Issue 7: one cell >= 1e155 made the squared error overflow, no knot count
+// was usable and the hinge fit read back() of an empty vector (SIGSEGV).
+TEST(ChainFit, RefusesOverflowingCellsNamingColumnAndRow) {
+  for (const char* steps :
+       {"offset,grayvalue", "offset,temperature", "offset,grayvalue,temperature"}) {
+    auto records = chain_records(200, 0.001, 18);
+    records[8].truth.distance_m = 1e160;
+    const std::string truth = fit_error(records, steps);
+    EXPECT_NE(truth.find("distance_true_m = 1e+160 in data row 9"), std::string::npos) << truth;
+    records = chain_records(200, 0.001, 18);
+    records[41].raw.tof_ns = 1e155;
+    const std::string tof = fit_error(records, steps);
+    EXPECT_NE(tof.find("tof_ns = 1e+155 in data row 42"), std::string::npos) << tof;
+    EXPECT_NE(tof.find("too large"), std::string::npos) << tof;
+  }
+}
+
+TEST(HingeFit, RefusesValuesWhoseSquaresOverflow) {
+  std::vector<double> x, y;
+  for (int i = 0; i < 50; ++i) {
+    x.push_back(i);
+    y.push_back(0.01 * i);
+  }
+  y[7] = 1e200;
+  HingeFitOptions options;
+  options.column = "pulse_width_ns";
+  try {
+    (void)fit_hinge(x, y, options);
+    FAIL() << "accepted 1e200";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("pulse_width_ns: row 8"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace tofkit::calib

@@ -195,6 +195,33 @@ class ConstantConfidence final : public calib::ConfidenceModel {
   }
 };
 
+TEST(Pipeline, SigmaGrowsWithTheDistanceOutsideTheDomain) {
+  Pipeline p;
+  PiecewiseLinear g;
+  g.x0 = 6.0;
+  g.slope0 = 0.01;
+  p.add_step(make_grayvalue_step(g, {3.0, 11.0}));  // domain width 8 ns
+  p.set_residual_rms_m(0.002);
+  const auto sigma_at = [&](double pulse_width_ns) {
+    RawMeasurement m;
+    m.tof_ns = 20.0;
+    m.pulse_width_ns = pulse_width_ns;
+    m.shots_valid = 10;
+    return p.apply(m);
+  };
+  EXPECT_DOUBLE_EQ(sigma_at(11.0).sigma_m, 0.002);
+  EXPECT_EQ(sigma_at(11.0).correction_flags, 0u);
+  const double growth = Pipeline::kOutOfDomainSigmaGrowth;
+  // 2 ns beyond the top = a quarter of the domain's width; 4 ns below the bottom = a half.
+  EXPECT_NEAR(sigma_at(13.0).sigma_m, 0.002 * (1 + growth * 0.25), 1e-15);
+  EXPECT_NEAR(sigma_at(-1.0).sigma_m, 0.002 * (1 + growth * 0.5), 1e-15);
+  EXPECT_EQ(sigma_at(13.0).correction_flags, kCorrOutOfDomain);
+  // Just outside: flagged, sigma still (almost) the in-domain one.
+  const Range edge = sigma_at(std::nextafter(11.0, 12.0));
+  EXPECT_EQ(edge.correction_flags, kCorrOutOfDomain);
+  EXPECT_NEAR(edge.sigma_m, 0.002, 1e-12);
+}
+
 TEST(Pipeline, SurfaceStepSeesTheDistanceBeforeIt) {
   Pipeline p;
   p.add_step(make_offset_step(0.5));

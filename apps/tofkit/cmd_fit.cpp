@@ -35,10 +35,15 @@ struct FitOptions {
   std::string surface;  // "poly:N" or "bspline"
   double rcond = 1e-2;  // thesis: 1e-2
   bool surface_temperature = false;
-  std::string confidence = "none";
+  std::string confidence = "calibrated";
+  bool confidence_given = false;
   double confidence_fraction = 0.25;
+  bool confidence_fraction_given = false;
+  int confidence_folds = 5;
   std::string firmware;  // stem: writes STEM.json and STEM.h
   bool rcond_given = false;
+  std::string knots = "auto";      // bspline: "auto" (GCV) or RxA[xT] knot intervals
+  std::string smoothing = "auto";  // bspline: "auto" (GCV) or a penalty weight
 };
 
 /// The conversion the device uses for distance_raw_m (nominal c in air).
@@ -49,6 +54,24 @@ ranging::TimeToDistance time_to_distance_of(const device::DeviceConfig& config) 
   t.air.pressure_hpa = config.link.environment.pressure_hpa;
   t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
   return t;
+}
+
+/// Group of every record: identical truth (distance_true_m, reflectance,
+/// angle_deg, ambient_c), numbered in order of first appearance.
+std::vector<std::size_t> truth_groups(const std::vector<ranging::Record>& records,
+                                      std::size_t& groups) {
+  const auto key_of = [](const ranging::GroundTruth& t) {
+    const auto v = [](double x) { return std::isnan(x) ? -1e300 : x; };
+    return std::make_tuple(v(t.distance_m), v(t.reflectance), v(t.angle_deg), v(t.ambient_c));
+  };
+  std::map<std::tuple<double, double, double, double>, std::size_t> group_of;
+  std::vector<std::size_t> group;
+  group.reserve(records.size());
+  for (const ranging::Record& r : records) {
+    group.push_back(group_of.emplace(key_of(r.truth), group_of.size()).first->second);
+  }
+  groups = group_of.size();
+  return group;
 }
 
 /// Deterministic hold-out for the confidence fit: rows are grouped by identical
@@ -110,6 +133,73 @@ SurfaceSpec parse_surface(const std::string& spec) {
     if (used == n.size() && order >= 1 && order <= 12) return {true, order};
   }
   throw std::invalid_argument("--surface " + spec + ": expected poly:N (N = 1..12) or bspline");
+}
+
+/// --knots auto|RxA[xT] and --smoothing auto|VALUE -> B-spline options.
+calib::BSplineFitOptions bspline_options(const FitOptions& o) {
+  calib::BSplineFitOptions b;
+  b.use_temperature = o.surface_temperature;
+  if (o.knots == "auto") {
+    b.choose_intervals_by_gcv = true;
+  } else {
+    int counts[3] = {0, 0, 0};
+    int parsed = 0;
+    std::size_t begin = 0;
+    bool ok = true;
+    while (ok && begin <= o.knots.size() && parsed < 3) {
+      const std::size_t x = std::min(o.knots.find('x', begin), o.knots.size());
+      const std::string part = o.knots.substr(begin, x - begin);
+      std::size_t used = 0;
+      try {
+        counts[parsed++] = std::stoi(part, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      ok = used == part.size() && !part.empty();
+      begin = x + 1;
+    }
+    const int expected = o.surface_temperature ? 3 : 2;
+    if (!ok || parsed != expected || begin <= o.knots.size()) {
+      throw std::invalid_argument("--knots " + o.knots + ": expected auto or " +
+                                  (o.surface_temperature ? "RxAxT" : "RxA") +
+                                  " (knot intervals per axis, e.g. 6x8)");
+    }
+    b.intervals_range = counts[0];
+    b.intervals_amplitude = counts[1];
+    b.intervals_temperature = o.surface_temperature ? counts[2] : b.intervals_temperature;
+  }
+  if (o.smoothing == "auto") {
+    b.choose_smoothing_by_gcv = true;
+  } else {
+    std::size_t used = 0;
+    double v = -1;
+    try {
+      v = std::stod(o.smoothing, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != o.smoothing.size() || !std::isfinite(v) || v < 0) {
+      throw std::invalid_argument("--smoothing " + o.smoothing +
+                                  ": expected auto or a finite number >= 0");
+    }
+    b.smoothing = v;
+  }
+  b.validate();
+  return b;
+}
+
+/// A surface over range needs calibration plates at two or more true distances.
+void require_two_distances(const std::vector<ranging::Record>& records) {
+  double first = ranging::kNaN;
+  for (const auto& r : records) {
+    if (!std::isfinite(r.truth.distance_m)) continue;
+    if (std::isnan(first)) first = r.truth.distance_m;
+    if (r.truth.distance_m != first) return;
+  }
+  throw std::invalid_argument(fmt::format(
+      "--surface bspline: range axis undetermined: every row has distance_true_m = {} m (one "
+      "distinct distance); measure plates at two or more distances, or fit --chain only",
+      first));
 }
 
 /// Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
@@ -174,7 +264,9 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
   std::vector<ranging::Record> fit_rows, confidence_rows;
   std::size_t groups = 0;
-  if (o.confidence == "none") {
+  // --confidence-fraction: the thesis's hold-out split; otherwise cross-fitting.
+  const bool hold_out = o.confidence != "none" && o.confidence_fraction_given;
+  if (!hold_out) {
     fit_rows = records;
   } else {
     split_for_confidence(records, o.confidence_fraction, fit_rows, confidence_rows, groups);
@@ -190,34 +282,42 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   nlohmann::json fit_info = {
       {"command", "fit"}, {"input", o.in}, {"rows", records.size()}, {"rows_fit", fit_rows.size()}};
   const ranging::TimeToDistance conversion = time_to_distance_of(config);
-  ranging::Pipeline pipeline(conversion);
   std::string report;
-  try {
+
+  // The correction (chain, then surface on its residual) fitted on `rows`;
+  // the report and fit_info only for the model that is written.
+  const auto fit_correction = [&](const std::vector<ranging::Record>& rows, std::string* text,
+                                  nlohmann::json* info) {
+    ranging::Pipeline pipeline(conversion);
     if (!o.chain.empty()) {
       calib::ChainFitOptions chain_options;
       chain_options.steps = steps;
       chain_options.time_to_distance = conversion;
-      const calib::ChainFitResult chain = calib::fit_chain(fit_rows, chain_options);
+      const calib::ChainFitResult chain = calib::fit_chain(rows, chain_options);
       pipeline = chain.pipeline;
-      report += chain.summary();
-      nlohmann::json c = {{"steps", calib::to_string(steps)},
-                          {"rows", chain.rows},
-                          {"rows_skipped", chain.rows_skipped},
-                          {"rows_downweighted", chain.rows_downweighted},
-                          {"backfit_iterations", chain.backfit_iterations},
-                          {"converged", chain.converged},
-                          {"before", stats_json(chain.before)},
-                          {"after", stats_json(chain.after)}};
-      if (chain.grayvalue) c["grayvalue"] = hinge_json(*chain.grayvalue);
-      if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
-      fit_info["chain"] = c;
+      if (text) *text += chain.summary();
+      if (info) {
+        nlohmann::json c = {{"steps", calib::to_string(steps)},
+                            {"rows", chain.rows},
+                            {"rows_skipped", chain.rows_skipped},
+                            {"rows_downweighted", chain.rows_downweighted},
+                            {"knot_search_rows", chain.knot_search_rows},
+                            {"backfit_iterations", chain.backfit_iterations},
+                            {"converged", chain.converged},
+                            {"before", stats_json(chain.before)},
+                            {"after", stats_json(chain.after)}};
+        if (chain.grayvalue) c["grayvalue"] = hinge_json(*chain.grayvalue);
+        if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
+        (*info)["chain"] = c;
+      }
     }
     if (!o.surface.empty()) {
-      const SurfaceRows rows = surface_rows(pipeline, fit_rows, o.surface_temperature);
-      calib::SurfaceFitData data{{rows.range, rows.amplitude,
-                                  o.surface_temperature ? std::span<const double>(rows.temperature)
-                                                        : std::span<const double>()},
-                                 rows.error};
+      const SurfaceRows surface_input = surface_rows(pipeline, rows, o.surface_temperature);
+      calib::SurfaceFitData data{
+          {surface_input.range, surface_input.amplitude,
+           o.surface_temperature ? std::span<const double>(surface_input.temperature)
+                                 : std::span<const double>()},
+          surface_input.error};
       calib::SurfaceFitResult surface;
       if (surface_spec.poly) {
         calib::PolynomialFitOptions poly;
@@ -226,8 +326,8 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
         poly.use_temperature = o.surface_temperature;
         surface = calib::fit_polynomial_surface(data, poly);
       } else {
-        calib::BSplineFitOptions bspline;
-        bspline.use_temperature = o.surface_temperature;
+        require_two_distances(rows);
+        calib::BSplineFitOptions bspline = bspline_options(o);
         surface = calib::fit_bspline_surface(data, bspline);
       }
       ranging::Step step = ranging::make_surface_step(surface.surface);
@@ -235,42 +335,103 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
       step.fit.residual_rms_m = surface.residual_rms_m;
       pipeline.add_step(std::move(step));
       pipeline.set_residual_rms_m(surface.residual_rms_m);
-      report += surface.summary() + "\n";
-      fit_info["surface"] = {{"spec", o.surface},
-                             {"rows", surface.rows},
-                             {"parameters", surface.parameters},
-                             {"rank", surface.rank},
-                             {"residual_rms_m", surface.residual_rms_m},
-                             {"error_before", stats_json(calib::error_stats(rows.error))}};
-    }
-    if (o.confidence != "none") {
-      std::vector<ranging::RawMeasurement> raw;
-      for (const auto& r : confidence_rows) raw.push_back(r.raw);
-      std::vector<ranging::Range> corrected(raw.size());
-      pipeline.apply(raw, corrected);
-      std::vector<double> range, amplitude, residual;
-      for (std::size_t i = 0; i < raw.size(); ++i) {
-        const double e = confidence_rows[i].truth.distance_m - corrected[i].distance_m;
-        if (!std::isfinite(e) || !std::isfinite(raw[i].amplitude)) continue;
-        range.push_back(corrected[i].distance_m);
-        amplitude.push_back(raw[i].amplitude);
-        residual.push_back(e);
+      if (text) *text += surface.summary() + "\n";
+      if (info) {
+        (*info)["surface"] = {
+            {"spec", o.surface},
+            {"rows", surface.rows},
+            {"parameters", surface.parameters},
+            {"rank", surface.rank},
+            {"knot_intervals",
+             std::vector<int>(surface.intervals,
+                              surface.intervals + (o.surface_temperature ? 3 : 2))},
+            {"smoothing", surface.smoothing},
+            {"cv_rms_m", surface.cv_rms_m},
+            {"residual_rms_m", surface.residual_rms_m},
+            {"error_before", stats_json(calib::error_stats(surface_input.error))}};
       }
+    }
+    return pipeline;
+  };
+
+  /// Residuals of `model` on `rows` (true - corrected), with range and amplitude.
+  std::vector<double> range, amplitude, residual;
+  const auto add_residuals = [&](const ranging::Pipeline& model,
+                                 const std::vector<ranging::Record>& rows) {
+    std::vector<ranging::RawMeasurement> raw;
+    for (const auto& r : rows) raw.push_back(r.raw);
+    std::vector<ranging::Range> corrected(raw.size());
+    model.apply(raw, corrected);
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      const double e = rows[i].truth.distance_m - corrected[i].distance_m;
+      // Out-of-domain rows would teach the in-domain sigma the extrapolation error.
+      if (!std::isfinite(e) || !std::isfinite(raw[i].amplitude) ||
+          (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+        continue;
+      }
+      range.push_back(corrected[i].distance_m);
+      amplitude.push_back(raw[i].amplitude);
+      residual.push_back(e);
+    }
+  };
+
+  ranging::Pipeline pipeline(conversion);
+  try {
+    pipeline = fit_correction(fit_rows, &report, &fit_info);
+    std::string confidence_note;
+    bool fit_confidence = o.confidence != "none";
+    if (fit_confidence && hold_out) {
+      add_residuals(pipeline, confidence_rows);
+      confidence_note =
+          fmt::format("{} held-out rows (every {}-th of {} truth groups)", residual.size(),
+                      std::lround(1.0 / o.confidence_fraction), groups);
+    } else if (fit_confidence) {
+      // Cross-fitting: every truth group's residual comes from a correction
+      // fitted without it (K folds of whole groups), so the confidence learns
+      // the error on targets the correction never saw; the model written is
+      // fitted on all rows.
+      const std::vector<std::size_t> group = truth_groups(records, groups);
+      const auto folds = static_cast<std::size_t>(o.confidence_folds);
+      try {
+        if (groups < folds) {
+          throw std::invalid_argument(
+              fmt::format("--confidence-folds {} needs at least {} groups of identical truth "
+                          "(distances / plates / temperatures), the file has {}",
+                          folds, folds, groups));
+        }
+        for (std::size_t k = 0; k < folds; ++k) {
+          std::vector<ranging::Record> train, test;
+          for (std::size_t i = 0; i < records.size(); ++i) {
+            (group[i] % folds == k ? test : train).push_back(records[i]);
+          }
+          add_residuals(fit_correction(train, nullptr, nullptr), test);
+        }
+      } catch (const std::invalid_argument& e) {
+        if (o.confidence_given) throw;
+        // Default confidence on data too small to cross-fit: sigma stays the residual RMS.
+        fit_confidence = false;
+        report += std::string("confidence: none (cross-fitting impossible: ") + e.what() + ")\n";
+      }
+      confidence_note = fmt::format("{} out-of-fold rows ({} folds of {} truth groups)",
+                                    residual.size(), folds, groups);
+    }
+    if (fit_confidence) {
       const calib::ConfidenceFitData data{range, amplitude, residual};
       pipeline.set_confidence(o.confidence == "thesis" ? calib::fit_thesis_confidence(data)
                                                        : calib::fit_calibrated_confidence(data));
       const calib::ErrorStats held_out = calib::error_stats(residual);
-      fit_info["confidence"] = {
-          {"kind", o.confidence},
-          {"rows", residual.size()},
-          {"groups", groups},
-          {"held_out_every_kth_group", std::lround(1.0 / o.confidence_fraction)},
-          {"held_out_residual", stats_json(held_out)}};
-      report += fmt::format(
-          "confidence: {} model fitted on {} held-out rows (every {}-th of {} truth groups); "
-          "held-out RMS {:.3f} mm\n",
-          o.confidence, residual.size(), std::lround(1.0 / o.confidence_fraction), groups,
-          held_out.rms_m * 1e3);
+      fit_info["confidence"] = {{"kind", o.confidence},
+                                {"rows", residual.size()},
+                                {"groups", groups},
+                                {"held_out_residual", stats_json(held_out)}};
+      if (hold_out) {
+        fit_info["confidence"]["held_out_every_kth_group"] =
+            std::lround(1.0 / o.confidence_fraction);
+      } else {
+        fit_info["confidence"]["folds"] = o.confidence_folds;
+      }
+      report += fmt::format("confidence: {} model fitted on {}; held-out RMS {:.3f} mm\n",
+                            o.confidence, confidence_note, held_out.rms_m * 1e3);
     }
   } catch (const std::invalid_argument& e) {
     throw std::runtime_error(o.in + ": " + e.what());
@@ -315,18 +476,34 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
           ->check(CLI::Range(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
-  sub.add_option("--confidence", o->confidence,
-                 "confidence model: none, thesis (Section 4.8) or calibrated")
-      ->check(CLI::IsMember({"none", "thesis", "calibrated"}))
+  sub.add_option("--knots", o->knots,
+                 "bspline: knot intervals per axis, RxA[xT], or auto (chosen by generalized "
+                 "cross-validation)")
       ->capture_default_str();
-  sub.add_option("--confidence-fraction", o->confidence_fraction,
-                 "share of truth groups held out for the confidence fit (every round(1/F)-th "
-                 "group)")
+  sub.add_option("--smoothing", o->smoothing,
+                 "bspline: penalty weight, or auto (chosen by generalized cross-validation)")
+      ->capture_default_str();
+  CLI::Option* confidence =
+      sub.add_option(
+             "--confidence", o->confidence,
+             "confidence model: calibrated (default: sigma over amplitude and range, fitted "
+             "on out-of-fold residuals), thesis (Section 4.8) or none")
+          ->check(CLI::IsMember({"none", "thesis", "calibrated"}))
+          ->capture_default_str();
+  CLI::Option* fraction =
+      sub.add_option("--confidence-fraction", o->confidence_fraction,
+                     "instead of cross-fitting, hold out every round(1/F)-th truth group for the "
+                     "confidence fit (the correction is fitted on the rest)");
+  sub.add_option("--confidence-folds", o->confidence_folds,
+                 "cross-fitting folds of whole truth groups for the confidence fit")
+      ->check(CLI::Range(2, 50))
       ->capture_default_str();
   sub.add_option("--firmware", o->firmware,
                  "also export the chain in fixed point: STEM.json and STEM.h (C header)");
-  sub.callback([o, rcond, &ctx] {
+  sub.callback([o, rcond, confidence, fraction, &ctx] {
     o->rcond_given = rcond->count() > 0;
+    o->confidence_given = confidence->count() > 0;
+    o->confidence_fraction_given = fraction->count() > 0;
     run_fit(*o, ctx);
   });
 });

@@ -11,6 +11,22 @@ namespace tofkit::calib {
 namespace {
 
 constexpr std::size_t kMinChainRows = 10;
+/// Largest |value| a fit accepts: squares and sums of squares over any
+/// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
+/// value is a corrupt cell, not a measurement.
+constexpr double kMaxFitMagnitude = 1e100;
+
+/// Throws std::invalid_argument naming the column and the data row (1-based)
+/// when a finite value is too large to fit.
+void require_fit_magnitude(double v, const char* column, std::size_t index) {
+  if (std::isfinite(v) && std::fabs(v) > kMaxFitMagnitude) {
+    char buffer[160];
+    std::snprintf(buffer, sizeof buffer,
+                  "%s = %.6g in data row %zu is too large to fit (|value| must be below %.0e)",
+                  column, v, index + 1, kMaxFitMagnitude);
+    throw std::invalid_argument(buffer);
+  }
+}
 
 double median_of(std::vector<double> v) {
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
@@ -131,6 +147,11 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
     const double start = result.pipeline.start_distance_m(r.raw);
+    require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
+    require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
+    require_fit_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
+    if (steps.grayvalue) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (steps.temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
     const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
                     (!steps.grayvalue || std::isfinite(r.raw.pulse_width_ns)) &&
                     (!steps.temperature || std::isfinite(r.raw.temperature_c));
@@ -178,44 +199,66 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   h_options.unit = "C";
   h_options.x0 = ref_h;
 
+  // Knots are searched on at most options.knot_search_rows rows (every k-th
+  // usable row, a deterministic subsample), then every coefficient is refitted
+  // on all rows with those knots: the knot search costs the same for any row
+  // count and the final solve is linear in rows.
+  std::vector<std::size_t> search;
+  const std::size_t cap = std::max<std::size_t>(options.knot_search_rows, kMinChainRows);
+  const std::size_t stride = (n + cap - 1) / cap;
+  for (std::size_t i = 0; i < n; i += stride) search.push_back(i);
+  const std::size_t ns = search.size();
+  result.knot_search_rows = ns;
+  std::vector<double> se(ns), spw(ns), st(ns);
+  for (std::size_t j = 0; j < ns; ++j) {
+    se[j] = e[search[j]];
+    spw[j] = pulse_width[search[j]];
+    st[j] = temperature[search[j]];
+  }
+
   // Backfitting over the knots with joint coefficients: each iteration
   // searches the knots of g on e - h and of h on e - g (1-D hinge fits, which
   // never increase the joint residual), then refits every coefficient jointly
   // for those knots, so correlated inputs do not slow the iteration down.
-  const Eigen::VectorXd ev =
-      Eigen::Map<const Eigen::VectorXd>(e.data(), static_cast<Eigen::Index>(n));
+  const Eigen::VectorXd sev =
+      Eigen::Map<const Eigen::VectorXd>(se.data(), static_cast<Eigen::Index>(ns));
   const RobustOptions robust = joint_robust_options(steps, g_options.robust, h_options.robust);
-  std::vector<double> g_values(n, 0.0), h_values(n, 0.0), partial(n);
+  std::vector<double> g_values(ns, 0.0), h_values(ns, 0.0), partial(ns);
   std::vector<double> g_knots, h_knots;
   Eigen::Index g_first = 1, h_first = 1;
   RobustLinearFit joint;
-  for (int it = 1; it <= options.max_backfit_iterations; ++it) {
-    const std::vector<double> old_g_knots = g_knots, old_h_knots = h_knots;
-    if (steps.grayvalue) {
-      for (std::size_t i = 0; i < n; ++i) partial[i] = e[i] - h_values[i];
-      result.grayvalue = fit_hinge(pulse_width, partial, g_options);
-      g_knots = result.grayvalue->knots;
-      for (std::size_t i = 0; i < n; ++i) g_values[i] = result.grayvalue->function(pulse_width[i]);
-    }
-    if (steps.temperature) {
-      for (std::size_t i = 0; i < n; ++i) partial[i] = e[i] - g_values[i];
-      result.temperature = fit_hinge(temperature, partial, h_options);
-      h_knots = result.temperature->knots;
-    }
-    // Joint robust least squares with the knots fixed: [1, g basis, h basis].
+  const auto joint_design = [&](const std::vector<double>& pw, const std::vector<double>& t) {
     h_first = g_first + (steps.grayvalue ? 1 + static_cast<Eigen::Index>(g_knots.size()) : 0);
     const Eigen::Index columns =
         h_first + (steps.temperature ? 1 + static_cast<Eigen::Index>(h_knots.size()) : 0);
-    Eigen::MatrixXd design(static_cast<Eigen::Index>(n), columns);
+    Eigen::MatrixXd design(static_cast<Eigen::Index>(pw.size()), columns);
     design.col(0).setOnes();
-    if (steps.grayvalue) add_hinge_columns(design, g_first, pulse_width, ref_g, g_knots);
-    if (steps.temperature) add_hinge_columns(design, h_first, temperature, ref_h, h_knots);
-    joint = robust_linear_fit(design, ev, robust);
+    if (steps.grayvalue) add_hinge_columns(design, g_first, pw, ref_g, g_knots);
+    if (steps.temperature) add_hinge_columns(design, h_first, t, ref_h, h_knots);
+    return design;
+  };
+  for (int it = 1; it <= options.max_backfit_iterations; ++it) {
+    const std::vector<double> old_g_knots = g_knots, old_h_knots = h_knots;
+    if (steps.grayvalue) {
+      for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - h_values[i];
+      result.grayvalue = fit_hinge(spw, partial, g_options);
+      g_knots = result.grayvalue->knots;
+      for (std::size_t i = 0; i < ns; ++i) g_values[i] = result.grayvalue->function(spw[i]);
+    }
+    if (steps.temperature) {
+      for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - g_values[i];
+      result.temperature = fit_hinge(st, partial, h_options);
+      h_knots = result.temperature->knots;
+    }
+    // Joint robust least squares with the knots fixed: [1, g basis, h basis].
+    const Eigen::MatrixXd design = joint_design(spw, st);
+    const Eigen::Index columns = design.cols();
+    joint = robust_linear_fit(design, sev, robust);
     // Partial fits for the next iteration: g carries the constant, h its own basis only.
     const Eigen::VectorXd h_part =
         design.rightCols(columns - h_first) * joint.coefficients.tail(columns - h_first);
     double change = 0;
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = 0; i < ns; ++i) {
       const double v = h_part(static_cast<Eigen::Index>(i));
       change = std::max(change, std::fabs(v - h_values[i]));
       h_values[i] = v;
@@ -235,6 +278,12 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       result.converged = true;
       break;
     }
+  }
+  if (ns < n) {
+    // All rows, the knots found: one joint robust solve.
+    const Eigen::VectorXd ev =
+        Eigen::Map<const Eigen::VectorXd>(e.data(), static_cast<Eigen::Index>(n));
+    joint = robust_linear_fit(joint_design(pulse_width, temperature), ev, robust);
   }
   result.rows_downweighted = static_cast<std::size_t>((joint.weights.array() < 0.5).count());
 
@@ -292,6 +341,12 @@ std::string ChainFitResult::summary() const {
   char buffer[256];
   std::string s = "chain fit: " + std::to_string(rows) + " rows";
   if (rows_skipped > 0) s += " (" + std::to_string(rows_skipped) + " skipped)";
+  if (knot_search_rows < rows) {
+    s +=
+        ", knots searched on every " +
+        std::to_string((rows + knot_search_rows - 1) / std::max<std::size_t>(knot_search_rows, 1)) +
+        "-th row (" + std::to_string(knot_search_rows) + ")";
+  }
   if (rows_downweighted > 0) s += ", " + std::to_string(rows_downweighted) + " downweighted";
   std::snprintf(buffer, sizeof buffer, ", backfitting %s after %d iteration(s)\n  offset %.3f mm\n",
                 converged ? "converged" : "did NOT converge", backfit_iterations, offset_m * 1e3);

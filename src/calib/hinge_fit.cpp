@@ -17,6 +17,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 /// are inserted greedily into the best (k-1)-knot solution.
 constexpr double kMaxExhaustiveCombinations = 2000;
 constexpr double kMadToSigma = 1.4826;  // MAD -> sigma for Gaussian residuals
+/// Largest |x| or |y| accepted: squares and sums of squares stay finite.
+constexpr double kMaxMagnitude = 1e100;
 
 double median_of(std::vector<double> v) {
   if (v.empty()) return ranging::kNaN;
@@ -444,6 +446,14 @@ Prepared prepare(std::span<const double> x, std::span<const double> y,
   Prepared p;
   for (std::size_t i = 0; i < x.size(); ++i) {
     if (std::isfinite(x[i]) && std::isfinite(y[i])) {
+      if (std::fabs(x[i]) > kMaxMagnitude || std::fabs(y[i]) > kMaxMagnitude) {
+        char buffer[200];
+        std::snprintf(buffer, sizeof buffer,
+                      "hinge fit of %s: row %zu holds x = %.6g, y = %.6g, too large to fit "
+                      "(|value| must be below %.0e)",
+                      options.column.c_str(), i + 1, x[i], y[i], kMaxMagnitude);
+        throw std::invalid_argument(buffer);
+      }
       order.push_back(i);
     } else {
       ++p.skipped;
@@ -566,6 +576,11 @@ HingeFitResult fit_hinge(std::span<const double> x, std::span<const double> y,
     if (!fit.feasible) break;  // more knots cannot be supported either
     previous = fit.knots;
     fits.push_back(std::move(fit));
+  }
+  if (fits.empty()) {
+    throw std::invalid_argument("hinge fit of " + options.column +
+                                ": no knot count gives a usable fit (the data are degenerate: "
+                                "collinear or not representable)");
   }
   // BIC with a common robust scale (that of the most flexible fit), so that
   // every knot count is judged by the same yardstick:

@@ -118,6 +118,7 @@ SurfaceFitResult make_result(std::shared_ptr<const CorrectionSurface> surface,
   r.condition_number = s.condition_number;
   r.smoothing = s.smoothing;
   r.effective_parameters = s.effective_parameters;
+  r.cv_rms_m = s.cv_rms_m;
   return r;
 }
 
@@ -410,7 +411,12 @@ std::string SurfaceFitResult::summary() const {
                   " parameters, rank " + std::to_string(rank);
   if (effective_parameters > 0)
     s += ", effective parameters " + format_number(effective_parameters);
+  if (intervals[0] > 0) {
+    s += ", knot intervals " + std::to_string(intervals[0]) + " x " + std::to_string(intervals[1]);
+    if (intervals[2] > 0) s += " x " + std::to_string(intervals[2]);
+  }
   if (smoothing > 0) s += ", smoothing " + format_number(smoothing);
+  if (cv_rms_m > 0) s += ", cross-validated RMS " + format_number(cv_rms_m * 1e3) + " mm";
   s += ", residual RMS " + format_number(residual_rms_m * 1e3) + " mm, condition number " +
        format_number(condition_number);
   return s;
@@ -470,6 +476,73 @@ SurfaceFitResult fit_polynomial_surface(const SurfaceFitData& data,
   return make_result(std::make_shared<const PolynomialSurface>(std::move(p)), s);
 }
 
+namespace {
+
+/// Number of distinct values of a column (exact comparison).
+std::size_t distinct_values(const double* x, std::size_t n) {
+  std::vector<double> v(x, x + n);
+  std::sort(v.begin(), v.end());
+  return static_cast<std::size_t>(std::unique(v.begin(), v.end()) - v.begin());
+}
+
+/// One penalized fit on a given knot grid; with `choose_smoothing` the
+/// smoothing is chosen by GCV over decades 1e-7 .. 1e1.
+struct GridFit {
+  Grid grid;
+  PenalizedSolution solution;
+  double smoothing = 0;
+  double gcv = std::numeric_limits<double>::infinity();  // n RSS / (n - edf)^2
+};
+
+GridFit fit_on_grid(const Columns& c, const Grid& grid, double smoothing, bool choose_smoothing,
+                    bool with_condition) {
+  MatrixXd gram;
+  VectorXd rhs;
+  accumulate_normal_equations(c, grid, gram, rhs);
+  double yy = 0;
+  for (std::size_t k = 0; k < c.rows; ++k) yy += c.error[k] * c.error[k];
+  const MatrixXd penalty = penalty_matrix(grid);
+  // Penalty weight relative to the data term, so `smoothing` does not depend
+  // on the number of rows or the grid size.
+  const double scale = gram.trace() / penalty.trace();
+  const double n = static_cast<double>(c.rows);
+  const auto gcv_of = [&](const PenalizedSolution& sol) {
+    const double dof = n - sol.effective_parameters;
+    return dof > 0.5 ? n * sol.rss / (dof * dof) : std::numeric_limits<double>::infinity();
+  };
+  GridFit fit;
+  fit.grid = grid;
+  fit.smoothing = smoothing;
+  if (choose_smoothing) {
+    // GCV(lambda) = n RSS / (n - edf)^2 (Craven & Wahba 1979), on a grid of decades.
+    for (int e = -7; e <= 1; ++e) {
+      const double candidate = std::pow(10.0, e);
+      const double g = gcv_of(solve_penalized(gram, rhs, yy, penalty, candidate * scale, false));
+      if (g < fit.gcv) {
+        fit.gcv = g;
+        fit.smoothing = candidate;
+      }
+    }
+  }
+  fit.solution = solve_penalized(gram, rhs, yy, penalty, fit.smoothing * scale, with_condition);
+  fit.gcv = gcv_of(fit.solution);
+  return fit;
+}
+
+Grid make_grid(const BSplineSurfaceParams& p, int dims) {
+  Grid grid;
+  grid.dims = dims;
+  grid.axes[0] = p.range;
+  grid.axes[1] = p.amplitude;
+  grid.axes[2] = p.temperature;
+  for (int k = 0; k < grid.dims; ++k)
+    grid.extent[k] = static_cast<std::size_t>(grid.axes[k].basis_count());
+  grid.parameters = grid.extent[0] * grid.extent[1] * grid.extent[2];
+  return grid;
+}
+
+}  // namespace
+
 SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFitOptions& options) {
   options.validate();
   const std::string who = "fit_bspline_surface";
@@ -490,64 +563,72 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
     a.hi = a.coordinate(hi);
     return a;
   };
-  p.range = make_axis(c.domain.range_min_m, c.domain.range_max_m, options.intervals_range, false);
-  p.amplitude = make_axis(c.domain.amplitude_min, c.domain.amplitude_max,
-                          options.intervals_amplitude, options.log_amplitude);
-  if (options.use_temperature) {
-    p.temperature = make_axis(c.domain.temperature_min_c, c.domain.temperature_max_c,
-                              options.intervals_temperature, false);
-  }
-  Grid grid;
-  grid.dims = options.use_temperature ? 3 : 2;
-  grid.axes[0] = p.range;
-  grid.axes[1] = p.amplitude;
-  grid.axes[2] = p.temperature;
-  for (int k = 0; k < grid.dims; ++k)
-    grid.extent[k] = static_cast<std::size_t>(grid.axes[k].basis_count());
-  grid.parameters = grid.extent[0] * grid.extent[1] * grid.extent[2];
-  require_rows(c, grid.parameters, who);
-
-  MatrixXd gram;
-  VectorXd rhs;
-  accumulate_normal_equations(c, grid, gram, rhs);
-  double yy = 0;
-  for (std::size_t k = 0; k < c.rows; ++k) yy += c.error[k] * c.error[k];
-  const MatrixXd penalty = penalty_matrix(grid);
-  // Penalty weight relative to the data term, so `smoothing` does not depend
-  // on the number of rows or the grid size.
-  const double scale = gram.trace() / penalty.trace();
-
-  double smoothing = options.smoothing;
-  if (options.choose_smoothing_by_gcv) {
-    // GCV(lambda) = n RSS / (n - edf)^2 (Craven & Wahba 1979), on a grid of decades.
-    const double n = static_cast<double>(c.rows);
-    double best = std::numeric_limits<double>::infinity();
-    for (int e = -7; e <= 1; ++e) {
-      const double candidate = std::pow(10.0, e);
-      const PenalizedSolution sol =
-          solve_penalized(gram, rhs, yy, penalty, candidate * scale, false);
-      const double dof = n - sol.effective_parameters;
-      if (!(dof > 0)) continue;
-      const double gcv = n * sol.rss / (dof * dof);
-      if (gcv < best) {
-        best = gcv;
-        smoothing = candidate;
+  const int dims = options.use_temperature ? 3 : 2;
+  const auto set_axes = [&](int ir, int ia, int it) {
+    p.range = make_axis(c.domain.range_min_m, c.domain.range_max_m, ir, false);
+    p.amplitude =
+        make_axis(c.domain.amplitude_min, c.domain.amplitude_max, ia, options.log_amplitude);
+    if (options.use_temperature) {
+      p.temperature = make_axis(c.domain.temperature_min_c, c.domain.temperature_max_c, it, false);
+    }
+  };
+  // No row-count requirement: the second-difference penalty determines every
+  // coefficient the data leave free (its null space, planes, needs only the
+  // spread checked above).
+  const bool choose_smoothing = options.choose_smoothing_by_gcv || options.choose_intervals_by_gcv;
+  GridFit best;
+  if (options.choose_intervals_by_gcv) {
+    // Ladder of interval counts per axis, capped so an axis never has more
+    // intervals than distinct values minus one.
+    const auto ladder = [&](const double* x, std::initializer_list<int> counts) {
+      const auto distinct =
+          static_cast<int>(std::min<std::size_t>(distinct_values(x, c.rows), 1000));
+      std::vector<int> out;
+      for (int k : counts) {
+        const int capped = std::max(1, std::min(k, distinct - 1));
+        if (std::find(out.begin(), out.end(), capped) == out.end()) out.push_back(capped);
+      }
+      return out;
+    };
+    const std::vector<int> lr = ladder(c.range, {3, 5, 8, 12});
+    const std::vector<int> la = ladder(c.amplitude, {3, 5, 8, 12});
+    const std::vector<int> lt =
+        options.use_temperature ? ladder(c.temperature, {2, 3, 5}) : std::vector<int>{1};
+    for (int ir : lr) {
+      for (int ia : la) {
+        for (int it : lt) {
+          set_axes(ir, ia, it);
+          GridFit fit = fit_on_grid(c, make_grid(p, dims), options.smoothing, true, false);
+          if (fit.gcv < best.gcv * (1.0 - 1e-9)) best = std::move(fit);
+        }
       }
     }
+    if (!std::isfinite(best.gcv)) {
+      set_axes(lr.front(), la.front(), lt.front());
+      best = fit_on_grid(c, make_grid(p, dims), options.smoothing, true, false);
+    }
+    set_axes(best.grid.axes[0].intervals, best.grid.axes[1].intervals, best.grid.axes[2].intervals);
+    best = fit_on_grid(c, make_grid(p, dims), best.smoothing, false, true);
+  } else {
+    set_axes(options.intervals_range, options.intervals_amplitude, options.intervals_temperature);
+    best = fit_on_grid(c, make_grid(p, dims), options.smoothing, choose_smoothing, true);
   }
-  const PenalizedSolution sol = solve_penalized(gram, rhs, yy, penalty, smoothing * scale, true);
+  const PenalizedSolution& sol = best.solution;
   p.coefficients.assign(sol.coefficients.data(), sol.coefficients.data() + sol.coefficients.size());
   auto& s = p.fit;
   s.rows = c.rows;
-  s.parameters = grid.parameters;
-  s.rank = grid.parameters;
-  s.smoothing = smoothing;
+  s.parameters = best.grid.parameters;
+  s.rank = best.grid.parameters;
+  s.smoothing = best.smoothing;
   s.effective_parameters = sol.effective_parameters;
   s.condition_number = sol.condition_number;
+  s.cv_rms_m = std::isfinite(best.gcv) ? std::sqrt(best.gcv) : 0.0;
   BSplineSurface probe(p);
   s.residual_rms_m = residual_rms(probe, data);
   p.fit = s;
-  return make_result(std::make_shared<const BSplineSurface>(std::move(p)), s);
+  SurfaceFitResult result = make_result(std::make_shared<const BSplineSurface>(std::move(p)), s);
+  for (int k = 0; k < dims; ++k) result.intervals[k] = best.grid.axes[k].intervals;
+  return result;
 }
 
 }  // namespace tofkit::calib

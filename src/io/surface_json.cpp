@@ -122,6 +122,7 @@ json fit_json(const calib::SurfaceFitStats& s, bool bspline) {
               {"effective_parameters", s.effective_parameters}};
   if (bspline) {
     out["smoothing"] = s.smoothing;
+    if (s.cv_rms_m > 0) out["cv_rms_m"] = s.cv_rms_m;
   } else {
     out["rcond"] = s.rcond;
   }
@@ -139,6 +140,7 @@ calib::SurfaceFitStats read_fit(const json& j, bool bspline, const std::string& 
   s.effective_parameters = number(v, "effective_parameters", here);
   if (bspline) {
     s.smoothing = number(v, "smoothing", here);
+    if (v.contains("cv_rms_m")) s.cv_rms_m = number(v, "cv_rms_m", here);  // optional
   } else {
     s.rcond = number(v, "rcond", here);
   }

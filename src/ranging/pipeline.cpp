@@ -23,14 +23,26 @@ struct BlockBuffers {
   std::array<double, kBlock> scratch_a;
   std::array<double, kBlock> scratch_b;
   std::array<double, kBlock> scratch_c;
-  std::array<double, kBlock> outside;  ///< 1.0 once an input is outside a step's domain (a
-                                       ///< double, so the domain checks vectorize)
+  /// > 0 once an input is outside a step's domain: the largest distance
+  /// outside, in widths of that domain (a double, so the checks vectorize).
+  std::array<double, kBlock> outside;
   std::array<std::uint32_t, kBlock> flags;
   std::array<std::uint8_t, kBlock> out_of_domain;
 };
 
+/// Smallest recorded distance outside a domain (so a row just outside stays flagged).
+constexpr double kMinOutside = 1e-12;
+
+/// Distance of x outside [lo, hi] in widths of the interval (0 inside or NaN).
+double outside_widths(double x, double lo, double hi) {
+  const double width = hi - lo > 0 ? hi - lo : 1.0;
+  const double d = std::max(lo - x, x - hi) / width;
+  return d > 0 ? std::max(d, kMinOutside) : 0.0;
+}
+
 /// distance += y(x) for a hinge folded to y = c + b0 x + sum_k s_k max(0, x - knot_k);
-/// x outside the fitted domain is marked (outside = 1) but still corrected (linear continuation).
+/// x outside the fitted domain is marked (outside = its distance from the
+/// domain in domain widths) but still corrected (linear continuation).
 /// NaN x propagates into the distance (flagged non-finite at the end).
 void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double* __restrict x,
                double* __restrict distance, double* __restrict outside, std::size_t n) {
@@ -41,7 +53,7 @@ void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double
   for (std::size_t i = 0; i < n; ++i) distance[i] += constant + slope0 * x[i];
   for (std::size_t i = 0; i < n; ++i) {
     // A double select (and/andnot) vectorizes where a double -> integer flag does not.
-    outside[i] = (x[i] < lo || x[i] > hi) ? 1.0 : outside[i];
+    outside[i] = std::max(outside[i], outside_widths(x[i], lo, hi));
   }
   for (std::size_t k = 0; k < f.knots.size(); ++k) {
     const double knot = f.knots[k];
@@ -73,6 +85,9 @@ void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::
   const double range_mid = midpoint(d.range_min_m, d.range_max_m);
   const double amplitude_mid = midpoint(d.amplitude_min, d.amplitude_max);
   const double temperature_mid = midpoint(d.temperature_min_c, d.temperature_max_c);
+  const bool log_amplitude = d.amplitude_min > 0;
+  const double log_amplitude_lo = log_amplitude ? std::log(d.amplitude_min) : 0.0;
+  const double log_amplitude_hi = log_amplitude ? std::log(d.amplitude_max) : 0.0;
   for (std::size_t i = 0; i < n; ++i) {
     const bool bad = !std::isfinite(b.distance[i]) || !std::isfinite(b.amplitude[i]) ||
                      (uses_temperature && !std::isfinite(b.temperature[i]));
@@ -92,7 +107,19 @@ void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::
       continue;
     }
     b.distance[i] += correction[i];
-    b.outside[i] = b.out_of_domain[i] != 0 ? 1.0 : b.outside[i];
+    if (b.out_of_domain[i] == 0) continue;
+    // Distance outside the surface's box, in widths of each axis (amplitude
+    // on a log scale when the domain is positive: intensity spans decades).
+    double widths = outside_widths(range[i], d.range_min_m, d.range_max_m);
+    widths = std::max(
+        widths, log_amplitude
+                    ? outside_widths(std::log(amplitude[i]), log_amplitude_lo, log_amplitude_hi)
+                    : outside_widths(amplitude[i], d.amplitude_min, d.amplitude_max));
+    if (uses_temperature) {
+      widths = std::max(widths,
+                        outside_widths(temperature[i], d.temperature_min_c, d.temperature_max_c));
+    }
+    b.outside[i] = std::max({b.outside[i], widths, kMinOutside});
   }
 }
 
@@ -114,6 +141,9 @@ void fill_sigma(const calib::ConfidenceModel* confidence, double residual_rms_m,
     }
   }
   for (std::size_t i = 0; i < n; ++i) {
+    // Outside a step's domain the correction extrapolates: its expected error
+    // grows with the distance from the domain (Pipeline::kOutOfDomainSigmaGrowth).
+    sigma[i] *= 1.0 + Pipeline::kOutOfDomainSigmaGrowth * b.outside[i];
     if (!std::isfinite(b.distance[i])) sigma[i] = kNaN;
   }
 }

@@ -54,6 +54,10 @@ struct ChainFitOptions {
   double reference_temperature_c = ranging::kNaN;   ///< h(ref) = 0; NaN: median temperature
   int max_backfit_iterations = 30;
   double backfit_tolerance_m = 1e-6;  ///< stop when no fitted value changes more than this
+  /// Knots are searched on at most this many rows (every k-th usable row);
+  /// the coefficients are then refitted on all rows. Keeps the fit linear in
+  /// rows: the knot search (many robust 1-D fits) no longer grows with them.
+  std::size_t knot_search_rows = 50000;
 };
 
 struct ChainFitResult {
@@ -64,6 +68,7 @@ struct ChainFitResult {
   std::size_t rows = 0;               ///< rows fitted
   std::size_t rows_skipped = 0;       ///< no echo, or a non-finite value the fit needs
   std::size_t rows_downweighted = 0;  ///< final robust weight below 0.5
+  std::size_t knot_search_rows = 0;   ///< rows the knots were searched on (<= rows)
   ErrorStats before;                  ///< of e = truth - c_air tof / 2
   ErrorStats after;                   ///< of truth - corrected distance
   int backfit_iterations = 0;

@@ -39,6 +39,7 @@ struct SurfaceFitStats {
   double rcond = 0;                 ///< polynomial: relative singular-value cutoff used
   double smoothing = 0;             ///< B-spline: penalty weight relative to the data term
   double effective_parameters = 0;  ///< B-spline: trace of the hat matrix; polynomial: rank
+  double cv_rms_m = 0;  ///< B-spline: cross-validated RMS (sqrt of the GCV score); 0: not computed
 };
 
 /// Column views of the inputs of a batch (all the same length).

@@ -36,6 +36,11 @@ struct BSplineFitOptions {
   /// Pick `smoothing` by generalized cross-validation over decades 1e-7 .. 1e1
   /// (Craven & Wahba 1979) instead of using the value above.
   bool choose_smoothing_by_gcv = false;
+  /// Choose the knot intervals of each axis too, by the same generalized
+  /// cross-validation, from a ladder of counts (3, 5, 8, 12 per axis; 2, 3, 5
+  /// for temperature) capped by the data's distinct values on that axis; the
+  /// intervals_* above are then ignored. Implies choose_smoothing_by_gcv.
+  bool choose_intervals_by_gcv = false;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
@@ -49,6 +54,8 @@ struct SurfaceFitResult {
   double condition_number = 0;  ///< of the (scaled) design matrix
   double smoothing = 0;         ///< B-spline: the smoothing weight used (GCV's pick when chosen)
   double effective_parameters = 0;  ///< B-spline: trace of the hat matrix; polynomial: rank
+  double cv_rms_m = 0;  ///< B-spline: cross-validated RMS, sqrt(GCV score); 0 when not computed
+  int intervals[3] = {0, 0, 0};  ///< B-spline: knot intervals (range, amplitude, temperature)
   [[nodiscard]] std::string summary() const;
 };
 
@@ -59,7 +66,9 @@ struct SurfaceFitResult {
                                                       const PolynomialFitOptions& options);
 
 /// Tensor-product cubic B-spline surface with a second-difference smoothing
-/// penalty (P-spline), which stays sane at and beyond the data's edge.
+/// penalty (P-spline), which stays sane at and beyond the data's edge. The
+/// penalty makes the fit well posed with fewer rows than coefficients; it
+/// refuses only data with no spread on an axis (naming the axis).
 [[nodiscard]] SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data,
                                                    const BSplineFitOptions& options);
 

@@ -89,11 +89,18 @@ class Pipeline {
   void set_confidence(std::shared_ptr<const calib::ConfidenceModel> confidence);
   void set_residual_rms_m(double residual_rms_m);
 
+  /// sigma_m of a row outside a step's domain is the in-domain sigma times
+  /// (1 + kOutOfDomainSigmaGrowth d), d its largest distance outside a step's
+  /// domain in widths of that domain (log scale for a surface's positive
+  /// amplitude axis): a linear continuation's error grows with the lever arm,
+  /// so at a quarter of the domain's width outside, sigma has doubled.
+  static constexpr double kOutOfDomainSigmaGrowth = 4.0;
+
   /// The batch hot path (in.size() == out.size(), else std::invalid_argument).
   /// No echo: NaN distance and sigma, kCorrNoEcho. An input outside a step's
   /// domain: the correction is still applied (hinges continue linearly,
-  /// surfaces clamp) and kCorrOutOfDomain is set. A NaN input a step needs:
-  /// NaN distance and kCorrNonFinite.
+  /// surfaces clamp), kCorrOutOfDomain is set and sigma_m grows (above). A NaN
+  /// input a step needs: NaN distance and kCorrNonFinite.
   void apply(std::span<const RawMeasurement> in, std::span<Range> out) const;
   /// One measurement (convenience; the batch form is the fast one).
   [[nodiscard]] Range apply(const RawMeasurement& in) const;
