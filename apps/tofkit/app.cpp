@@ -1,5 +1,6 @@
 #include "app.hpp"
 
+#include <charconv>
 #include <stdexcept>
 #include <utility>
 
@@ -40,6 +41,25 @@ void require_output_directory(const std::filesystem::path& path, const std::stri
     throw std::runtime_error(option + " " + path.string() + ": directory '" + directory.string() +
                              "' does not exist");
   }
+}
+
+std::string origin_of(const io::LoadedDeviceConfig& loaded, const std::string& key) {
+  std::string origin = "preset '" + loaded.config.name + "'";
+  for (const auto& s : loaded.sources) {
+    if (s.key != key) continue;  // the last assignment wins
+    origin = s.origin == "--set" ? "--set " + key + "=" + s.value : s.origin + " (" + key + ")";
+  }
+  return origin;
+}
+
+std::uint64_t parse_seed(const std::string& text, const std::string& option) {
+  std::uint64_t seed = 0;
+  const auto [ptr, ec] = std::from_chars(text.data(), text.data() + text.size(), seed);
+  if (text.empty() || ec != std::errc() || ptr != text.data() + text.size()) {
+    throw std::invalid_argument(option + " " + text +
+                                ": a seed is a whole number from 0 to 18446744073709551615");
+  }
+  return seed;
 }
 
 }  // namespace tofkit::app

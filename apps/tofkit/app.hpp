@@ -57,4 +57,13 @@ bool register_command(std::string name, CommandSetup setup);
 /// output path before a long computation).
 void require_output_directory(const std::filesystem::path& path, const std::string& option);
 
+/// Where a config key's value came from, for messages: "--set key=value",
+/// "dev.toml:7 (key)" or "preset 'paper'".
+[[nodiscard]] std::string origin_of(const io::LoadedDeviceConfig& loaded, const std::string& key);
+
+/// A random seed given on the command line: decimal digits in [0, 2^64 - 1].
+/// Throws std::invalid_argument naming `option` for anything else (-1,
+/// 18446744073709551616, 1e3): a seed is never clamped or wrapped.
+[[nodiscard]] std::uint64_t parse_seed(const std::string& text, const std::string& option);
+
 }  // namespace tofkit::app

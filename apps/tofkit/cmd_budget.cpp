@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <stdexcept>
 #include <vector>
 
 #include "app.hpp"
@@ -36,6 +37,15 @@ double threshold_power_w(const device::DeviceConfig& config) {
 }
 
 void run_budget(const BudgetOptions& options, const AppContext& ctx) {
+  // CLI::Range lets NaN through (every comparison with it is false).
+  if (!std::isfinite(options.reflectance)) {
+    throw std::invalid_argument(
+        fmt::format("--reflectance {}: not a number in [1e-06, 1]", options.reflectance));
+  }
+  if (!std::isfinite(options.angle_deg)) {
+    throw std::invalid_argument(
+        fmt::format("--angle {}: not a number in [0, 89.9]", options.angle_deg));
+  }
   const device::DeviceConfig config = ctx.load_config();
   const physics::LinkConfig& link = config.link;
   const double temperature_c = link.receiver.nominal_temperature_c;

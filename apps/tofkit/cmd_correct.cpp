@@ -45,13 +45,18 @@ void run_correct(const CorrectOptions& o) {
              ranges.size(), no_echo, out_of_domain, non_finite, o.out);
 }
 
-const bool registered = register_command("correct", [](CLI::App& sub, AppContext&) {
+const bool registered = register_command("correct", [](CLI::App& sub, AppContext& ctx) {
   sub.description("apply a model (from tofkit fit) to a raw CSV and write the corrected CSV");
   auto o = std::make_shared<CorrectOptions>();
   sub.add_option("--model", o->model, "model file (JSON, from tofkit fit)")->required();
   sub.add_option("--in", o->in, "raw CSV")->required();
   sub.add_option("--out", o->out, "corrected CSV to write")->required();
-  sub.callback([o] { run_correct(*o); });
+  sub.callback([o, &ctx] {
+    // The model / table carry everything the command uses; --config, --set
+    // and --preset are still checked, so a bad key is an error, not ignored.
+    (void)ctx.load_config();
+    run_correct(*o);
+  });
 });
 
 }  // namespace

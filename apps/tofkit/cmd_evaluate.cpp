@@ -132,13 +132,18 @@ void run_evaluate(const EvaluateOptions& o) {
       100 * c2.tercile_share[2]);
 }
 
-const bool registered = register_command("evaluate", [](CLI::App& sub, AppContext&) {
+const bool registered = register_command("evaluate", [](CLI::App& sub, AppContext& ctx) {
   sub.description("accuracy of a corrected CSV against its truth, per group and overall");
   auto o = std::make_shared<EvaluateOptions>();
   sub.add_option("--in", o->in, "corrected CSV (from tofkit correct)")->required();
   sub.add_option("--by", o->by, "group rows by this column (e.g. reflectance, distance_true_m)");
   sub.add_flag("--json", o->json, "print JSON instead of a table");
-  sub.callback([o] { run_evaluate(*o); });
+  sub.callback([o, &ctx] {
+    // The model / table carry everything the command uses; --config, --set
+    // and --preset are still checked, so a bad key is an error, not ignored.
+    (void)ctx.load_config();
+    run_evaluate(*o);
+  });
 });
 
 }  // namespace

@@ -74,6 +74,33 @@ std::vector<std::size_t> truth_groups(const std::vector<ranging::Record>& record
   return group;
 }
 
+/// The time-to-distance conversion of the config, checked before any work; a
+/// value the conversion cannot use is reported under the config key that set
+/// it (not the conversion's internal field name).
+ranging::TimeToDistance checked_time_to_distance(const AppContext& ctx) {
+  const io::LoadedDeviceConfig loaded = ctx.load_config_traced();
+  const ranging::TimeToDistance t = time_to_distance_of(loaded.config);
+  try {
+    t.validate();
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    static const std::pair<const char*, const char*> kKeys[] = {
+        {"time_to_distance.wavelength_nm", "laser.wavelength_nm"},
+        {"time_to_distance.air.temperature_c", "measurement.reference_temperature_c"},
+        {"time_to_distance.air.pressure_hpa", "environment.pressure_hpa"},
+        {"time_to_distance.air.relative_humidity_pct", "environment.relative_humidity_pct"}};
+    for (const auto& [internal, key] : kKeys) {
+      if (what.rfind(internal, 0) != 0) continue;
+      const std::string origin = origin_of(loaded, key);
+      throw io::ConfigError(fmt::format(
+          "{}: {}{} for the time-to-distance conversion (air group index) that fit uses", origin,
+          key, what.substr(std::string_view(internal).size())));
+    }
+    throw;
+  }
+  return t;
+}
+
 /// Deterministic hold-out for the confidence fit: rows are grouped by identical
 /// truth (distance_true_m, reflectance, angle_deg, ambient_c) in order of first
 /// appearance; with k = round(1 / fraction), every k-th group (the k-th, 2k-th,
@@ -258,6 +285,7 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   }
   const SurfaceSpec surface_spec = o.surface.empty() ? SurfaceSpec{} : parse_surface(o.surface);
   const device::DeviceConfig config = ctx.load_config();
+  const ranging::TimeToDistance conversion = checked_time_to_distance(ctx);
   require_output_directory(o.out, "--out");
   if (!o.firmware.empty()) require_output_directory(o.firmware + ".json", "--firmware");
 
@@ -281,7 +309,6 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
 
   nlohmann::json fit_info = {
       {"command", "fit"}, {"input", o.in}, {"rows", records.size()}, {"rows_fit", fit_rows.size()}};
-  const ranging::TimeToDistance conversion = time_to_distance_of(config);
   std::string report;
 
   // The correction (chain, then surface on its residual) fitted on `rows`;

@@ -4,7 +4,9 @@
 #include <fmt/format.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <limits>
 #include <memory>
@@ -12,7 +14,9 @@
 #include <vector>
 
 #include "app.hpp"
+#include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/io/input_file.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/io/value_list.hpp"
 
@@ -26,12 +30,30 @@ struct MeasureOptions {
   std::string temperatures = fmt::format("{}", device::Conditions{}.ambient_c);
   int shots = 0;  // 0: the config's measurement.shots
   int count = 1;
+  std::string count_text = "1";  // --count: a whole number, "1e3" allowed
   std::uint64_t seed = 1;
+  std::string seed_text = "1";  // --seed, parsed by parse_seed
   std::string mode = "analytic";
   std::string out;
 };
 
-constexpr double kMaxRows = 1e8;
+// --count as a whole number >= 1; "1e8" is 100000000 (then refused by the row
+// limit, not by the option parser).
+int parse_count(const std::string& text) {
+  double v = 0;
+  if (const auto why = io::parse_number(text, v)) {
+    throw std::invalid_argument("--count " + text + ": " + *why);
+  }
+  if (!(v >= 1 && v == std::floor(v))) {
+    throw std::invalid_argument("--count " + text + ": expected a whole number >= 1");
+  }
+  const double limit = static_cast<double>(io::resource_limits().max_rows);
+  if (v > limit || v > 2147483647.0) {
+    throw std::invalid_argument(fmt::format(
+        "--count {}: more than the row limit of {:g} (raise it with --max-rows)", text, limit));
+  }
+  return static_cast<int>(v);
+}
 
 void check_all(const std::vector<double>& values, const char* option, double min, double max) {
   for (const double v : values) {
@@ -58,9 +80,31 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   for (const auto* list : {&distances, &reflectances, &angles, &temperatures}) {
     rows *= static_cast<double>(list->size());
   }
-  if (rows > kMaxRows) {
-    throw std::invalid_argument(
-        fmt::format("the grid has {:g} rows, more than {:g}", rows, kMaxRows));
+  const auto max_rows = static_cast<double>(io::resource_limits().max_rows);
+  if (rows > max_rows) {
+    throw std::invalid_argument(fmt::format(
+        "the grid (--distance x --reflectance x --angle x --temperature x --count) has {:g} rows, "
+        "more than the limit of {:g} (raise it with --max-rows)",
+        rows, max_rows));
+  }
+  // The echo of every plate, and in waveform mode the record, within the
+  // documented limits (device/config_limits.hpp), before any work.
+  double widest_spread_ns = 0;
+  for (const double d : distances) {
+    for (const double angle : angles) {
+      const std::string problem = device::check_plate_echo(config, d, angle);
+      if (!problem.empty()) throw std::invalid_argument("--distance/--angle: " + problem);
+      widest_spread_ns = std::max(widest_spread_ns, device::plate_echo_spread_ns(config, d, angle));
+    }
+  }
+  if (o.mode == "waveform") {
+    const auto violations = device::check_waveform_limits(config, widest_spread_ns);
+    if (!violations.empty()) {
+      const auto& v = violations.front();
+      throw std::invalid_argument(
+          "--mode waveform: " + origin_of(ctx.load_config_traced(), v.keys.front()) + ": " +
+          v.message);
+    }
   }
 
   // Cartesian product: distance outermost, then reflectance, angle, temperature,
@@ -118,16 +162,19 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
       ->capture_default_str();
   sub.add_option("--shots", o->shots, "shots averaged per measurement (default: config's)")
       ->check(CLI::Range(1, 10'000'000));
-  sub.add_option("--count", o->count, "repeated measurements per grid point")
-      ->check(CLI::Range(1, 100'000'000))
+  sub.add_option("--count", o->count_text, "repeated measurements per grid point")
       ->capture_default_str();
-  sub.add_option("--seed", o->seed, "random seed (the output depends on it only)")
+  sub.add_option("--seed", o->seed_text, "random seed (the output depends on it only)")
       ->capture_default_str();
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
   sub.add_option("--out", o->out, "raw CSV to write")->required();
-  sub.callback([o, &ctx] { run_measure(*o, ctx); });
+  sub.callback([o, &ctx] {
+    o->seed = parse_seed(o->seed_text, "--seed");
+    o->count = parse_count(o->count_text);
+    run_measure(*o, ctx);
+  });
 });
 
 }  // namespace

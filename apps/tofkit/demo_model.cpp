@@ -1,6 +1,7 @@
 #include <nlohmann/json.hpp>
 
 #include "demo_report.hpp"
+#include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/firmware_export.hpp"
 #include "tofkit/io/model_json.hpp"
 
@@ -17,7 +18,7 @@ void write_demo_model(const std::filesystem::path& dir,
                           {"uncorrected_rms_m", fit.before.rms_m}};
   io::save_pipeline(dir / "model.json", fit.pipeline, stats);
   const ranging::FixedPointChain chain(result.fixed_point);
-  std::filesystem::create_directories(dir / "firmware");
+  io::create_output_directories(dir / "firmware");
   io::save_fixed_point_json(dir / "firmware" / "coefficients.json", chain);
   io::save_fixed_point_header(dir / "firmware" / "tofkit_coefficients.h", chain);
 }

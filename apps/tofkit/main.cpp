@@ -7,9 +7,12 @@
 #include <cstdio>
 #include <exception>
 #include <memory>
+#include <new>
 #include <string>
 
 #include "app.hpp"
+#include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/input_file.hpp"
 
 int main(int argc, char** argv) {
   using tofkit::app::AppContext;
@@ -29,9 +32,20 @@ int main(int argc, char** argv) {
                  "built-in device to start from (paper, accurange; default: the config "
                  "file's, else paper)");
 
-  // Applies --threads before any subcommand callback runs.
+  auto& limits = tofkit::io::resource_limits();
+  app.add_option("--max-rows", limits.max_rows,
+                 "largest number of rows a command reads or simulates, and of values in a LIST")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  double max_input_mb = static_cast<double>(limits.max_input_bytes) / 1048576.0;
+  app.add_option("--max-input-mb", max_input_mb, "largest input file read, MB")
+      ->check(CLI::Range(1e-3, 1e6))
+      ->capture_default_str();
+
+  // Applies --threads and the input limit before any subcommand callback runs.
   std::unique_ptr<tbb::global_control> thread_limit;
   app.parse_complete_callback([&] {
+    limits.max_input_bytes = static_cast<std::uint64_t>(max_input_mb * 1048576.0);
     if (ctx.threads > 0) {
       thread_limit = std::make_unique<tbb::global_control>(
           tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(ctx.threads));
@@ -42,16 +56,27 @@ int main(int argc, char** argv) {
     setup(*app.add_subcommand(name), ctx);
   }
 
+  // Every file a command writes is staged and renamed into place only once
+  // the command has succeeded; on an error the destructor removes them all.
+  tofkit::io::OutputTransaction outputs;
+  auto fail = [&](const std::string& message) {
+    std::string command;
+    for (const CLI::App* sub : app.get_subcommands()) command = " " + sub->get_name();
+    fmt::print(stderr, "tofkit{}: error: {}\n", command, message);
+    return 1;
+  };
   try {
     app.parse(argc, argv);
+    outputs.commit();
   } catch (const CLI::ParseError& e) {
     const int code = app.exit(e);
     return code == 0 ? 0 : 2;
+  } catch (const std::bad_alloc&) {
+    return fail(
+        "out of memory: the inputs or options ask for more memory than this machine has "
+        "(see --max-rows, --max-input-mb and the limits in README 'Errors and robustness')");
   } catch (const std::exception& e) {
-    std::string command;
-    for (const CLI::App* sub : app.get_subcommands()) command = " " + sub->get_name();
-    fmt::print(stderr, "tofkit{}: error: {}\n", command, e.what());
-    return 1;
+    return fail(e.what());
   }
   return 0;
 }

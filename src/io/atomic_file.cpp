@@ -1,19 +1,113 @@
 #include "tofkit/io/atomic_file.hpp"
 
+#include <sys/stat.h>
 #include <unistd.h>
 
+#include <array>
 #include <atomic>
 #include <cerrno>
+#include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <system_error>
+#include <utility>
+#include <vector>
 
 namespace tofkit::io {
 namespace {
 
 namespace fs = std::filesystem;
+
+// ---- temporaries removed on SIGINT / SIGTERM ------------------------------
+// The handler may only call async-signal-safe functions: the live temporaries
+// are kept as C strings in a fixed table of atomic pointers.
+constexpr std::size_t kSignalSlots = 1024;
+std::array<std::atomic<char*>, kSignalSlots> g_live_temporaries{};
+
+extern "C" void remove_temporaries_and_reraise(int signal_number) {
+  for (auto& slot : g_live_temporaries) {
+    if (char* path = slot.load()) ::unlink(path);
+  }
+  std::signal(signal_number, SIG_DFL);
+  std::raise(signal_number);
+}
+
+void install_signal_handlers() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    for (int s : {SIGINT, SIGTERM}) {
+      struct sigaction current {};
+      if (::sigaction(s, nullptr, &current) != 0) continue;
+      if (current.sa_handler != SIG_DFL) continue;  // someone else handles it
+      struct sigaction action {};
+      action.sa_handler = remove_temporaries_and_reraise;
+      sigemptyset(&action.sa_mask);
+      ::sigaction(s, &action, nullptr);
+    }
+  });
+}
+
+// Returns the slot index, or kSignalSlots when the table is full (the file is
+// then only removed by the normal paths).
+std::size_t register_temporary(const fs::path& path) {
+  install_signal_handlers();
+  const std::string text = path.string();
+  char* copy = static_cast<char*>(std::malloc(text.size() + 1));
+  if (copy == nullptr) return kSignalSlots;
+  std::memcpy(copy, text.c_str(), text.size() + 1);
+  for (std::size_t i = 0; i < kSignalSlots; ++i) {
+    char* expected = nullptr;
+    if (g_live_temporaries[i].compare_exchange_strong(expected, copy)) return i;
+  }
+  std::free(copy);
+  return kSignalSlots;
+}
+
+void unregister_temporary(std::size_t slot) {
+  if (slot < kSignalSlots) std::free(g_live_temporaries[slot].exchange(nullptr));
+}
+
+// A temporary file: removed unless renamed, and known to the signal handler
+// meanwhile.
+class Temporary {
+ public:
+  explicit Temporary(fs::path path) : path_(std::move(path)), slot_(register_temporary(path_)) {}
+  Temporary(const Temporary&) = delete;
+  Temporary& operator=(const Temporary&) = delete;
+  Temporary(Temporary&& other) noexcept
+      : path_(std::move(other.path_)),
+        slot_(std::exchange(other.slot_, kSignalSlots)),
+        owned_(std::exchange(other.owned_, false)) {}
+  ~Temporary() { discard(); }
+
+  [[nodiscard]] const fs::path& path() const { return path_; }
+
+  void rename_to(const fs::path& target) {
+    std::error_code ec;
+    fs::rename(path_, target, ec);
+    if (ec) throw std::runtime_error("cannot write '" + target.string() + "': " + ec.message());
+    owned_ = false;
+    unregister_temporary(std::exchange(slot_, kSignalSlots));
+  }
+
+  void discard() noexcept {
+    if (owned_) {
+      std::error_code ignored;
+      fs::remove(path_, ignored);
+      owned_ = false;
+    }
+    unregister_temporary(std::exchange(slot_, kSignalSlots));
+  }
+
+ private:
+  fs::path path_;
+  std::size_t slot_;
+  bool owned_ = true;
+};
 
 // A name in the target's directory (rename is atomic only within one file
 // system), unique per process and call, hidden from directory listings.
@@ -24,69 +118,189 @@ fs::path temporary_path_for(const fs::path& path) {
   return path.parent_path() / name;
 }
 
-// Removes the temporary file unless released (exception safety).
-class TemporaryFile {
- public:
-  explicit TemporaryFile(fs::path path) : path_(std::move(path)) {}
-  TemporaryFile(const TemporaryFile&) = delete;
-  TemporaryFile& operator=(const TemporaryFile&) = delete;
-  ~TemporaryFile() {
-    if (!released_) {
-      std::error_code ignored;
-      fs::remove(path_, ignored);
+// ---- inputs and the open transaction --------------------------------------
+struct FileIdentity {
+  dev_t device;
+  ino_t inode;
+  std::string name;
+};
+
+struct Staged {
+  Temporary temporary;
+  fs::path target;
+};
+
+struct State {
+  std::mutex mutex;
+  std::vector<FileIdentity> inputs;
+  bool open = false;
+  std::vector<Staged> staged;
+  std::vector<fs::path> created_directories;  // outermost first
+};
+
+State& state() {
+  static State s;
+  return s;
+}
+
+[[noreturn]] void refuse(const fs::path& path, const std::string& why) {
+  throw std::runtime_error("cannot write '" + path.string() + "': " + why);
+}
+
+// Every check that must pass before anything is written to `path`.
+void check_target(const fs::path& path) {
+  if (path.empty() || !path.has_filename()) refuse(path, "not a file name");
+  const fs::path directory = path.parent_path().empty() ? fs::path(".") : path.parent_path();
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec)) {
+    refuse(path, "directory '" + directory.string() + "' does not exist");
+  }
+  struct stat link_info {};
+  if (::lstat(path.c_str(), &link_info) == 0) {
+    if (S_ISDIR(link_info.st_mode)) refuse(path, "it is a directory");
+    if (S_ISLNK(link_info.st_mode)) {
+      refuse(path, "it is a symbolic link (tofkit does not replace links; remove it first)");
+    }
+    if (!S_ISREG(link_info.st_mode)) {
+      refuse(path, "it exists and is not a regular file (a device, FIFO or socket)");
+    }
+    auto& s = state();
+    const std::scoped_lock lock(s.mutex);
+    for (const auto& input : s.inputs) {
+      struct stat now {};  // the input still there under its name (inodes get reused)
+      if (input.device == link_info.st_dev && input.inode == link_info.st_ino &&
+          ::stat(input.name.c_str(), &now) == 0 && now.st_dev == input.device &&
+          now.st_ino == input.inode) {
+        refuse(path, "it is the input file '" + input.name +
+                         "'; choose another output path so the input is kept");
+      }
     }
   }
-  [[nodiscard]] const fs::path& path() const { return path_; }
-  void release() { released_ = true; }
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  for (const auto& staged : s.staged) {
+    if (staged.target == path) refuse(path, "written twice by one command");
+  }
+}
 
- private:
-  fs::path path_;
-  bool released_ = false;
-};
+void stage_or_rename(Temporary temporary, const fs::path& target) {
+  auto& s = state();
+  {
+    const std::scoped_lock lock(s.mutex);
+    if (s.open) {
+      s.staged.push_back(Staged{std::move(temporary), target});
+      return;
+    }
+  }
+  temporary.rename_to(target);
+}
 
 }  // namespace
 
 void write_file_atomically(const fs::path& path, const std::function<void(std::ostream&)>& write) {
-  if (path.empty() || !path.has_filename()) {
-    throw std::runtime_error("cannot write '" + path.string() + "': not a file name");
-  }
-  const fs::path directory = path.parent_path().empty() ? fs::path(".") : path.parent_path();
-  std::error_code ec;
-  if (!fs::is_directory(directory, ec)) {
-    throw std::runtime_error("cannot write '" + path.string() + "': directory '" +
-                             directory.string() + "' does not exist");
-  }
-  if (fs::is_directory(path, ec)) {
-    throw std::runtime_error("cannot write '" + path.string() + "': it is a directory");
-  }
-
-  TemporaryFile temporary(temporary_path_for(path));
+  check_target(path);
+  Temporary temporary(temporary_path_for(path));
   {
     std::ofstream out(temporary.path(), std::ios::binary | std::ios::trunc);
-    if (!out) {
-      throw std::runtime_error("cannot write '" + path.string() + "': " + std::strerror(errno));
-    }
+    if (!out) refuse(path, std::strerror(errno));
     write(out);
     out.flush();
-    if (!out) {
-      throw std::runtime_error("cannot write '" + path.string() + "': write failed (disk full?)");
-    }
+    if (!out) refuse(path, "write failed (disk full?)");
     out.close();
-    if (out.fail()) {
-      throw std::runtime_error("cannot write '" + path.string() + "': close failed");
-    }
+    if (out.fail()) refuse(path, "close failed");
   }
-  fs::rename(temporary.path(), path, ec);
-  if (ec) {
-    throw std::runtime_error("cannot write '" + path.string() + "': " + ec.message());
-  }
-  temporary.release();
+  stage_or_rename(std::move(temporary), path);
 }
 
 void write_file_atomically(const fs::path& path, std::string_view contents) {
   write_file_atomically(path, [contents](std::ostream& out) {
     out.write(contents.data(), static_cast<std::streamsize>(contents.size()));
   });
+}
+
+void adopt_written_file(const fs::path& written, const fs::path& target) {
+  Temporary temporary(written);
+  check_target(target);
+  stage_or_rename(std::move(temporary), target);
+}
+
+fs::path staged_path(const fs::path& target) {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  for (const auto& staged : s.staged) {
+    if (staged.target == target) return staged.temporary.path();
+  }
+  return target;
+}
+
+OutputTransaction::OutputTransaction() {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  if (s.open) throw std::logic_error("OutputTransaction: one is already open");
+  s.open = true;
+}
+
+OutputTransaction::~OutputTransaction() {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  s.staged.clear();  // each Temporary removes its file
+  for (auto it = s.created_directories.rbegin(); it != s.created_directories.rend(); ++it) {
+    std::error_code ignored;
+    fs::remove(*it, ignored);  // only succeeds while empty
+  }
+  s.created_directories.clear();
+  s.open = false;
+}
+
+void OutputTransaction::commit() {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  std::vector<Staged> staged = std::move(s.staged);
+  s.staged.clear();
+  for (auto& file : staged) file.temporary.rename_to(file.target);  // throws: the rest removed
+  s.created_directories.clear();                                    // keep them
+}
+
+std::size_t OutputTransaction::staged() const {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  return s.staged.size();
+}
+
+bool output_transaction_open() {
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  return s.open;
+}
+
+void note_input(const fs::path& path) {
+  struct stat info {};
+  if (::stat(path.c_str(), &info) != 0) return;
+  auto& s = state();
+  const std::scoped_lock lock(s.mutex);
+  s.inputs.push_back(FileIdentity{info.st_dev, info.st_ino, path.string()});
+}
+
+void create_output_directories(const fs::path& path) {
+  std::vector<fs::path> missing;
+  std::error_code ec;
+  for (fs::path p = path; !p.empty(); p = p.parent_path()) {
+    if (fs::exists(fs::symlink_status(p, ec))) break;
+    missing.push_back(p);
+    if (p == p.parent_path()) break;
+  }
+  if (!fs::is_directory(path, ec) && missing.empty()) {
+    throw std::runtime_error("cannot create directory '" + path.string() +
+                             "': it exists and is not a directory");
+  }
+  for (auto it = missing.rbegin(); it != missing.rend(); ++it) {
+    if (!fs::create_directory(*it, ec) && ec) {
+      throw std::runtime_error("cannot create directory '" + it->string() + "': " + ec.message());
+    }
+    auto& s = state();
+    const std::scoped_lock lock(s.mutex);
+    if (s.open) s.created_directories.push_back(*it);
+  }
 }
 
 }  // namespace tofkit::io

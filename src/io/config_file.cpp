@@ -4,6 +4,7 @@
 #include <toml++/toml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <climits>
 #include <cmath>
@@ -11,6 +12,9 @@
 #include <sstream>
 #include <type_traits>
 #include <utility>
+
+#include "tofkit/device/config_limits.hpp"
+#include "tofkit/io/input_file.hpp"
 
 namespace tofkit::io {
 namespace {
@@ -20,6 +24,9 @@ using device::ConfigField;
 using device::DeviceConfig;
 
 constexpr std::string_view kSetOrigin = "--set";
+constexpr std::size_t kMaxConfigBytes = 1u << 20;
+constexpr std::size_t kMaxConfigDepth = 16;
+constexpr std::size_t kMaxConfigDots = 64;
 
 std::string_view trim(std::string_view s) {
   while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
@@ -223,17 +230,96 @@ std::string join_lines(const std::vector<std::string>& lines) {
   return all;
 }
 
-toml::table parse_toml_file(const fs::path& file) {
-  std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) {
-    throw ConfigError(file.string() + ": config file not found");
+}  // namespace
+
+void check_toml_shape(std::string_view text, const std::string& name) {
+  if (text.size() > kMaxConfigBytes) {
+    throw ConfigError(fmt::format("{}: {} bytes, more than a config file may have ({})", name,
+                                  text.size(), kMaxConfigBytes));
   }
-  std::ifstream in(file, std::ios::binary);
-  if (!in) throw ConfigError(file.string() + ": cannot open config file");
-  std::ostringstream text;
-  text << in.rdbuf();
+  // A lexical pass outside strings and comments: bracket depth and dots per line.
+  std::size_t line = 1, column = 0, depth = 0, dots = 0;
+  char quote = 0;          // inside a string: its quote character
+  bool multiline = false;  // inside a """ or ''' string
+  bool comment = false;
+  auto fail = [&](const std::string& what) {
+    throw ConfigError(fmt::format("{}:{}:{}: {}", name, line, column, what));
+  };
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char c = text[i];
+    ++column;
+    if (c == '\n') {
+      ++line;
+      column = 0;
+      dots = 0;
+      comment = false;
+      if (quote != 0 && !multiline) quote = 0;  // unterminated: the parser reports it
+      continue;
+    }
+    if (comment) continue;
+    if (quote != 0) {
+      if (c == '\\' && quote == '"') {
+        ++i;
+        ++column;
+      } else if (c == quote) {
+        if (!multiline) {
+          quote = 0;
+        } else if (text.substr(i, 3) == std::string(3, quote)) {
+          quote = 0;
+          multiline = false;
+          i += 2;
+          column += 2;
+        }
+      }
+      continue;
+    }
+    switch (c) {
+      case '#':
+        comment = true;
+        break;
+      case '"':
+      case '\'':
+        quote = c;
+        multiline = text.substr(i, 3) == std::string(3, c);
+        if (multiline) {
+          i += 2;
+          column += 2;
+        }
+        break;
+      case '[':
+      case '{':
+        if (++depth > kMaxConfigDepth) {
+          fail(fmt::format("nesting deeper than {} levels (a config file has sections of keys)",
+                           kMaxConfigDepth));
+        }
+        break;
+      case ']':
+      case '}':
+        if (depth > 0) --depth;
+        break;
+      case '.':
+        if (++dots > kMaxConfigDots) {
+          fail(fmt::format("more than {} dots on one line (keys are section.key)", kMaxConfigDots));
+        }
+        break;
+      default:
+        break;
+    }
+  }
+}
+
+namespace {
+
+toml::table parse_toml_file(const fs::path& file) {
+  std::string text;
   try {
-    return toml::parse(text.str(), file.string());
+    text = read_text_file(file, "config file");
+  } catch (const std::runtime_error& e) {
+    throw ConfigError(e.what());
+  }
+  check_toml_shape(text, file.string());
+  try {
+    return toml::parse(text, file.string());
   } catch (const toml::parse_error& e) {
     throw ConfigError(fmt::format("{}:{}:{}: TOML syntax error: {}", file.string(),
                                   e.source().begin.line, e.source().begin.column, e.description()));
@@ -329,14 +415,53 @@ class Loader {
   void finish() {
     if (!errors_.empty()) throw ConfigError(join_lines(errors_));
     for (const auto& message : device::validate(result_.config)) {
-      const std::string key = message.substr(0, message.find(' '));
-      std::string origin = "preset '" + result_.config.name + "'";
-      for (const auto& s : result_.sources) {
-        if (s.key == key) origin = s.origin;  // the last assignment wins
-      }
-      errors_.push_back(origin + ": " + message);
+      errors_.push_back(blame(mentioned_keys(message)) + ": " + message);
     }
     if (!errors_.empty()) throw ConfigError(join_lines(errors_));
+    for (const auto& violation : device::check_config_limits(result_.config)) {
+      errors_.push_back(blame(violation.keys) + ": " + violation.message);
+    }
+    if (!errors_.empty()) throw ConfigError(join_lines(errors_));
+  }
+
+  // Where the values of `keys` came from: the user's assignments of them
+  // ("--set laser.repetition_hz=1e9", "dev.toml:7 (laser.repetition_hz)"), else the preset.
+  std::string blame(const std::vector<std::string>& keys) const {
+    std::string origins;
+    for (const auto& key : keys) {
+      const ConfigSource* last = nullptr;
+      for (const auto& s : result_.sources) {
+        if (s.key == key) last = &s;  // the last assignment wins
+      }
+      if (last == nullptr) continue;
+      if (!origins.empty()) origins += ", ";
+      origins += last->origin == kSetOrigin ? "--set " + key + "=" + last->value
+                                            : last->origin + " (" + key + ")";
+    }
+    return origins.empty() ? "preset '" + result_.config.name + "'" : origins;
+  }
+
+  // The registered keys a message names, in order of appearance.
+  std::vector<std::string> mentioned_keys(const std::string& message) const {
+    auto is_name_char = [](char c) {
+      return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '_' || c == '.';
+    };
+    std::vector<std::pair<std::size_t, std::string>> found;
+    for (const auto& key : keys_) {
+      for (std::size_t at = message.find(key); at != std::string::npos;
+           at = message.find(key, at + 1)) {
+        const std::size_t end = at + key.size();
+        if ((at == 0 || !is_name_char(message[at - 1])) &&
+            (end == message.size() || !is_name_char(message[end]) || message[end] == '.')) {
+          found.emplace_back(at, key);
+          break;
+        }
+      }
+    }
+    std::sort(found.begin(), found.end());
+    std::vector<std::string> keys;
+    for (auto& f : found) keys.push_back(std::move(f.second));
+    return keys;
   }
 
  private:

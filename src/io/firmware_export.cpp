@@ -252,14 +252,7 @@ void save_fixed_point_header(const std::filesystem::path& path,
 }
 
 ranging::FixedPointChain load_fixed_point_json(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) fail(path.string(), "cannot open the firmware file");
-  json j;
-  try {
-    j = json::parse(in);
-  } catch (const json::parse_error& e) {
-    fail(path.string(), std::string("not valid JSON: ") + e.what());
-  }
+  const json j = json_fields::parse_file(path, "firmware file");
   return fixed_point_from_json(j, path.string());
 }
 

@@ -209,14 +209,7 @@ void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& p
 }
 
 ranging::Pipeline load_pipeline(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) fail(path.string(), "cannot open the model file");
-  json j;
-  try {
-    j = json::parse(in);
-  } catch (const json::parse_error& e) {
-    fail(path.string(), std::string("not valid JSON: ") + e.what());
-  }
+  const json j = json_fields::parse_file(path, "model file");
   return pipeline_from_json(j, path.string());
 }
 

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/input_file.hpp"
 
 namespace tofkit::io {
 namespace {
@@ -105,12 +106,7 @@ struct ParsedRow {
 class TableReader {
  public:
   TableReader(const fs::path& path, bool corrected) : path_(path), corrected_(corrected) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw std::runtime_error(path.string() + ": cannot open file");
-    std::ostringstream text;
-    text << in.rdbuf();
-    if (in.bad()) throw std::runtime_error(path.string() + ": read error");
-    text_ = std::move(text).str();
+    text_ = read_text_file(path, "CSV file");
   }
 
   std::vector<CorrectedRow> read() {
@@ -120,18 +116,29 @@ class TableReader {
     std::size_t line_number = 0;
     bool have_header = false;
     std::vector<std::string_view> fields;
+    const std::uint64_t max_rows = resource_limits().max_rows;
     while (!rest.empty()) {
-      const std::size_t newline = rest.find('\n');
-      std::string_view line = rest.substr(0, newline);
-      rest.remove_prefix(newline == std::string_view::npos ? rest.size() : newline + 1);
+      // Lines end in LF, CR LF or a lone CR (old Mac files).
+      const std::size_t end = rest.find_first_of("\r\n");
+      const std::string_view line = rest.substr(0, end);
+      std::size_t skip = end == std::string_view::npos ? rest.size() : end + 1;
+      if (end != std::string_view::npos && rest[end] == '\r' && end + 1 < rest.size() &&
+          rest[end + 1] == '\n') {
+        ++skip;
+      }
+      rest.remove_prefix(skip);
       ++line_number;
-      if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+      line_ = line.data();
       if (trim(line).empty()) continue;
       split_fields(line, fields);
       if (!have_header) {
         read_header(fields, line_number);
         have_header = true;
         continue;
+      }
+      if (rows.size() >= max_rows) {
+        fail(line_number,
+             fmt::format("more than {} data rows (raise the limit with --max-rows)", max_rows));
       }
       rows.push_back(read_row(fields, line_number));
     }
@@ -163,16 +170,21 @@ class TableReader {
     if (corrected_ && !index_[kDistance]) fail(line, "header has no 'distance_m' column");
   }
 
+  // "file:line:column: column 5 (tof_ns): '1e999' is too large for a double"; long
+  // fields are shortened in the message.
+  [[noreturn]] void fail_field(std::string_view field, std::size_t line, std::size_t column,
+                               const std::string& why) const {
+    const std::size_t character = static_cast<std::size_t>(field.data() - line_) + 1;
+    const std::string shown =
+        field.size() > 40 ? std::string(field.substr(0, 40)) + "..." : std::string(field);
+    throw std::runtime_error(fmt::format("{}:{}:{}: column {} ({}): '{}' {}", path_.string(), line,
+                                         character, column + 1, column_name(column), shown, why));
+  }
+
   double parse_double(std::string_view field, std::size_t line, std::size_t column) const {
     if (field.empty()) return ranging::kNaN;
-    const std::string_view digits = field.front() == '+' ? field.substr(1) : field;
     double v = 0;
-    const auto [ptr, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), v);
-    if (digits.empty() || ptr != digits.data() + digits.size() ||
-        (ec != std::errc() && ec != std::errc::result_out_of_range)) {
-      fail(line, fmt::format("column {} ({}): '{}' is not a number", column + 1,
-                             column_name(column), field));
-    }
+    if (const auto why = parse_number(field, v)) fail_field(field, line, column, *why);
     return v;
   }
 
@@ -180,8 +192,7 @@ class TableReader {
     std::uint32_t v = 0;
     const auto [ptr, ec] = std::from_chars(field.data(), field.data() + field.size(), v);
     if (field.empty() || ec != std::errc() || ptr != field.data() + field.size()) {
-      fail(line, fmt::format("column {} ({}): '{}' is not a non-negative 32-bit integer",
-                             column + 1, column_name(column), field));
+      fail_field(field, line, column, "is not a non-negative 32-bit integer");
     }
     return v;
   }
@@ -233,6 +244,7 @@ class TableReader {
   fs::path path_;
   bool corrected_;
   std::string text_;
+  const char* line_ = nullptr;  // start of the line being read (for columns in messages)
   std::size_t header_size_ = 0;
   std::array<std::optional<std::size_t>, kColumnCount> index_{};
 };

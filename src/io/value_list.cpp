@@ -1,14 +1,17 @@
 #include "tofkit/io/value_list.hpp"
 
+#include <fmt/format.h>
+
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <stdexcept>
 #include <string>
 
+#include "tofkit/io/input_file.hpp"
+
 namespace tofkit::io {
 namespace {
-
-constexpr std::size_t kMaxValues = 10'000'000;
 
 std::string_view trim(std::string_view s) {
   while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
@@ -23,14 +26,11 @@ std::string_view trim(std::string_view s) {
 double parse_number(std::string_view text, std::string_view option) {
   const std::string_view t = trim(text);
   if (t.empty()) fail(option, "empty value in list");
-  // from_chars does not take a leading '+'; accept it for "+5".
-  const std::string_view digits = t.front() == '+' ? t.substr(1) : t;
   double value = 0;
-  const auto [ptr, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
-  if (ec != std::errc() || ptr != digits.data() + digits.size()) {
-    fail(option, "'" + std::string(t) + "' is not a number");
+  if (const auto why = io::parse_number(t, value)) {
+    const std::string shown = t.size() > 40 ? std::string(t.substr(0, 40)) + "..." : std::string(t);
+    fail(option, "'" + shown + "' " + *why);
   }
-  if (!std::isfinite(value)) fail(option, "'" + std::string(t) + "' is not a finite number");
   return value;
 }
 
@@ -57,8 +57,11 @@ std::vector<double> parse_range(std::string_view text, std::string_view option) 
     fail(option, "step of '" + std::string(text) + "' points away from stop");
   }
   const double count = std::floor(steps + kTolerance) + 1.0;
-  if (count > static_cast<double>(kMaxValues)) {
-    fail(option, "'" + std::string(text) + "' has more than 1e7 values");
+  const auto max_values = static_cast<double>(resource_limits().max_rows);
+  if (!(count <= max_values)) {
+    fail(option, fmt::format("'{}' has {:g} values, more than the limit of {:g} (raise it with "
+                             "--max-rows)",
+                             text, count, max_values));
   }
   const auto n = static_cast<std::size_t>(count);
   std::vector<double> values;
@@ -80,7 +83,14 @@ std::vector<double> parse_value_list(std::string_view text, std::string_view opt
     }
     return parse_range(t, option);
   }
+  const std::size_t count = static_cast<std::size_t>(std::count(t.begin(), t.end(), ',')) + 1;
+  if (count > resource_limits().max_rows) {
+    fail(option, fmt::format("the list has {} values, more than the limit of {} (raise it with "
+                             "--max-rows)",
+                             count, resource_limits().max_rows));
+  }
   std::vector<double> values;
+  values.reserve(count);
   std::size_t start = 0;
   for (;;) {
     const std::size_t comma = t.find(',', start);

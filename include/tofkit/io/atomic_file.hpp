@@ -1,8 +1,34 @@
 #pragma once
-/// \file Writing output files all-or-nothing: the content goes to a temporary
-/// file in the same directory, which is renamed over the target only once it
-/// is complete. A failure (an exception from the writer, a full disk) leaves no
-/// file behind and an existing target untouched.
+/// \file Writing output files: all of a command's outputs or none.
+///
+/// Every output file goes through write_file_atomically (or a writer built on
+/// it: write_raw_csv, save_pipeline, write_plot, ...). The content goes to a
+/// hidden temporary file in the target's directory (".NAME.tmp.PID.N"), which
+/// is renamed over the target once complete. A failure (an exception from the
+/// writer, a full disk) leaves no temporary behind and an existing target
+/// untouched.
+///
+/// While an OutputTransaction is open (the `tofkit` CLI opens one around every
+/// command, in main), completed temporaries are *staged*: they are renamed over
+/// their targets only by commit(), all together, once the command has
+/// succeeded. If the command throws, the transaction's destructor removes every
+/// staged temporary and every directory it created, so a failing command
+/// leaves the file system as it found it. New commands get this for free by
+/// writing through these functions; they must not open output streams
+/// themselves.
+///
+/// Refused with std::runtime_error naming the path, before anything is written:
+/// - a target that exists and is not a regular file (a directory, a device
+///   node such as /dev/null, a FIFO, a socket or a symbolic link: the rename
+///   would replace the node itself);
+/// - a target that is the same file (device and inode) as one this process
+///   read as input (see note_input; the io readers call it), e.g.
+///   `--out` equal to `--in` under another name;
+/// - the same target twice in one transaction;
+/// - a directory that does not exist.
+///
+/// SIGINT and SIGTERM remove every temporary of this process (staged or being
+/// written) and then terminate as the signal would have.
 
 #include <filesystem>
 #include <functional>
@@ -11,13 +37,54 @@
 
 namespace tofkit::io {
 
-/// Write `path` through `write`, atomically. Throws std::runtime_error naming
-/// the path if the directory does not exist or the file cannot be written;
-/// rethrows whatever `write` throws, after removing the temporary file.
+/// Write `path` through `write`, atomically (staged if a transaction is open).
+/// Throws std::runtime_error naming the path on a refused target or a failed
+/// write; rethrows whatever `write` throws, after removing the temporary file.
 void write_file_atomically(const std::filesystem::path& path,
                            const std::function<void(std::ostream&)>& write);
 
 /// Write `contents` to `path`, atomically.
 void write_file_atomically(const std::filesystem::path& path, std::string_view contents);
+
+/// The outputs of one command, committed together. At most one is open at a
+/// time per process (a second throws std::logic_error).
+class OutputTransaction {
+ public:
+  OutputTransaction();
+  OutputTransaction(const OutputTransaction&) = delete;
+  OutputTransaction& operator=(const OutputTransaction&) = delete;
+  /// Not committed: removes every staged temporary and created directory.
+  ~OutputTransaction();
+
+  /// Renames every staged file over its target, in the order written. Throws
+  /// std::runtime_error naming the file if a rename fails (the files not yet
+  /// renamed are removed).
+  void commit();
+
+  /// Number of files staged so far.
+  [[nodiscard]] std::size_t staged() const;
+};
+
+/// Is an OutputTransaction open?
+[[nodiscard]] bool output_transaction_open();
+
+/// Remember that `path` is an input of this process: writing over the same
+/// file (by device and inode, whatever its name) is refused. Readers call it.
+void note_input(const std::filesystem::path& path);
+
+/// Create `path` and any missing parents (like create_directories); inside a
+/// transaction, the directories created are removed again on rollback.
+/// Throws std::runtime_error naming the path if it exists and is not a
+/// directory or cannot be created.
+void create_output_directories(const std::filesystem::path& path);
+
+/// Hand a file that was written next to `target` (same directory, by another
+/// program, e.g. gnuplot) to the output mechanism: renamed over `target` now,
+/// or at commit when a transaction is open (removed on rollback).
+void adopt_written_file(const std::filesystem::path& written, const std::filesystem::path& target);
+
+/// The path where `target`'s content currently is: the staged temporary if
+/// the open transaction holds one for it, else `target` itself.
+[[nodiscard]] std::filesystem::path staged_path(const std::filesystem::path& target);
 
 }  // namespace tofkit::io

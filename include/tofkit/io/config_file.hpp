@@ -61,6 +61,13 @@ struct LoadedDeviceConfig {
     std::string_view preset, const std::optional<std::filesystem::path>& file,
     std::span<const std::string> overrides);
 
+/// Refuses a config text before the TOML parser sees it (ConfigError naming
+/// name:line:column) when it is larger than 1 MB, nests brackets or braces
+/// deeper than 16 levels or has more than 64 dots on one line outside strings
+/// and comments: such files are never configs and could exhaust the parser's
+/// stack.
+void check_toml_shape(std::string_view text, const std::string& name);
+
 /// A TOML document with `preset = "<name>"` and every key, each preceded by its
 /// description and valid range as a comment. Numbers are written in shortest
 /// round-trip form, so loading it back gives an identical config.

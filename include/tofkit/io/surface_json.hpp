@@ -3,9 +3,8 @@
 /// model file: kind, version, parameters, input domain, fit statistics).
 
 #include <memory>
-#include <string>
-
 #include <nlohmann/json.hpp>
+#include <string>
 
 #include "tofkit/calib/confidence_model.hpp"
 #include "tofkit/calib/correction_surface.hpp"
