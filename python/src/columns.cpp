@@ -38,18 +38,28 @@ std::uint32_t to_uint32(Src v) {
 }
 
 template <typename Src, typename Dst>
-void convert(const Column& c, std::size_t begin, std::size_t n, char* dst, std::size_t dst_stride) {
+void convert(const Column& c, std::size_t begin, std::size_t n, char* dst,
+             std::size_t dst_stride_arg) {
   const char* src = c.data + static_cast<py::ssize_t>(begin) * c.stride;
-  for (std::size_t i = 0; i < n; ++i) {
-    Src v;
-    std::memcpy(&v, src + static_cast<py::ssize_t>(i) * c.stride, sizeof(Src));
-    Dst d;
-    if constexpr (std::is_same_v<Dst, double>) {
-      d = static_cast<double>(v);
-    } else {
-      d = to_uint32(v);
+  const auto copy = [&](py::ssize_t src_stride, std::size_t dst_stride) {
+    for (std::size_t i = 0; i < n; ++i) {
+      Src v;
+      std::memcpy(&v, src + static_cast<py::ssize_t>(i) * src_stride, sizeof(Src));
+      Dst d;
+      if constexpr (std::is_same_v<Dst, double>) {
+        d = static_cast<double>(v);
+      } else {
+        d = to_uint32(v);
+      }
+      std::memcpy(dst + i * dst_stride, &d, sizeof(Dst));
     }
-    std::memcpy(dst + i * dst_stride, &d, sizeof(Dst));
+  };
+  // A contiguous column (the common case) with a constant stride the compiler can see.
+  constexpr auto raw_stride = sizeof(ranging::RawMeasurement);
+  if (c.stride == static_cast<py::ssize_t>(sizeof(Src)) && dst_stride_arg == raw_stride) {
+    copy(static_cast<py::ssize_t>(sizeof(Src)), raw_stride);
+  } else {
+    copy(c.stride, dst_stride_arg);
   }
 }
 

@@ -31,8 +31,8 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 /// Rows handed to Pipeline::apply at a time when the input must be gathered
-/// (48 kB of RawMeasurements: stays in L1/L2).
-constexpr std::size_t kChunk = 1024;
+/// (Pipeline::apply's own block: 12 kB of RawMeasurements, stays in L1).
+constexpr std::size_t kChunk = 256;
 
 /// A pipeline with the fit statistics the CLI stores beside it.
 struct Model {
@@ -82,12 +82,29 @@ Model load_model(const fs::path& path) {
   return model;
 }
 
-/// Corrected ranges in one allocation (RANGE_DTYPE); the input is read in
-/// place, the GIL released while correcting.
-py::array apply(const Model& model, const py::tuple& columns) {
+/// `out` if given (checked: RANGE_DTYPE, C-contiguous, writable, n rows),
+/// else a new RANGE_DTYPE array of n rows.
+py::array output_array(const std::optional<py::array>& out, std::size_t n) {
+  if (!out) return py::array(range_dtype(), static_cast<py::ssize_t>(n));
+  const py::array& a = *out;
+  if (!a.dtype().equal(range_dtype()) || a.ndim() != 1 || !(a.flags() & py::array::c_style) ||
+      !a.writeable()) {
+    throw py::type_error("out: expected a writable, contiguous 1-D array of RANGE_DTYPE");
+  }
+  if (static_cast<std::size_t>(a.shape(0)) != n) {
+    throw py::value_error("out: " + std::to_string(a.shape(0)) + " rows for " + std::to_string(n) +
+                          " measurements");
+  }
+  return a;
+}
+
+/// Corrected ranges into `out` or one new allocation (RANGE_DTYPE); the
+/// input is read in place, the GIL released while correcting.
+py::array apply(const Model& model, const py::tuple& columns,
+                const std::optional<py::array>& out_arg) {
   const ColumnSet input(columns);
   const std::size_t n = input.rows();
-  py::array out(range_dtype(), static_cast<py::ssize_t>(n));
+  py::array out = output_array(out_arg, n);
   auto* ranges = static_cast<ranging::Range*>(out.mutable_data());
   py::ssize_t stride = 0;
   const ranging::RawMeasurement* rows = input.raw_rows(stride);
@@ -231,23 +248,37 @@ Model fit_surface(
 }
 
 /// The C++ batch baseline of the benchmark script: Pipeline::apply over a
-/// std::vector of RawMeasurements (copied from the input beforehand, not
-/// timed); the best wall time of `repeats` runs, in seconds.
-double cpp_apply_seconds(const Model& model, const py::tuple& columns, int repeats) {
-  const ColumnSet input(columns);
-  std::vector<ranging::RawMeasurement> raw(input.rows());
-  input.gather_raw(0, raw);
-  std::vector<ranging::Range> out(raw.size());
-  py::gil_scoped_release release;
-  double best = 1e300;
-  for (int r = 0; r < std::max(1, repeats); ++r) {
-    const auto start = std::chrono::steady_clock::now();
-    model.pipeline.apply(raw, out);
-    best = std::min(
-        best, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+/// std::vector of RawMeasurements (copied from the input once, not timed),
+/// into a reused output vector or (`allocate`) a new one per call as
+/// `tofkit correct` does. run() returns one call's wall time in seconds.
+class CppBaseline {
+ public:
+  CppBaseline(const Model& model, const py::tuple& columns) : pipeline_(model.pipeline) {
+    const ColumnSet input(columns);
+    raw_.resize(input.rows());
+    input.gather_raw(0, raw_);
+    reused_.resize(raw_.size());
   }
-  return best;
-}
+
+  double run(bool allocate) {
+    py::gil_scoped_release release;
+    std::vector<ranging::Range> fresh;
+    const auto start = std::chrono::steady_clock::now();
+    if (allocate) {
+      fresh.resize(raw_.size());
+      pipeline_.apply(raw_, fresh);
+    } else {
+      pipeline_.apply(raw_, reused_);
+    }
+    const auto stop = std::chrono::steady_clock::now();
+    return std::chrono::duration<double>(stop - start).count();
+  }  // `fresh` is freed after the clock stops, as Python frees its result later
+
+ private:
+  ranging::Pipeline pipeline_;
+  std::vector<ranging::RawMeasurement> raw_;
+  std::vector<ranging::Range> reused_;
+};
 
 }  // namespace
 
@@ -274,13 +305,14 @@ void bind_model(py::module_& m) {
       .def_property_readonly("fit_json", [](const Model& model) { return model.fit.dump(); })
       .def_property_readonly("residual_rms_m",
                              [](const Model& model) { return model.pipeline.residual_rms_m(); })
-      .def("apply", &apply, py::arg("columns"));
+      .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none());
   m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"));
   m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("range_m"),
         py::arg("amplitude"), py::arg("temperature_c"), py::arg("error_m"), py::arg("spec"),
         py::arg("rcond"));
-  m.def("_cpp_apply_seconds", &cpp_apply_seconds, py::arg("model"), py::arg("columns"),
-        py::arg("repeats"));
+  py::class_<CppBaseline>(m, "_CppBaseline")
+      .def(py::init<const Model&, const py::tuple&>(), py::arg("model"), py::arg("columns"))
+      .def("run", &CppBaseline::run, py::arg("allocate"));
 }
 
 }  // namespace tofkit::python

@@ -68,16 +68,18 @@ class Model:
     def __repr__(self):
         return f"<tofkit.Model\n{self.summary()}>"
 
-    def apply(self, raw):
+    def apply(self, raw, out=None):
         """Correct raw measurements: returns (distance_m, sigma_m, correction_flags).
 
         raw: a structured array with the raw CSV columns (measure(), read_raw())
         or a mapping of 1-D columns (tof_ns and/or distance_raw_m; pulse_width_ns,
         amplitude, temperature_c, shots_valid, flags as the model needs). The
         input is read in place (no copy, any numeric dtype and stride); the three
-        results are views of one new array; the GIL is released meanwhile.
+        results are views of one new RANGE_DTYPE array, or of ``out`` when given
+        (a RANGE_DTYPE array of the same length, reused across batches); the
+        GIL is released meanwhile.
         """
-        out = self._model.apply(_columns(raw))
+        out = self._model.apply(_columns(raw), out)
         return out["distance_m"], out["sigma_m"], out["correction_flags"]
 
 
