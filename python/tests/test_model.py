@@ -154,3 +154,21 @@ def test_bad_inputs_raise(calibration):
         tofkit.fit_surface(records, "bspline", rcond=0.1)
     empty_distance, _, _ = model.apply(records[:0])
     assert empty_distance.shape == (0,)
+
+
+def test_apply_into_a_reused_output(calibration):
+    _, records = calibration
+    model = tofkit.fit_chain(records)
+    expected = [a.copy() for a in model.apply(records)]
+    out = np.zeros(len(records), dtype=tofkit.RANGE_DTYPE)
+    result = model.apply(records, out=out)
+    for got, want in zip(result, expected):
+        np.testing.assert_array_equal(got, want)
+    assert result[0].base is out or result[0].base is out.base
+    np.testing.assert_array_equal(out["distance_m"], expected[0])
+    with pytest.raises(ValueError, match="rows"):
+        model.apply(records, out=out[:-1])
+    with pytest.raises(TypeError, match="RANGE_DTYPE"):
+        model.apply(records, out=np.zeros(len(records)))
+    with pytest.raises(TypeError, match="RANGE_DTYPE"):
+        model.apply(records[::2], out=np.zeros(2 * len(records[::2]), tofkit.RANGE_DTYPE)[::2])
