@@ -1,0 +1,28 @@
+#pragma once
+/// \file Shared pieces of the tofkit Python extension: the NumPy dtypes that
+/// mirror the C++ records byte for byte, and the error conversions.
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <exception>
+#include <filesystem>
+
+namespace tofkit::python {
+
+namespace py = pybind11;
+
+/// The raw CSV columns in ranging::Record's layout (80 bytes a row): a
+/// measure() result is the C++ records themselves.
+[[nodiscard]] py::dtype record_dtype();
+/// distance_m, sigma_m, correction_flags in ranging::Range's layout.
+[[nodiscard]] py::dtype range_dtype();
+
+/// Raises FileNotFoundError with `error`'s message (the CLI's) when `path`
+/// does not exist, else rethrows `error` (translated as usual).
+[[noreturn]] void rethrow_for_file(const std::filesystem::path& path, const std::exception& error);
+
+void bind_device(py::module_& m);
+void bind_model(py::module_& m);
+
+}  // namespace tofkit::python

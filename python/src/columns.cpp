@@ -1,0 +1,233 @@
+#include "columns.hpp"
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <string>
+#include <type_traits>
+
+namespace tofkit::python {
+namespace {
+
+constexpr const char* kNames[kColumnCount] = {
+    "distance_true_m", "reflectance", "angle_deg",     "ambient_c",   "tof_ns", "distance_raw_m",
+    "pulse_width_ns",  "amplitude",   "temperature_c", "shots_valid", "flags"};
+
+bool native_byte_order(const py::dtype& dtype) {
+  const char order = dtype.byteorder();
+  return order == '=' || order == '|' || (order == '<' && PY_LITTLE_ENDIAN) ||
+         (order == '>' && !PY_LITTLE_ENDIAN);
+}
+
+/// A count or a bit set from any number: NaN and negatives -> 0, saturating.
+template <typename Src>
+std::uint32_t to_uint32(Src v) {
+  constexpr auto max = std::numeric_limits<std::uint32_t>::max();
+  if constexpr (std::is_floating_point_v<Src>) {
+    if (!(v >= 0)) return 0;
+    return v >= static_cast<Src>(4294967296.0) ? max : static_cast<std::uint32_t>(v);
+  } else if constexpr (std::is_same_v<Src, bool>) {
+    return v ? 1u : 0u;
+  } else {
+    if constexpr (std::is_signed_v<Src>) {
+      if (v < 0) return 0;
+    }
+    return static_cast<std::uint64_t>(v) > max ? max : static_cast<std::uint32_t>(v);
+  }
+}
+
+template <typename Src, typename Dst>
+void convert(const Column& c, std::size_t begin, std::size_t n, char* dst,
+             std::size_t dst_stride_arg) {
+  const char* src = c.data + static_cast<py::ssize_t>(begin) * c.stride;
+  const auto copy = [&](py::ssize_t src_stride, std::size_t dst_stride) {
+    for (std::size_t i = 0; i < n; ++i) {
+      Src v;
+      std::memcpy(&v, src + static_cast<py::ssize_t>(i) * src_stride, sizeof(Src));
+      Dst d;
+      if constexpr (std::is_same_v<Dst, double>) {
+        d = static_cast<double>(v);
+      } else {
+        d = to_uint32(v);
+      }
+      std::memcpy(dst + i * dst_stride, &d, sizeof(Dst));
+    }
+  };
+  // A contiguous column (the common case) with a constant stride the compiler can see.
+  constexpr auto raw_stride = sizeof(ranging::RawMeasurement);
+  if (c.stride == static_cast<py::ssize_t>(sizeof(Src)) && dst_stride_arg == raw_stride) {
+    copy(static_cast<py::ssize_t>(sizeof(Src)), raw_stride);
+  } else {
+    copy(c.stride, dst_stride_arg);
+  }
+}
+
+/// Reads column `c` into the Dst fields at dst, dst + dst_stride, ...
+template <typename Dst>
+void read_column(const Column& c, std::size_t begin, std::size_t n, char* dst,
+                 std::size_t dst_stride) {
+  switch (c.kind) {
+    case 'f':
+      if (c.itemsize == 8) return convert<double, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 4) return convert<float, Dst>(c, begin, n, dst, dst_stride);
+      break;
+    case 'i':
+      if (c.itemsize == 8) return convert<std::int64_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 4) return convert<std::int32_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 2) return convert<std::int16_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 1) return convert<std::int8_t, Dst>(c, begin, n, dst, dst_stride);
+      break;
+    case 'u':
+      if (c.itemsize == 8) return convert<std::uint64_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 4) return convert<std::uint32_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 2) return convert<std::uint16_t, Dst>(c, begin, n, dst, dst_stride);
+      if (c.itemsize == 1) return convert<std::uint8_t, Dst>(c, begin, n, dst, dst_stride);
+      break;
+    case 'b':
+      return convert<bool, Dst>(c, begin, n, dst, dst_stride);
+  }
+}
+
+template <typename Dst>
+void fill(Dst value, std::size_t n, char* dst, std::size_t dst_stride) {
+  for (std::size_t i = 0; i < n; ++i) std::memcpy(dst + i * dst_stride, &value, sizeof(Dst));
+}
+
+}  // namespace
+
+ColumnSet::ColumnSet(const py::tuple& columns) {
+  if (columns.size() != kColumnCount) {
+    throw py::value_error("expected " + std::to_string(kColumnCount) + " columns");
+  }
+  bool have_rows = false;
+  for (std::size_t k = 0; k < kColumnCount; ++k) {
+    const py::handle obj = columns[k];
+    if (obj.is_none()) continue;
+    const std::string name = kNames[k];
+    py::array a = py::array::ensure(obj);
+    if (!a) throw py::type_error(name + ": expected an array");
+    if (a.ndim() != 1) {
+      throw py::value_error(name + ": expected a 1-D column, got " + std::to_string(a.ndim()) +
+                            " dimensions");
+    }
+    const py::dtype dtype = a.dtype();
+    const char kind = dtype.kind();
+    if ((kind != 'f' && kind != 'i' && kind != 'u' && kind != 'b') ||
+        (kind == 'f' && dtype.itemsize() != 4 && dtype.itemsize() != 8) ||
+        !native_byte_order(dtype)) {
+      throw py::type_error(name + ": expected a numeric column, got dtype " +
+                           py::str(static_cast<py::object>(dtype)).cast<std::string>());
+    }
+    const auto n = static_cast<std::size_t>(a.shape(0));
+    if (have_rows && n != rows_) {
+      throw py::value_error(name + ": " + std::to_string(n) + " rows, but " +
+                            std::to_string(rows_) + " in the columns before it");
+    }
+    rows_ = n;
+    have_rows = true;
+    columns_[k] = Column{static_cast<const char*>(a.data()), a.strides(0), kind, dtype.itemsize()};
+    arrays_.push_back(std::move(a));
+  }
+  if (!columns_[kTof].present() && !columns_[kDistanceRaw].present()) {
+    throw py::value_error("the raw data needs tof_ns or distance_raw_m");
+  }
+}
+
+void ColumnSet::gather_raw(std::size_t begin, std::span<ranging::RawMeasurement> out) const {
+  using ranging::RawMeasurement;
+  const std::size_t n = out.size();
+  char* base = reinterpret_cast<char*>(out.data());
+  constexpr std::size_t stride = sizeof(RawMeasurement);
+  const struct {
+    ColumnIndex column;
+    std::size_t offset;
+  } doubles[] = {{kTof, offsetof(RawMeasurement, tof_ns)},
+                 {kDistanceRaw, offsetof(RawMeasurement, distance_raw_m)},
+                 {kPulseWidth, offsetof(RawMeasurement, pulse_width_ns)},
+                 {kAmplitude, offsetof(RawMeasurement, amplitude)},
+                 {kTemperature, offsetof(RawMeasurement, temperature_c)}};
+  for (const auto& f : doubles) {
+    const Column& c = columns_[f.column];
+    if (c.present()) {
+      read_column<double>(c, begin, n, base + f.offset, stride);
+    } else {
+      fill<double>(ranging::kNaN, n, base + f.offset, stride);
+    }
+  }
+  const Column& shots = columns_[kShotsValid];
+  const Column& flags = columns_[kFlags];
+  if (shots.present())
+    read_column<std::uint32_t>(shots, begin, n, base + offsetof(RawMeasurement, shots_valid),
+                               stride);
+  if (flags.present())
+    read_column<std::uint32_t>(flags, begin, n, base + offsetof(RawMeasurement, flags), stride);
+  if (!shots.present() || !flags.present()) {
+    // The raw CSV reader's defaults (io/raw_csv.hpp).
+    for (RawMeasurement& m : out) {
+      const bool has_distance = std::isfinite(m.tof_ns) || std::isfinite(m.distance_raw_m);
+      if (!shots.present()) m.shots_valid = has_distance ? 1u : 0u;
+      if (!flags.present()) m.flags = has_distance ? 0u : ranging::kRawNoEcho;
+    }
+  }
+}
+
+void ColumnSet::gather_records(std::size_t begin, std::span<ranging::Record> out) const {
+  using ranging::GroundTruth;
+  using ranging::Record;
+  std::vector<ranging::RawMeasurement> raw(out.size());
+  gather_raw(begin, raw);
+  char* base = reinterpret_cast<char*>(out.data());
+  const struct {
+    ColumnIndex column;
+    std::size_t offset;
+  } truths[] = {{kDistanceTrue, offsetof(GroundTruth, distance_m)},
+                {kReflectance, offsetof(GroundTruth, reflectance)},
+                {kAngle, offsetof(GroundTruth, angle_deg)},
+                {kAmbient, offsetof(GroundTruth, ambient_c)}};
+  for (const auto& f : truths) {
+    const Column& c = columns_[f.column];
+    char* dst = base + offsetof(Record, truth) + f.offset;
+    if (c.present()) {
+      read_column<double>(c, begin, out.size(), dst, sizeof(Record));
+    } else {
+      fill<double>(ranging::kNaN, out.size(), dst, sizeof(Record));
+    }
+  }
+  for (std::size_t i = 0; i < out.size(); ++i) out[i].raw = raw[i];
+}
+
+const ranging::RawMeasurement* ColumnSet::raw_rows(py::ssize_t& stride) const {
+  using ranging::RawMeasurement;
+  const struct {
+    ColumnIndex column;
+    std::size_t offset;
+    char kind;
+  } fields[] = {{kTof, offsetof(RawMeasurement, tof_ns), 'f'},
+                {kDistanceRaw, offsetof(RawMeasurement, distance_raw_m), 'f'},
+                {kPulseWidth, offsetof(RawMeasurement, pulse_width_ns), 'f'},
+                {kAmplitude, offsetof(RawMeasurement, amplitude), 'f'},
+                {kTemperature, offsetof(RawMeasurement, temperature_c), 'f'},
+                {kShotsValid, offsetof(RawMeasurement, shots_valid), 'u'},
+                {kFlags, offsetof(RawMeasurement, flags), 'u'}};
+  const Column& first = columns_[kTof];
+  if (!first.present()) return nullptr;
+  const char* base = first.data - offsetof(RawMeasurement, tof_ns);
+  stride = first.stride;
+  if (reinterpret_cast<std::uintptr_t>(base) % alignof(RawMeasurement) != 0 ||
+      stride < static_cast<py::ssize_t>(sizeof(RawMeasurement)) ||
+      stride % static_cast<py::ssize_t>(alignof(RawMeasurement)) != 0) {
+    return nullptr;
+  }
+  for (const auto& f : fields) {
+    const Column& c = columns_[f.column];
+    const py::ssize_t size = f.kind == 'f' ? 8 : 4;
+    if (!c.present() || c.kind != f.kind || c.itemsize != size || c.stride != stride ||
+        c.data != base + f.offset) {
+      return nullptr;
+    }
+  }
+  return reinterpret_cast<const RawMeasurement*>(base);
+}
+
+}  // namespace tofkit::python

@@ -1,0 +1,318 @@
+// Bindings of the correction side: the ranging pipeline ("Model": load/save
+// the CLI's JSON, batch apply over NumPy columns without copying them), and
+// the chain and surface fitters.
+
+#include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "bindings.hpp"
+#include "columns.hpp"
+#include "tofkit/calib/chain_fit.hpp"
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/calib/surface_fit.hpp"
+#include "tofkit/device/device_config.hpp"
+#include "tofkit/io/model_json.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+
+namespace tofkit::python {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+/// Rows handed to Pipeline::apply at a time when the input must be gathered
+/// (Pipeline::apply's own block: 12 kB of RawMeasurements, stays in L1).
+constexpr std::size_t kChunk = 256;
+
+/// A pipeline with the fit statistics the CLI stores beside it.
+struct Model {
+  ranging::Pipeline pipeline;
+  json fit;            ///< "fit" object of the model file (null: none)
+  std::string report;  ///< the fitter's summary (empty for a loaded model)
+};
+
+/// The conversion the device uses for distance_raw_m (nominal c in air), as `tofkit fit` does.
+ranging::TimeToDistance time_to_distance_of(const device::DeviceConfig& config) {
+  ranging::TimeToDistance t;
+  t.wavelength_nm = config.link.laser.wavelength_nm;
+  t.air.temperature_c = config.measurement.reference_temperature_c;
+  t.air.pressure_hpa = config.link.environment.pressure_hpa;
+  t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
+  return t;
+}
+
+json stats_json(const calib::ErrorStats& s) {
+  const auto v = [](double x) { return std::isfinite(x) ? json(x) : json(); };
+  return {{"rows", s.rows},
+          {"bias_m", v(s.bias_m)},
+          {"rms_m", v(s.rms_m)},
+          {"max_abs_m", v(s.max_abs_m)}};
+}
+
+json hinge_json(const calib::HingeFitResult& h) {
+  json bic = json::array();
+  for (double b : h.bic) bic.push_back(std::isfinite(b) ? json(b) : json());
+  return {{"knots", h.knots},
+          {"bic_by_knot_count", bic},
+          {"rows_downweighted", h.rows_downweighted},
+          {"robust_sigma_m", h.robust_scale}};
+}
+
+Model load_model(const fs::path& path) {
+  Model model;
+  try {
+    model.pipeline = io::load_pipeline(path);
+  } catch (const std::exception& e) {
+    rethrow_for_file(path, e);
+  }
+  // The free-form fit statistics, kept so that save() writes the same file.
+  std::ifstream in(path);
+  const json j = json::parse(in, nullptr, false);
+  if (j.is_object() && j.contains("fit")) model.fit = j["fit"];
+  return model;
+}
+
+/// `out` if given (checked: RANGE_DTYPE, C-contiguous, writable, n rows),
+/// else a new RANGE_DTYPE array of n rows.
+py::array output_array(const std::optional<py::array>& out, std::size_t n) {
+  if (!out) return py::array(range_dtype(), static_cast<py::ssize_t>(n));
+  const py::array& a = *out;
+  if (!a.dtype().equal(range_dtype()) || a.ndim() != 1 || !(a.flags() & py::array::c_style) ||
+      !a.writeable()) {
+    throw py::type_error("out: expected a writable, contiguous 1-D array of RANGE_DTYPE");
+  }
+  if (static_cast<std::size_t>(a.shape(0)) != n) {
+    throw py::value_error("out: " + std::to_string(a.shape(0)) + " rows for " + std::to_string(n) +
+                          " measurements");
+  }
+  return a;
+}
+
+/// Corrected ranges into `out` or one new allocation (RANGE_DTYPE); the
+/// input is read in place, the GIL released while correcting.
+py::array apply(const Model& model, const py::tuple& columns,
+                const std::optional<py::array>& out_arg) {
+  const ColumnSet input(columns);
+  const std::size_t n = input.rows();
+  py::array out = output_array(out_arg, n);
+  auto* ranges = static_cast<ranging::Range*>(out.mutable_data());
+  py::ssize_t stride = 0;
+  const ranging::RawMeasurement* rows = input.raw_rows(stride);
+  const ranging::Pipeline& pipeline = model.pipeline;
+  py::gil_scoped_release release;
+  if (rows != nullptr && stride == static_cast<py::ssize_t>(sizeof(ranging::RawMeasurement))) {
+    // The input is an array of RawMeasurements: one call over all of it.
+    pipeline.apply(std::span(rows, n), std::span(ranges, n));
+    return out;
+  }
+  std::vector<ranging::RawMeasurement> chunk(kChunk);
+  for (std::size_t begin = 0; begin < n; begin += kChunk) {
+    const std::size_t count = std::min(kChunk, n - begin);
+    const std::span<ranging::RawMeasurement> block(chunk.data(), count);
+    if (rows != nullptr) {
+      // RawMeasurements inside larger rows (a measure() result): copy 48 bytes a row.
+      const char* first =
+          reinterpret_cast<const char*>(rows) + static_cast<py::ssize_t>(begin) * stride;
+      for (std::size_t i = 0; i < count; ++i) {
+        std::memcpy(&block[i], first + static_cast<py::ssize_t>(i) * stride,
+                    sizeof(ranging::RawMeasurement));
+      }
+    } else {
+      input.gather_raw(begin, block);
+    }
+    pipeline.apply(block, std::span(ranges + begin, count));
+  }
+  return out;
+}
+
+std::vector<ranging::Record> records_of(const py::tuple& columns) {
+  const ColumnSet input(columns);
+  std::vector<ranging::Record> records(input.rows());
+  input.gather_records(0, records);
+  return records;
+}
+
+Model fit_chain(const py::tuple& columns, const std::string& steps_text,
+                const device::DeviceConfig& config) {
+  calib::ChainFitOptions options;
+  try {
+    options.steps = calib::parse_chain_steps(steps_text);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("steps " + steps_text + ": " + e.what());
+  }
+  options.time_to_distance = time_to_distance_of(config);
+  const std::vector<ranging::Record> records = records_of(columns);
+  std::optional<calib::ChainFitResult> chain;
+  {
+    py::gil_scoped_release release;
+    chain = calib::fit_chain(records, options);
+  }
+  Model model{chain->pipeline, nullptr, chain->summary()};
+  json c = {{"steps", calib::to_string(options.steps)},
+            {"rows", chain->rows},
+            {"rows_skipped", chain->rows_skipped},
+            {"rows_downweighted", chain->rows_downweighted},
+            {"backfit_iterations", chain->backfit_iterations},
+            {"converged", chain->converged},
+            {"before", stats_json(chain->before)},
+            {"after", stats_json(chain->after)}};
+  if (chain->grayvalue) c["grayvalue"] = hinge_json(*chain->grayvalue);
+  if (chain->temperature) c["temperature"] = hinge_json(*chain->temperature);
+  model.fit = {{"command", "fit"},
+               {"input", "python"},
+               {"rows", records.size()},
+               {"rows_fit", records.size()},
+               {"chain", c},
+               {"residual_rms_m", model.pipeline.residual_rms_m()}};
+  return model;
+}
+
+/// Fits a surface on (range, amplitude[, temperature]) -> error and appends it
+/// to `base` (or to an empty pipeline for `config`), as `tofkit fit --surface` does.
+Model fit_surface(
+    const std::optional<Model>& base, const device::DeviceConfig& config,
+    const py::array_t<double, py::array::c_style | py::array::forcecast>& range_m,
+    const py::array_t<double, py::array::c_style | py::array::forcecast>& amplitude,
+    const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>&
+        temperature_c,
+    const py::array_t<double, py::array::c_style | py::array::forcecast>& error_m,
+    const std::string& spec, std::optional<double> rcond) {
+  bool poly = false;
+  int order = 0;
+  if (spec.rfind("poly:", 0) == 0) {
+    const std::string digits = spec.substr(5);
+    std::size_t used = 0;
+    try {
+      order = std::stoi(digits, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    poly = used == digits.size() && order >= 1 && order <= 12;
+  }
+  if (!poly && spec != "bspline") {
+    throw std::invalid_argument("surface " + spec + ": expected poly:N (N = 1..12) or bspline");
+  }
+  if (rcond && !poly) throw std::invalid_argument("rcond applies to surface poly:N only");
+  const auto n = static_cast<std::size_t>(range_m.size());
+  if (static_cast<std::size_t>(amplitude.size()) != n ||
+      static_cast<std::size_t>(error_m.size()) != n ||
+      (temperature_c && static_cast<std::size_t>(temperature_c->size()) != n)) {
+    throw std::invalid_argument("surface inputs differ in length");
+  }
+  const bool use_temperature = temperature_c.has_value();
+  calib::SurfaceFitData data{
+      {std::span(range_m.data(), n), std::span(amplitude.data(), n),
+       use_temperature ? std::span(temperature_c->data(), n) : std::span<const double>()},
+      std::span(error_m.data(), n)};
+  Model model = base ? *base : Model{ranging::Pipeline(time_to_distance_of(config)), nullptr, ""};
+  calib::SurfaceFitResult surface;
+  {
+    py::gil_scoped_release release;
+    if (poly) {
+      calib::PolynomialFitOptions options;
+      options.order = order;
+      if (rcond) options.rcond = *rcond;
+      options.use_temperature = use_temperature;
+      surface = calib::fit_polynomial_surface(data, options);
+    } else {
+      calib::BSplineFitOptions options;
+      options.use_temperature = use_temperature;
+      surface = calib::fit_bspline_surface(data, options);
+    }
+  }
+  ranging::Step step = ranging::make_surface_step(surface.surface);
+  step.fit.rows = surface.rows;
+  step.fit.residual_rms_m = surface.residual_rms_m;
+  model.pipeline.add_step(std::move(step));
+  model.pipeline.set_residual_rms_m(surface.residual_rms_m);
+  model.report += surface.summary() + "\n";
+  if (!model.fit.is_object()) model.fit = {{"command", "fit"}, {"input", "python"}};
+  model.fit["surface"] = {{"spec", spec},
+                          {"rows", surface.rows},
+                          {"parameters", surface.parameters},
+                          {"rank", surface.rank},
+                          {"residual_rms_m", surface.residual_rms_m},
+                          {"error_before", stats_json(calib::error_stats(data.error_m))}};
+  model.fit["residual_rms_m"] = model.pipeline.residual_rms_m();
+  return model;
+}
+
+/// The C++ batch baseline of the benchmark script: Pipeline::apply over a
+/// std::vector of RawMeasurements (copied from the input once, not timed),
+/// into a reused output vector or (`allocate`) a new one per call as
+/// `tofkit correct` does. run() returns one call's wall time in seconds.
+class CppBaseline {
+ public:
+  CppBaseline(const Model& model, const py::tuple& columns) : pipeline_(model.pipeline) {
+    const ColumnSet input(columns);
+    raw_.resize(input.rows());
+    input.gather_raw(0, raw_);
+    reused_.resize(raw_.size());
+  }
+
+  double run(bool allocate) {
+    py::gil_scoped_release release;
+    std::vector<ranging::Range> fresh;
+    const auto start = std::chrono::steady_clock::now();
+    if (allocate) {
+      fresh.resize(raw_.size());
+      pipeline_.apply(raw_, fresh);
+    } else {
+      pipeline_.apply(raw_, reused_);
+    }
+    const auto stop = std::chrono::steady_clock::now();
+    return std::chrono::duration<double>(stop - start).count();
+  }  // `fresh` is freed after the clock stops, as Python frees its result later
+
+ private:
+  ranging::Pipeline pipeline_;
+  std::vector<ranging::RawMeasurement> raw_;
+  std::vector<ranging::Range> reused_;
+};
+
+}  // namespace
+
+void bind_model(py::module_& m) {
+  py::class_<Model>(m, "_Model")
+      .def_static(
+          "uncorrected",
+          [](const device::DeviceConfig& config) {
+            return Model{ranging::Pipeline(time_to_distance_of(config)), nullptr, ""};
+          },
+          py::arg("config"))
+      .def_static("load", &load_model, py::arg("path"))
+      .def(
+          "save",
+          [](const Model& model, const fs::path& path) {
+            io::save_pipeline(path, model.pipeline, model.fit);
+          },
+          py::arg("path"))
+      .def(
+          "to_json",
+          [](const Model& model) { return io::pipeline_to_json(model.pipeline, model.fit).dump(); })
+      .def("summary", [](const Model& model) { return model.pipeline.summary(); })
+      .def_readonly("report", &Model::report)
+      .def_property_readonly("fit_json", [](const Model& model) { return model.fit.dump(); })
+      .def_property_readonly("residual_rms_m",
+                             [](const Model& model) { return model.pipeline.residual_rms_m(); })
+      .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none());
+  m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"));
+  m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("range_m"),
+        py::arg("amplitude"), py::arg("temperature_c"), py::arg("error_m"), py::arg("spec"),
+        py::arg("rcond"));
+  py::class_<CppBaseline>(m, "_CppBaseline")
+      .def(py::init<const Model&, const py::tuple&>(), py::arg("model"), py::arg("columns"))
+      .def("run", &CppBaseline::run, py::arg("allocate"));
+}
+
+}  // namespace tofkit::python

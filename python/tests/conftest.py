@@ -1,0 +1,38 @@
+"""Shared fixtures: the tofkit CLI (the oracle the package must agree with)."""
+
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+
+def _cli_path():
+    given = os.environ.get("TOFKIT_BINARY")
+    if given:
+        return pathlib.Path(given)
+    return pathlib.Path(__file__).resolve().parents[2] / "build" / "tofkit"
+
+
+@pytest.fixture(scope="session")
+def cli():
+    """Runs `tofkit ARGS...`; returns the CompletedProcess (text mode)."""
+    path = _cli_path()
+    if not path.exists():
+        pytest.skip(f"the tofkit CLI is not built ({path})")
+
+    def run(*args, check=True):
+        result = subprocess.run([str(path), *map(str, args)], capture_output=True, text=True)
+        if check and result.returncode != 0:
+            raise AssertionError(f"tofkit {' '.join(map(str, args))} failed:\n{result.stderr}")
+        return result
+
+    return run
+
+
+def cli_error(result):
+    """The message of `tofkit CMD: error: MESSAGE` on stderr."""
+    assert result.returncode == 1, result.stderr
+    prefix, _, message = result.stderr.partition(": error: ")
+    assert prefix.startswith("tofkit"), result.stderr
+    return message.rstrip("\n")

@@ -1,0 +1,100 @@
+"""The device side: configurations, the virtual rangefinder, the link budget."""
+
+import os
+
+import numpy as np
+
+from . import _tofkit
+
+
+def _override_text(key, value):
+    if isinstance(value, bool):
+        return f"{key}={'true' if value else 'false'}"
+    return f"{key}={value!r}" if isinstance(value, float) else f"{key}={value}"
+
+
+def DeviceConfig(preset=None, file=None, set=None):
+    """A device configuration, as the CLI's ``--preset``, ``--config`` and ``--set``.
+
+    preset: "paper", "accurange" (None: the file's, else "paper").
+    file: a TOML device file.
+    set: overrides, a dict {"receiver.bandwidth_mhz": 120} or a list of
+        "section.key=value" strings, applied after the file.
+
+    Raises ValueError (FileNotFoundError for a missing file) with the CLI's
+    message. The result has ``dump()`` (TOML), ``config["section.key"]``,
+    ``to_dict()`` and ``name``.
+    """
+    if set is None:
+        overrides = []
+    elif isinstance(set, dict):
+        overrides = [_override_text(k, v) for k, v in set.items()]
+    elif isinstance(set, str):
+        overrides = [set]
+    else:
+        overrides = [str(s) for s in set]
+    path = None if file is None else os.fspath(file)
+    return _tofkit.DeviceConfig(preset or "", path, overrides)
+
+
+DeviceConfig.presets = _tofkit.DeviceConfig.presets
+
+
+def _values(x, name):
+    values = np.atleast_1d(np.asarray(x, dtype=np.float64))
+    if values.ndim != 1:
+        raise ValueError(f"{name}: expected a number or a 1-D list")
+    return [float(v) for v in values]
+
+
+def _config(config):
+    return DeviceConfig() if config is None else config
+
+
+def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=None, count=1,
+            seed=0, mode="analytic", config=None):
+    """Measure plates with the virtual rangefinder, as ``tofkit measure``.
+
+    Each of distance_m, reflectance, angle_deg (default 0) and temperature_c
+    (default 20 C ambient) is a number or a list; the rows are their Cartesian
+    product, distance outermost, repeats (count) innermost, and row i uses
+    random stream i: the same arguments and seed give the same numbers as
+    ``tofkit measure``. shots: shots averaged per row (None: the config's).
+    mode: "analytic" or "waveform".
+
+    Returns a structured array with the raw CSV columns (RAW_COLUMNS).
+    """
+    grid = _tofkit._PlateGrid()
+    grid.distances_m = _values(distance_m, "distance_m")
+    grid.reflectances = _values(reflectance, "reflectance")
+    if angle_deg is not None:
+        grid.angles_deg = _values(angle_deg, "angle_deg")
+    if temperature_c is not None:
+        grid.ambient_c = _values(temperature_c, "temperature_c")
+    grid.count = _int(count, "count")
+    grid.shots = 0 if shots is None else _int(shots, "shots")
+    if shots is not None and grid.shots < 1:
+        raise ValueError(f"shots: {shots} is below 1")
+    if int(seed) < 0:
+        raise ValueError(f"seed: {seed} is negative")
+    return _tofkit._measure(_config(config), grid, int(seed), mode)
+
+
+def _int(value, name):
+    if isinstance(value, bool) or int(value) != value:
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
+    return int(value)
+
+
+def link_budget(distance_m, reflectance=0.1, angle_deg=0.0, temperature_c=None, config=None):
+    """The optical link budget at each distance (paper Eqs. 4-9), as ``tofkit budget``.
+
+    Returns a dict of arrays: distance_m, received_power_w, background_power_w,
+    signal_current_a, noise_{signal_shot,background_shot,dark_shot,thermal,total}_a
+    and snr. temperature_c: APD temperature (None: the receiver's nominal one).
+    """
+    distances = np.atleast_1d(np.asarray(distance_m, dtype=np.float64))
+    if distances.ndim != 1:
+        raise ValueError("distance_m: expected a number or a 1-D array")
+    return _tofkit._link_budget(_config(config), distances, float(reflectance), float(angle_deg),
+                                None if temperature_c is None else float(temperature_c))

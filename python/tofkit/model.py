@@ -1,0 +1,127 @@
+"""The correction side: ranging models (the CLI's model JSON), their batch
+application to NumPy data without copying it, and the fitters."""
+
+import json
+import os
+
+import numpy as np
+
+from . import _tofkit
+
+_COLUMNS = _tofkit.RECORD_DTYPE.names
+
+
+def _columns(raw):
+    """The raw columns of a structured array, a dict of columns or a DataFrame,
+    as views (no copy): a tuple in RECORD_DTYPE order, None where absent."""
+    if isinstance(raw, np.ndarray):
+        if raw.dtype.names is None:
+            raise TypeError("raw: expected a structured array (fields named as the raw CSV "
+                            "columns) or a mapping of columns")
+        names = raw.dtype.names
+        return tuple(raw[name] if name in names else None for name in _COLUMNS)
+    if hasattr(raw, "keys"):
+        keys = set(raw.keys())
+        return tuple(np.asarray(raw[name]) if name in keys else None for name in _COLUMNS)
+    raise TypeError("raw: expected a structured array or a mapping of columns, got "
+                    f"{type(raw).__name__}")
+
+
+class Model:
+    """A ranging pipeline: the start distance c_air t / 2 plus fitted
+    correction steps and an expected error (a ``tofkit fit`` model file)."""
+
+    def __init__(self, _model):
+        self._model = _model
+
+    @classmethod
+    def load(cls, path):
+        """Read a model file (``tofkit fit --out``). Raises FileNotFoundError /
+        ValueError with the CLI's message."""
+        return cls(_tofkit._Model.load(os.fspath(path)))
+
+    def save(self, path):
+        """Write the model file (the same JSON as ``tofkit fit``), atomically."""
+        self._model.save(os.fspath(path))
+
+    def to_json(self):
+        """The model file's content as a dict."""
+        return json.loads(self._model.to_json())
+
+    @property
+    def fit(self):
+        """Fit statistics stored with the model (a dict, or None)."""
+        return json.loads(self._model.fit_json)
+
+    @property
+    def report(self):
+        """The fitter's summary (empty for a loaded model)."""
+        return self._model.report
+
+    @property
+    def residual_rms_m(self):
+        return self._model.residual_rms_m
+
+    def summary(self):
+        return self._model.summary()
+
+    def __repr__(self):
+        return f"<tofkit.Model\n{self.summary()}>"
+
+    def apply(self, raw, out=None):
+        """Correct raw measurements: returns (distance_m, sigma_m, correction_flags).
+
+        raw: a structured array with the raw CSV columns (measure(), read_raw())
+        or a mapping of 1-D columns (tof_ns and/or distance_raw_m; pulse_width_ns,
+        amplitude, temperature_c, shots_valid, flags as the model needs). The
+        input is read in place (no copy, any numeric dtype and stride); the three
+        results are views of one new RANGE_DTYPE array, or of ``out`` when given
+        (a RANGE_DTYPE array of the same length, reused across batches); the
+        GIL is released meanwhile.
+        """
+        out = self._model.apply(_columns(raw), out)
+        return out["distance_m"], out["sigma_m"], out["correction_flags"]
+
+
+def _config(config):
+    from .device import DeviceConfig
+    return DeviceConfig() if config is None else config
+
+
+def fit_chain(records, steps="offset,grayvalue,temperature", config=None):
+    """Fit the paper's correction chain, as ``tofkit fit --chain STEPS``.
+
+    records: measurements with truth (measure(), read_raw(), or a mapping of
+    columns with distance_true_m). config: the device (its wavelength and
+    reference air set c_air; None: the paper's).
+    """
+    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config)))
+
+
+def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=None,
+                config=None):
+    """Fit a correction surface over (range, amplitude[, temperature]), as
+    ``tofkit fit --surface SPEC [--temperature] [--rcond R]``; with ``chain``
+    (a Model) the surface fits the chain's residual and is appended to it, as
+    ``--chain ... --surface ...``.
+    """
+    start = chain if chain is not None else Model(_tofkit._Model.uncorrected(_config(config)))
+    cols = dict(zip(_COLUMNS, _columns(records)))
+    if cols["distance_true_m"] is None:
+        raise ValueError("records: a surface fit needs the distance_true_m column")
+    # Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
+    distance, _, _ = start.apply(records)
+    n = len(distance)
+    truth = np.asarray(cols["distance_true_m"], dtype=np.float64)
+    amplitude = (np.asarray(cols["amplitude"], dtype=np.float64)
+                 if cols["amplitude"] is not None else np.full(n, np.nan))
+    t = (np.asarray(cols["temperature_c"], dtype=np.float64)
+         if cols["temperature_c"] is not None else np.full(n, np.nan))
+    keep = np.isfinite(distance) & np.isfinite(truth) & np.isfinite(amplitude)
+    if temperature:
+        keep &= np.isfinite(t)
+    error = truth[keep] - distance[keep]  # C = true - measured (thesis Section 4.6)
+    base = chain._model if chain is not None else None
+    return Model(_tofkit._fit_surface(base, _config(config), distance[keep], amplitude[keep],
+                                      t[keep] if temperature else None, error, surface,
+                                      None if rcond is None else float(rcond)))
