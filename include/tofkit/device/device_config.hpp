@@ -20,34 +20,34 @@ struct DiscriminatorConfig {
 
 /// Time-to-digital converter: coarse counter plus fine interpolator.
 struct TdcConfig {
-  double lsb_ps = 60.0;             ///< fine interpolator LSB (FPGA carry-chain TDC). Assumption.
+  double lsb_ps = 60.0;            ///< fine interpolator LSB (FPGA carry-chain TDC). Assumption.
   double coarse_clock_mhz = 200.0;  ///< coarse counter clock. Assumption.
-  double inl_lsb = 0.5;             ///< peak integral nonlinearity of the interpolator, LSB,
-                                    ///< sinusoidal over one coarse period. Assumption.
+  double inl_lsb = 0.5;            ///< peak integral nonlinearity of the interpolator, LSB,
+                                   ///< sinusoidal over one coarse period. Assumption.
 };
 
 /// Thermal behaviour of delays, sensor and warm-up.
 struct ThermalConfig {
-  double knee_c = 16.0;                      ///< paper Section 5.2: linear drift above 16 C
-  double delay_coeff_mm_per_c = 3.8;         ///< paper Section 5.2: 3.8 mm/C above the knee
+  double knee_c = 16.0;                  ///< paper Section 5.2: linear drift above 16 C
+  double delay_coeff_mm_per_c = 3.8;     ///< paper Section 5.2: 3.8 mm/C above the knee
   double below_knee_coeff_mm_per_c2 = 0.02;  ///< small non-linear (quadratic) drift below the
                                              ///< knee, mm/C^2 (paper: "small, non-linear")
-  double self_heating_c = 6.0;            ///< steady-state internal rise above ambient. Assumption.
+  double self_heating_c = 6.0;           ///< steady-state internal rise above ambient. Assumption.
   double warmup_time_constant_min = 8.0;  ///< internal temperature time constant after power-on
                                           ///< (settles in ~4 tau: thesis 25-35 min). Assumption.
   double warmup_delay_coeff_mm_per_c = 0.0;  ///< extra delay drift while the board warms up,
                                              ///< beyond what the sensor sees. Assumption.
-  double sensor_resolution_c = 0.0625;       ///< temperature sensor LSB (12-bit digital sensor)
-  double sensor_noise_c = 0.05;              ///< temperature sensor noise (1 sigma)
+  double sensor_resolution_c = 0.0625;   ///< temperature sensor LSB (12-bit digital sensor)
+  double sensor_noise_c = 0.05;          ///< temperature sensor noise (1 sigma)
 };
 
 /// Timing and averaging of one output measurement.
 struct MeasurementConfig {
-  int shots = 1000;                 ///< shots averaged per output (1 MHz -> 1 kHz)
-  double fixed_delay_ns = 2.5;      ///< trigger-to-emission plus receive-chain delay at the
-                                    ///< knee temperature (constant; calibrated out). Assumption.
-  double window_ns = 30.0;          ///< waveform-mode record length around the echo
-  double sample_period_ps = 100.0;  ///< waveform-mode sampling period
+  int shots = 1000;                  ///< shots averaged per output (1 MHz -> 1 kHz)
+  double fixed_delay_ns = 2.5;       ///< trigger-to-emission plus receive-chain delay at the
+                                     ///< knee temperature (constant; calibrated out). Assumption.
+  double window_ns = 30.0;           ///< waveform-mode record length around the echo
+  double sample_period_ps = 100.0;   ///< waveform-mode sampling period
   double reference_temperature_c = 20.0;  ///< air temperature the device assumes for c_air
 };
 
@@ -71,8 +71,8 @@ struct DeviceConfig {
 struct ConfigField {
   std::string key;  ///< "section.name_unit"
   std::variant<double*, int*, bool*> value;
-  double min = 0;  ///< smallest valid value (inclusive unless min_exclusive)
-  double max = 0;  ///< largest valid value (inclusive)
+  double min = 0;           ///< smallest valid value (inclusive unless min_exclusive)
+  double max = 0;           ///< largest valid value (inclusive)
   bool min_exclusive = false;
   std::string description;  ///< one line, with source or "Assumption"
 };
