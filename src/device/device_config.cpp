@@ -175,6 +175,10 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "waveform-mode sampling period"),
       field("measurement.reference_temperature_c", &m.reference_temperature_c, -100, 200, kClosed,
             "air temperature the device assumes for the speed of light"),
+
+      // scan: beam footprint sampling for ray casting (scan/)
+      field("scan.rays_per_beam", &config.scan.rays_per_beam, 1, 4096,
+            "sub-rays sampling the beam footprint, equal-area over the disk (1: axis only)"),
   };
 }
 

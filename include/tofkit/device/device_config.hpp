@@ -51,6 +51,11 @@ struct MeasurementConfig {
   double reference_temperature_c = 20.0;  ///< air temperature the device assumes for c_air
 };
 
+/// Scanning: how a beam's footprint is sampled by rays (scan/).
+struct ScanConfig {
+  int rays_per_beam = 1;  ///< sub-rays sampling the beam footprint (1: the beam axis only)
+};
+
 /// A complete device.
 struct DeviceConfig {
   std::string name = "paper";  ///< preset this config started from
@@ -59,6 +64,7 @@ struct DeviceConfig {
   TdcConfig tdc;
   ThermalConfig thermal;
   MeasurementConfig measurement;
+  ScanConfig scan;
 };
 
 /// One configuration key: a dotted name bound to a field, with its valid range.

@@ -1,0 +1,72 @@
+#pragma once
+/// \file Running a scan: every beam of a pattern is traced through the scene
+/// (footprint -> device::Target) and measured by the virtual rangefinder.
+/// Beam i uses random stream i, so results do not depend on the thread count.
+
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/scan/footprint.hpp"
+#include "tofkit/scan/pattern.hpp"
+
+namespace tofkit::scan {
+
+/// One beam's outcome. Origin and direction are in the world frame.
+struct BeamResult {
+  Beam beam;
+  double true_range_m = 0;             ///< first-hit distance of the beam axis; NaN on a miss
+  int surfaces = 0;                    ///< surfaces in the footprint (2+: a mixed pixel)
+  double reflectance = ranging::kNaN;  ///< of the footprint's largest surface
+  double angle_deg = ranging::kNaN;    ///< incidence angle on that surface
+  ranging::RawMeasurement raw;
+  ranging::Range range;  ///< NaN until a model is applied
+};
+
+struct ScanResult {
+  BeamPattern pattern;  ///< the pattern (its beams in the sensor frame)
+  Pose sensor;
+  std::vector<BeamResult> beams;  ///< in the pattern's (time) order
+  bool has_model = false;         ///< ranges filled by a correction model
+};
+
+struct ScanOptions {
+  std::uint64_t seed = 1;
+  int shots = 0;  ///< per beam before the pattern's multiplier (0: measurement.shots)
+  device::Conditions conditions;
+  /// Called from the calling thread after each block of beams (done, total).
+  std::function<void(std::size_t, std::size_t)> progress;
+};
+
+[[nodiscard]] ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
+                                  const device::VirtualRangefinder& device,
+                                  const BeamPattern& pattern, const ScanOptions& options);
+
+/// A row-major float image; NaN marks invalid pixels (no echo: REP-117).
+struct Image {
+  int rows = 0, columns = 0;
+  std::vector<float> values;
+  [[nodiscard]] float at(int r, int c) const {
+    return values[static_cast<std::size_t>(r) * columns + c];
+  }
+};
+
+struct ScanImages {
+  Image range;      ///< m: corrected distance with a model, else the raw distance
+  Image intensity;  ///< echo amplitude, V
+  Image sigma;      ///< m: expected error (NaN without a model)
+  Image truth;      ///< m: true range of the beam axis
+};
+
+/// Images of a scan. Beams sharing a pixel are averaged over those with an
+/// echo. For `line`, each line's samples are resampled onto the wanted
+/// columns by weighted averaging (thesis Section 4.7): a sample covering
+/// [y - e/2, y + e/2] counts in a column by its overlap with the column.
+[[nodiscard]] ScanImages make_images(const ScanResult& result);
+
+/// Distance a beam reports: the model's range if present, else the raw one.
+[[nodiscard]] double reported_distance_m(const BeamResult& b);
+
+}  // namespace tofkit::scan

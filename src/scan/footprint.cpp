@@ -1,0 +1,102 @@
+#include "tofkit/scan/footprint.hpp"
+
+#include <cmath>
+#include <limits>
+#include <numbers>
+
+namespace tofkit::scan {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+struct Group {
+  std::uint32_t primitive, part;
+  double reflectance;
+  double weight = 0, distance_sum = 0;
+  Vec3 normal_sum{0, 0, 0};
+};
+
+}  // namespace
+
+Footprint::Footprint(const device::DeviceConfig& config)
+    : Footprint(config.link.laser.exit_beam_diameter_mm * 1e-3,
+                config.link.laser.beam_divergence_mrad * 1e-3, config.scan.rays_per_beam) {}
+
+Footprint::Footprint(double exit_diameter_m, double divergence_rad, int rays_per_beam)
+    : exit_radius_m_(0.5 * exit_diameter_m), half_divergence_rad_(0.5 * divergence_rad) {
+  const int n = rays_per_beam < 1 ? 1 : rays_per_beam;
+  if (n == 1) {
+    sub_rays_.push_back({0, 0, 1});
+    return;
+  }
+  // Vogel's sunflower: sample k sits at radius sqrt((k + 1/2) / n), so every
+  // sample stands for an equal area of the (top-hat) disk.
+  const double golden = std::numbers::pi * (3.0 - std::sqrt(5.0));
+  for (int k = 0; k < n; ++k) {
+    const double r = std::sqrt((k + 0.5) / n);
+    const double a = golden * k;
+    sub_rays_.push_back({r * std::cos(a), r * std::sin(a), 1.0 / n});
+  }
+}
+
+void Footprint::trace(const RayCaster& caster, const Vec3& origin, const Vec3& axis,
+                      Result& result) const {
+  auto& surfaces = result.target.surfaces;
+  surfaces.clear();
+  if (sub_rays_.size() == 1) {
+    const Hit h = caster.cast(origin, axis);
+    result.true_range_m = h.distance_m;
+    if (h.hit()) {
+      const double cos_phi = std::min(1.0, std::abs(dot(h.normal, axis)));
+      surfaces.push_back(
+          {1.0, h.distance_m, h.reflectance, std::acos(cos_phi) * 180.0 / std::numbers::pi});
+    }
+    return;
+  }
+  result.true_range_m = caster.cast(origin, axis).distance_m;
+  // Cross-section axes of the beam.
+  Vec3 e1, e2;
+  plane_axes(axis, e1, e2);
+  Group groups[16];
+  std::vector<Group> more;
+  std::size_t count = 0;
+  for (const auto& s : sub_rays_) {
+    const Vec3 o = origin + (exit_radius_m_ * s.x) * e1 + (exit_radius_m_ * s.y) * e2;
+    const Vec3 d = normalized(axis + std::tan(half_divergence_rad_ * s.x) * e1 +
+                              std::tan(half_divergence_rad_ * s.y) * e2);
+    const Hit h = caster.cast(o, d);
+    if (!h.hit()) continue;
+    const double along_axis = dot(o + h.distance_m * d - origin, axis);
+    Group* g = nullptr;
+    for (std::size_t i = 0; i < count; ++i) {
+      Group& c = i < 16 ? groups[i] : more[i - 16];
+      if (c.primitive == h.primitive && c.part == h.part && c.reflectance == h.reflectance) {
+        g = &c;
+        break;
+      }
+    }
+    if (g == nullptr) {
+      if (count < 16) {
+        groups[count] = Group{h.primitive, h.part, h.reflectance};
+        g = &groups[count];
+      } else {
+        more.push_back(Group{h.primitive, h.part, h.reflectance});
+        g = &more.back();
+      }
+      ++count;
+    }
+    g->weight += s.weight;
+    g->distance_sum += s.weight * along_axis;
+    g->normal_sum = g->normal_sum + s.weight * h.normal;
+  }
+  for (std::size_t i = 0; i < count; ++i) {
+    const Group& g = i < 16 ? groups[i] : more[i - 16];
+    const Vec3 n = normalized(g.normal_sum);
+    const double cos_phi = std::min(1.0, std::abs(dot(n, axis)));
+    surfaces.push_back({g.weight, g.distance_sum / g.weight, g.reflectance,
+                        std::acos(cos_phi) * 180.0 / std::numbers::pi});
+  }
+  (void)kNaN;
+}
+
+}  // namespace tofkit::scan

@@ -1,0 +1,163 @@
+#include "tofkit/scan/pattern.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <numbers>
+#include <stdexcept>
+
+namespace tofkit::scan {
+namespace {
+
+double rad(double deg) {
+  return deg * std::numbers::pi / 180.0;
+}
+
+// Descending copy (image row/column 0 = top/left = largest value).
+std::vector<double> descending(std::vector<double> v, const char* what) {
+  if (v.empty()) throw std::invalid_argument(std::string(what) + ": the list is empty");
+  for (const double x : v) {
+    if (!std::isfinite(x)) throw std::invalid_argument(std::string(what) + ": not finite");
+  }
+  std::sort(v.begin(), v.end(), std::greater<>());
+  return v;
+}
+
+void require_positive(double v, const char* what) {
+  if (!(v > 0 && std::isfinite(v)))
+    throw std::invalid_argument(std::string(what) + " must be positive");
+}
+
+}  // namespace
+
+Vec3 direction_from_angles(double azimuth_deg, double elevation_deg) {
+  const double a = rad(azimuth_deg), e = rad(elevation_deg);
+  return {std::cos(e) * std::cos(a), std::cos(e) * std::sin(a), std::sin(e)};
+}
+
+BeamPattern raster_pattern(const RasterOptions& o, double period_s) {
+  const auto ys = descending(o.y_m, "raster y"), zs = descending(o.z_m, "raster z");
+  require_positive(o.stage_speed_m_per_s, "raster stage speed");
+  if (o.samples < 1) throw std::invalid_argument("raster samples must be at least 1");
+  BeamPattern p{
+      "raster", static_cast<int>(zs.size()), static_cast<int>(ys.size()), o.samples, {}, {}, 0};
+  double t = 0;
+  Vec3 last{0, ys[0], zs[0]};
+  for (std::size_t r = 0; r < zs.size(); ++r) {
+    for (std::size_t k = 0; k < ys.size(); ++k) {
+      const std::size_t c = r % 2 == 0 ? k : ys.size() - 1 - k;  // serpentine
+      const Vec3 at{0, ys[c], zs[r]};
+      const Vec3 step = at - last;
+      t += std::sqrt(dot(step, step)) / o.stage_speed_m_per_s;
+      p.beams.push_back({static_cast<int>(r), static_cast<int>(c), t, 0, at, {1, 0, 0}});
+      t += o.samples * period_s;
+      last = at;
+    }
+  }
+  return p;
+}
+
+BeamPattern line_pattern(const LineOptions& o, double period_s) {
+  const auto ys = descending(o.y_m, "line y"), zs = descending(o.z_m, "line z");
+  require_positive(o.stage_speed_m_per_s, "line stage speed");
+  if (ys.size() < 2) throw std::invalid_argument("line y needs at least two columns");
+  if (!(o.turnaround_s >= 0)) throw std::invalid_argument("line turnaround must be >= 0");
+  BeamPattern p{"line", static_cast<int>(zs.size()), static_cast<int>(ys.size()), 1, {}, ys, 0};
+  // The stage sweeps from half a column before the first centre to half a
+  // column past the last, so every column is covered.
+  const double pitch = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
+  const double start = ys.front() + 0.5 * pitch, stop = ys.back() - 0.5 * pitch;
+  const double length = start - stop;
+  const double v = o.stage_speed_m_per_s;
+  p.sample_extent_m = v * period_s;
+  double t_line = 0;
+  for (std::size_t r = 0; r < zs.size(); ++r) {
+    // The device samples at its own clock: the first sample of a line comes at
+    // the next tick after the stage starts, so lines get different counts.
+    const double first = std::ceil(t_line / period_s) * period_s;
+    const double duration = length / v;
+    int k = 0;
+    for (double t = first; t + period_s <= t_line + duration + 1e-12; t += period_s, ++k) {
+      // Position at the middle of the measurement's integration.
+      const double travelled = v * (t + 0.5 * period_s - t_line);
+      const double y = r % 2 == 0 ? start - travelled : stop + travelled;
+      p.beams.push_back({static_cast<int>(r), k, t, y, {0, y, zs[r]}, {1, 0, 0}});
+    }
+    t_line += duration + o.turnaround_s;
+  }
+  return p;
+}
+
+BeamPattern mirror_pattern(const MirrorOptions& o) {
+  const auto es = descending(o.elevation_deg, "mirror elevation");
+  require_positive(o.revolutions_per_s, "mirror revolutions per second");
+  if (o.revolutions < 1) throw std::invalid_argument("mirror revolutions must be at least 1");
+  // Rows: revolutions (profiles); columns: elevation, top first. The mirror
+  // turns upwards (increasing elevation) in time.
+  BeamPattern p{"mirror", o.revolutions, static_cast<int>(es.size()), 1, {}, {}, 0};
+  const double period = 1.0 / o.revolutions_per_s;
+  for (int r = 0; r < o.revolutions; ++r) {
+    for (std::size_t k = es.size(); k-- > 0;) {
+      const double t = r * period + (es[k] - es.back()) / 360.0 * period;
+      const Vec3 origin{0, -o.stage_speed_m_per_s * t, 0};
+      p.beams.push_back({r, static_cast<int>(k), t, 0, origin, direction_from_angles(0, es[k])});
+    }
+  }
+  return p;
+}
+
+BeamPattern spherical_pattern(const SphericalOptions& o) {
+  const auto as = descending(o.azimuth_deg, "spherical azimuth");
+  const auto es = descending(o.elevation_deg, "spherical elevation");
+  require_positive(o.revolutions_per_s, "spherical revolutions per second");
+  BeamPattern p{
+      "spherical", static_cast<int>(es.size()), static_cast<int>(as.size()), 1, {}, {}, 0};
+  p.beams.reserve(as.size() * es.size());
+  const double period = 1.0 / o.revolutions_per_s;
+  // The table turns from the right (smallest azimuth) to the left; one mirror
+  // revolution (an elevation profile, bottom to top) per azimuth.
+  for (std::size_t j = as.size(); j-- > 0;) {
+    const double t0 = static_cast<double>(as.size() - 1 - j) * period;
+    for (std::size_t i = es.size(); i-- > 0;) {
+      const double t = t0 + (es[i] - es.back()) / 360.0 * period;
+      p.beams.push_back({static_cast<int>(i),
+                         static_cast<int>(j),
+                         t,
+                         0,
+                         {0, 0, 0},
+                         direction_from_angles(as[j], es[i])});
+    }
+  }
+  return p;
+}
+
+BeamPattern spinning_pattern(const SpinningOptions& o) {
+  const auto es = descending(o.elevation_deg, "spinning elevation");
+  require_positive(o.azimuth_step_deg, "spinning azimuth step");
+  require_positive(o.rotation_hz, "spinning rotation rate");
+  if (o.revolutions < 1) throw std::invalid_argument("spinning revolutions must be at least 1");
+  const int per_rev = static_cast<int>(std::lround(360.0 / o.azimuth_step_deg));
+  if (per_rev < 1 || per_rev > 10'000'000)
+    throw std::invalid_argument("spinning azimuth step out of range");
+  BeamPattern p{"spinning", static_cast<int>(es.size()) * o.revolutions, per_rev, 1, {}, {}, 0};
+  const double firing_period = 1.0 / (o.rotation_hz * per_rev);
+  // The head turns clockwise seen from above (azimuth decreasing), starting
+  // at +180 deg: column 0 is the left edge of the image, as for the others.
+  for (int rev = 0; rev < o.revolutions; ++rev) {
+    for (int c = 0; c < per_rev; ++c) {
+      const double az = 180.0 - (c + 0.5) * 360.0 / per_rev;
+      const double t = (rev * per_rev + c) * firing_period;
+      for (std::size_t i = 0; i < es.size(); ++i) {
+        p.beams.push_back({rev * static_cast<int>(es.size()) + static_cast<int>(i),
+                           c,
+                           t,
+                           0,
+                           {0, 0, 0},
+                           direction_from_angles(az, es[i])});
+      }
+    }
+  }
+  return p;
+}
+
+}  // namespace tofkit::scan

@@ -1,0 +1,126 @@
+#include "tofkit/scan/scanner.hpp"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace tofkit::scan {
+namespace {
+
+constexpr std::size_t kProgressBlock = 1 << 16;
+
+struct Accumulator {
+  std::vector<double> weight, range, intensity, sigma, truth, truth_weight;
+  explicit Accumulator(std::size_t n)
+      : weight(n), range(n), intensity(n), sigma(n), truth(n), truth_weight(n) {}
+};
+
+Image finish(int rows, int columns, const std::vector<double>& sum, const std::vector<double>& w) {
+  Image img{rows, columns, std::vector<float>(sum.size())};
+  for (std::size_t i = 0; i < sum.size(); ++i) {
+    img.values[i] =
+        w[i] > 0 ? static_cast<float>(sum[i] / w[i]) : std::numeric_limits<float>::quiet_NaN();
+  }
+  return img;
+}
+
+}  // namespace
+
+double reported_distance_m(const BeamResult& b) {
+  return std::isnan(b.range.distance_m) ? b.raw.distance_raw_m : b.range.distance_m;
+}
+
+ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
+                    const device::VirtualRangefinder& device, const BeamPattern& pattern,
+                    const ScanOptions& options) {
+  ScanResult result;
+  result.pattern = pattern;
+  result.sensor = caster.scene().sensor;
+  const auto& pose = result.sensor;
+  const std::size_t n = pattern.beams.size();
+  result.beams.resize(n);
+  const int base_shots = options.shots > 0 ? options.shots : device.config().measurement.shots;
+  const int shots = base_shots * pattern.shots_multiplier;
+  for (std::size_t begin = 0; begin < n; begin += kProgressBlock) {
+    const std::size_t end = std::min(n, begin + kProgressBlock);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),
+                      [&](const tbb::blocked_range<std::size_t>& block) {
+                        Footprint::Result fp;
+                        for (std::size_t i = block.begin(); i != block.end(); ++i) {
+                          BeamResult& b = result.beams[i];
+                          b.beam = pattern.beams[i];
+                          b.beam.origin_m = pose.transform(b.beam.origin_m);
+                          b.beam.direction = pose.rotate(b.beam.direction);
+                          footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
+                          b.true_range_m = fp.true_range_m;
+                          b.surfaces = static_cast<int>(fp.target.surfaces.size());
+                          double largest = 0;
+                          for (const auto& surface : fp.target.surfaces) {
+                            if (surface.fraction > largest) {
+                              largest = surface.fraction;
+                              b.reflectance = surface.reflectance;
+                              b.angle_deg = surface.angle_deg;
+                            }
+                          }
+                          b.raw =
+                              device.measure(fp.target, options.conditions, options.seed, i, shots);
+                        }
+                      });
+    if (options.progress) options.progress(end, n);
+  }
+  return result;
+}
+
+ScanImages make_images(const ScanResult& result) {
+  const auto& p = result.pattern;
+  const std::size_t pixels = static_cast<std::size_t>(p.rows) * p.columns;
+  Accumulator acc(pixels);
+  auto add = [&](std::size_t pixel, double w, const BeamResult& b) {
+    if (!std::isnan(b.true_range_m)) {
+      acc.truth[pixel] += w * b.true_range_m;
+      acc.truth_weight[pixel] += w;
+    }
+    const double d = reported_distance_m(b);
+    if (!b.raw.has_echo() || std::isnan(d)) return;
+    acc.weight[pixel] += w;
+    acc.range[pixel] += w * d;
+    acc.intensity[pixel] += w * b.raw.amplitude;
+    acc.sigma[pixel] += w * b.range.sigma_m;
+  };
+  if (p.name == "line") {
+    // Column c covers [y_c - pitch/2, y_c + pitch/2]; a sample covers
+    // [y - e/2, y + e/2]; its weight in the column is the overlap length.
+    const auto& ys = p.column_positions_m;
+    const double pitch = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
+    const double half_e = 0.5 * p.sample_extent_m;
+    for (const auto& b : result.beams) {
+      const double y = b.beam.position_m;
+      const double lo = y - half_e, hi = y + half_e;
+      // Columns run from ys.front() (largest y) downwards.
+      const int c_first =
+          std::max(0, static_cast<int>(std::floor((ys.front() - hi) / pitch + 0.5)));
+      const int c_last =
+          std::min(p.columns - 1, static_cast<int>(std::floor((ys.front() - lo) / pitch + 0.5)));
+      for (int c = c_first; c <= c_last; ++c) {
+        const double col_hi = ys[static_cast<std::size_t>(c)] + 0.5 * pitch;
+        const double col_lo = ys[static_cast<std::size_t>(c)] - 0.5 * pitch;
+        const double overlap = std::min(hi, col_hi) - std::max(lo, col_lo);
+        if (overlap > 0) add(static_cast<std::size_t>(b.beam.row) * p.columns + c, overlap, b);
+      }
+    }
+  } else {
+    for (const auto& b : result.beams) {
+      add(static_cast<std::size_t>(b.beam.row) * p.columns + b.beam.column, 1.0, b);
+    }
+  }
+  ScanImages images;
+  images.range = finish(p.rows, p.columns, acc.range, acc.weight);
+  images.intensity = finish(p.rows, p.columns, acc.intensity, acc.weight);
+  images.sigma = finish(p.rows, p.columns, acc.sigma, acc.weight);
+  images.truth = finish(p.rows, p.columns, acc.truth, acc.truth_weight);
+  return images;
+}
+
+}  // namespace tofkit::scan

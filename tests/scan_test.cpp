@@ -1,0 +1,356 @@
+// Scanning against oracles: closed-form intersections of every primitive,
+// the geometric split of a footprint across a step edge, the cos(phi) law and
+// echo stretching of a tilted plate, the stripe chart's intensity order,
+// pattern timing, line resampling, and thread-count independence.
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <cmath>
+#include <cstring>
+#include <numbers>
+#include <vector>
+
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/scan/footprint.hpp"
+#include "tofkit/scan/pattern.hpp"
+#include "tofkit/scan/ray_caster.hpp"
+#include "tofkit/scan/scanner.hpp"
+
+using namespace tofkit;
+using namespace tofkit::scan;
+
+namespace {
+
+using LD = long double;
+
+Primitive plane(Vec3 c, Vec3 n, double w, double h, double rho) {
+  Primitive p;
+  p.kind = PrimitiveKind::kPlane;
+  p.center_m = c;
+  p.normal = n;
+  p.size_m = {w, h};
+  p.reflectance.value = rho;
+  p.name = "plane";
+  return p;
+}
+
+Scene single(Primitive p) {
+  Scene s;
+  s.primitives.push_back(std::move(p));
+  return s;
+}
+
+// Deterministic ray origins and directions that are not float-representable.
+Vec3 origin(int i) {
+  return {0.1 + 0.0123456789 * i, -0.03 + 0.00731 * i, 0.017 * std::sin(i)};
+}
+
+}  // namespace
+
+TEST(ScanRayCaster, SphereMatchesClosedFormToAMicrometre) {
+  Primitive p;
+  p.kind = PrimitiveKind::kSphere;
+  p.center_m = {12.3456789, 0.4321, -0.2468};
+  p.radius_m = 1.23456789;
+  p.name = "sphere";
+  const RayCaster caster(single(p));
+  for (int i = 0; i < 50; ++i) {
+    const Vec3 o = origin(i);
+    const Vec3 target = p.center_m + Vec3{-0.5, 0.6 * std::sin(0.3 * i), 0.6 * std::cos(0.7 * i)};
+    const Vec3 d = normalized(target - o);
+    // t = d.(c-o) - sqrt(r^2 - |(c-o) - (d.(c-o)) d|^2), in long double.
+    LD co[3], dd[3], b = 0;
+    for (int k = 0; k < 3; ++k)
+      co[k] = LD(p.center_m[k]) - LD(o[k]), dd[k] = d[k], b += dd[k] * co[k];
+    LD perp2 = 0;
+    for (int k = 0; k < 3; ++k) perp2 += (co[k] - b * dd[k]) * (co[k] - b * dd[k]);
+    const LD expected = b - std::sqrt(LD(p.radius_m) * LD(p.radius_m) - perp2);
+    const Hit hit = caster.cast(o, d);
+    ASSERT_TRUE(hit.hit()) << i;
+    EXPECT_NEAR(hit.distance_m, static_cast<double>(expected), 1e-6) << i;
+  }
+}
+
+TEST(ScanRayCaster, TiltedRectangleMatchesClosedForm) {
+  const Vec3 n = normalized({-1, 0.3, 0.2});
+  const Primitive p = plane({9.87654321, 0.1, 0.05}, n, 4, 3, 0.5);
+  const RayCaster caster(single(p));
+  for (int i = 0; i < 50; ++i) {
+    const Vec3 o = origin(i);
+    const Vec3 d = normalized(Vec3{1, 0.05 * std::sin(i), 0.04 * std::cos(i)});
+    LD num = 0, den = 0;
+    for (int k = 0; k < 3; ++k) {
+      num += (LD(p.center_m[k]) - LD(o[k])) * LD(n[k]);
+      den += LD(d[k]) * LD(n[k]);
+    }
+    const Hit hit = caster.cast(o, d);
+    ASSERT_TRUE(hit.hit());
+    EXPECT_NEAR(hit.distance_m, static_cast<double>(num / den), 1e-6);
+    EXPECT_NEAR(std::abs(dot(hit.normal, n)), 1.0, 1e-12);
+  }
+  // Outside the rectangle: no hit (REP-117: nothing invented).
+  EXPECT_FALSE(caster.cast({0, 0, 0}, normalized({1, 0.5, 0})).hit());
+}
+
+TEST(ScanRayCaster, BoxAndCubeMeshMatchClosedForm) {
+  Primitive box;
+  box.kind = PrimitiveKind::kBox;
+  box.min_m = {7.1234567, -1, -1};
+  box.max_m = {8.7654321, 1, 1};
+  box.name = "box";
+  // The same cube as 12 triangles.
+  Primitive mesh;
+  mesh.kind = PrimitiveKind::kMesh;
+  mesh.name = "mesh";
+  for (int k = 0; k < 8; ++k) {
+    mesh.vertices.push_back(
+        {k & 1 ? box.max_m[0] : box.min_m[0], k & 2 ? 1.0 : -1.0, k & 4 ? 1.0 : -1.0});
+  }
+  const std::uint32_t faces[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1},
+                                     {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
+  for (const auto& f : faces) {
+    mesh.triangles.push_back({f[0], f[1], f[2]});
+    mesh.triangles.push_back({f[0], f[2], f[3]});
+  }
+  const RayCaster box_caster(single(box)), mesh_caster(single(mesh));
+  for (int i = 0; i < 50; ++i) {
+    const Vec3 o = origin(i);
+    const Vec3 d = normalized(Vec3{1, 0.08 * std::sin(i), 0.08 * std::cos(i)});
+    const double expected = static_cast<double>((LD(box.min_m[0]) - LD(o[0])) / LD(d[0]));
+    const Hit a = box_caster.cast(o, d), b = mesh_caster.cast(o, d);
+    ASSERT_TRUE(a.hit() && b.hit());
+    EXPECT_NEAR(a.distance_m, expected, 1e-6);
+    EXPECT_NEAR(b.distance_m, expected, 1e-6);
+    EXPECT_NEAR(a.normal[0], -1.0, 1e-12);
+  }
+}
+
+TEST(ScanRayCaster, CylinderSideAndCapMatchClosedForm) {
+  Primitive c;
+  c.kind = PrimitiveKind::kCylinder;
+  c.base_m = {6.54321, 0.0123, -0.5};
+  c.axis = {0, 0, 1};
+  c.radius_m = 0.4321;
+  c.height_m = 1.0;
+  c.name = "cylinder";
+  const RayCaster caster(single(c));
+  for (int i = 0; i < 50; ++i) {
+    const Vec3 o{0.01 * i, 0.002 * i, 0.01 * std::sin(i)};
+    const Vec3 d = normalized(Vec3{1, 0.03 * std::sin(0.5 * i), 0.02 * std::cos(i)});
+    // Horizontal circle in x-y: |o + t d - b|_xy = r.
+    const LD ox = LD(o[0]) - c.base_m[0], oy = LD(o[1]) - c.base_m[1];
+    const LD a = LD(d[0]) * d[0] + LD(d[1]) * d[1], b = ox * d[0] + oy * d[1];
+    const LD cc = ox * ox + oy * oy - LD(c.radius_m) * c.radius_m;
+    const LD t = (-b - std::sqrt(b * b - a * cc)) / a;
+    const Hit hit = caster.cast(o, d);
+    ASSERT_TRUE(hit.hit());
+    EXPECT_NEAR(hit.distance_m, static_cast<double>(t), 1e-6);
+    EXPECT_EQ(hit.part, 0u);
+  }
+  // Looking down on the top cap.
+  const Hit top = caster.cast({6.6, 0.0, 3.0}, {0, 0, -1});
+  ASSERT_TRUE(top.hit());
+  EXPECT_NEAR(top.distance_m, 2.5, 1e-9);
+  EXPECT_EQ(top.part, 2u);
+}
+
+TEST(ScanScene, DegeneratePrimitivesAreRefusedByName) {
+  Scene s;
+  Primitive box;
+  box.kind = PrimitiveKind::kBox;
+  box.min_m = {1, 0, 0};
+  box.max_m = {1, 1, 1};
+  box.name = "surface[0]";
+  s.primitives.push_back(box);
+  const auto problems = s.validate();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("surface[0]"), std::string::npos);
+  EXPECT_THROW(RayCaster{s}, std::invalid_argument);
+}
+
+TEST(ScanFootprint, StepEdgeSplitsByTheGeometricFraction) {
+  // Near plate covers y < 0 at 2 m, far plate behind at 2.5 m.
+  Scene s;
+  s.primitives.push_back(plane({2.0, 0.5, 0}, {-1, 0, 0}, 1.0, 1.0, 0.3));
+  s.primitives.push_back(plane({2.5, 0, 0}, {-1, 0, 0}, 4.0, 4.0, 0.6));
+  const RayCaster caster(s);
+  const double exit_d = 3e-3, div = 3e-3;
+  const Footprint fp(exit_d, div, 1024);
+  const double r = 0.5 * (exit_d + 2.0 * div);  // footprint radius at the edge
+  for (const double offset : {-0.8, -0.3, 0.0, 0.4, 0.9}) {
+    Footprint::Result res;
+    fp.trace(caster, {0, offset * r, 0}, {1, 0, 0}, res);
+    // Share of the disk at y > 0 (on the near plate): circular segment.
+    const double h = -offset;
+    const double expected = (std::acos(h) - h * std::sqrt(1 - h * h)) / std::numbers::pi;
+    ASSERT_EQ(res.target.surfaces.size(), 2u) << offset;
+    double near = 0, total = 0;
+    for (const auto& surf : res.target.surfaces) {
+      total += surf.fraction;
+      if (surf.distance_m < 2.2) {
+        near = surf.fraction;
+        EXPECT_NEAR(surf.distance_m, 2.0, 1e-9);
+        EXPECT_EQ(surf.reflectance, 0.3);
+      } else {
+        EXPECT_NEAR(surf.distance_m, 2.5, 1e-9);
+      }
+    }
+    EXPECT_NEAR(total, 1.0, 1e-12);
+    EXPECT_NEAR(1.0 - near, 1.0 - expected, 0.01) << offset;
+  }
+}
+
+TEST(ScanFootprint, TiltedPlateGivesCosineAmplitudeAndLongerEcho) {
+  device::DeviceConfig config;
+  config.scan.rays_per_beam = 64;
+  const device::VirtualRangefinder dev(config);
+  const Footprint fp(config);
+  Footprint::Result flat;
+  const double rho = 0.05, R = 3.0;
+  const RayCaster flat_caster(single(plane({R, 0, 0}, {-1, 0, 0}, 2, 2, rho)));
+  fp.trace(flat_caster, {0, 0, 0}, {1, 0, 0}, flat);
+  const auto echo0 = dev.echo(flat.target, {});
+  ASSERT_TRUE(echo0.detected && !echo0.saturated);
+  for (const double phi : {20.0, 40.0, 60.0}) {
+    const double a = phi * std::numbers::pi / 180;
+    const RayCaster caster(single(plane({R, 0, 0}, {-std::cos(a), std::sin(a), 0}, 4, 2, rho)));
+    Footprint::Result tilted;
+    fp.trace(caster, {0, 0, 0}, {1, 0, 0}, tilted);
+    ASSERT_EQ(tilted.target.surfaces.size(), 1u);
+    EXPECT_NEAR(tilted.target.surfaces[0].angle_deg, phi, 1e-6);
+    EXPECT_NEAR(tilted.target.surfaces[0].distance_m, R, 1e-4);
+    const auto echo = dev.echo(tilted.target, {});
+    ASSERT_TRUE(echo.detected) << phi << " " << echo.peak_v << " " << echo0.peak_v;
+    EXPECT_NEAR(echo.peak_v / echo0.peak_v, std::cos(a), 0.05 * std::cos(a)) << phi;
+    const double width0 = echo0.fall_crossing_ns - echo0.rise_crossing_ns;
+    const double width = echo.fall_crossing_ns - echo.rise_crossing_ns;
+    // Longer echo than the same power would give at normal incidence: the
+    // incidence angle stretches the pulse across the footprint's depth.
+    device::Target same_power = flat.target;
+    same_power.surfaces[0].reflectance = rho * echo.peak_v / echo0.peak_v;
+    const auto ref = dev.echo(same_power, {});
+    EXPECT_GT(width, ref.fall_crossing_ns - ref.rise_crossing_ns) << phi;
+    (void)width0;
+  }
+}
+
+TEST(ScanPatterns, TimeStampsIncreaseAndLinesVaryInSampleCount) {
+  LineOptions lo;
+  for (int k = 0; k < 20; ++k) lo.y_m.push_back(0.001 * k);
+  lo.z_m = {0, 0.001, 0.002, 0.003, 0.004, 0.005};
+  lo.stage_speed_m_per_s = 0.0113;
+  lo.turnaround_s = 0.0137;
+  const auto p = line_pattern(lo, 1e-3);
+  std::vector<int> counts(lo.z_m.size());
+  for (std::size_t i = 0; i < p.beams.size(); ++i) {
+    if (i > 0) EXPECT_GT(p.beams[i].time_s, p.beams[i - 1].time_s);
+    counts[static_cast<std::size_t>(p.beams[i].row)]++;
+  }
+  // 0.02 m at 11.3 mm/s (1.7699 s) sampled at 1 kHz: 1768 or 1769 whole samples.
+  bool varies = false;
+  for (const int c : counts) {
+    EXPECT_GE(c, 1768);
+    EXPECT_LE(c, 1769);
+    varies = varies || c != counts[0];
+  }
+  EXPECT_TRUE(varies);
+
+  SphericalOptions so{{-10, 0, 10}, {-5, 5}, 10};
+  const auto s = spherical_pattern(so);
+  ASSERT_EQ(s.beams.size(), 6u);
+  for (std::size_t i = 1; i < s.beams.size(); ++i)
+    EXPECT_GT(s.beams[i].time_s, s.beams[i - 1].time_s);
+  // Row 0 column 0 is the top left: largest elevation and azimuth.
+  for (const auto& b : s.beams) {
+    if (b.row == 0 && b.column == 0) {
+      EXPECT_NEAR(b.direction[1],
+                  std::cos(5 * std::numbers::pi / 180) * std::sin(10 * std::numbers::pi / 180),
+                  1e-12);
+      EXPECT_GT(b.direction[2], 0);
+    }
+  }
+}
+
+TEST(ScanImages, LineResamplingAveragesByOverlapAndStripeChartOrdersIntensity) {
+  // A stripe chart at 1.5 m: stripes 10 mm wide, six levels in shuffled order.
+  const std::vector<double> levels = {0.45, 0.05, 0.85, 0.25, 0.65, 0.15};
+  Primitive chart = plane({1.5, 0, 0}, {-1, 0, 0}, 0.06, 0.02, 0.5);
+  chart.reflectance.kind = Reflectance::Kind::kStripes;
+  chart.reflectance.values = levels;
+  chart.reflectance.cell_m = 0.01;
+  const RayCaster caster(single(chart));
+  device::DeviceConfig config;
+  config.measurement.shots = 10;
+  config.discriminator.threshold_v = 0.02;
+  const device::VirtualRangefinder dev(config);
+  LineOptions lo;
+  for (int k = 0; k < 60; ++k) lo.y_m.push_back(0.0295 - 0.001 * k);  // 1 mm columns
+  lo.z_m = {0.0};
+  lo.stage_speed_m_per_s = 0.37;  // 0.37 mm per 1 ms sample: 2.7 samples per column
+  const double period = config.measurement.shots / config.link.laser.repetition_hz;
+  const auto pattern = line_pattern(lo, period);
+  ScanOptions options;
+  const auto result = run_scan(caster, Footprint(config), dev, pattern, options);
+  const auto images = make_images(result);
+  ASSERT_EQ(images.range.columns, 60);
+  // Truth resampled: every column on the plate at 1.5 m.
+  for (int c = 0; c < 60; ++c) EXPECT_NEAR(images.truth.at(0, c), 1.5, 1e-9);
+  // Stripe k covers columns 10k .. 10k + 9 from the left (+y): u grows towards
+  // -y... stripe index from the plane's u axis; compare inner columns only.
+  std::vector<double> mean(6, 0);
+  Vec3 u, v;
+  plane_axes(chart.normal, u, v);
+  for (int c = 0; c < 60; ++c) {
+    const double y = lo.y_m[static_cast<std::size_t>(c)];
+    const double uu = y * u[1] + 0.03;
+    const int stripe = static_cast<int>(std::floor(uu / 0.01));
+    const double inside = uu / 0.01 - stripe;
+    if (inside < 0.2 || inside > 0.8) continue;
+    mean[static_cast<std::size_t>(stripe)] += images.intensity.at(0, c);
+  }
+  for (std::size_t a = 0; a < 6; ++a) {
+    for (std::size_t b = 0; b < 6; ++b) {
+      if (levels[a] < levels[b]) EXPECT_LT(mean[a], mean[b]) << a << " " << b;
+    }
+  }
+}
+
+TEST(ScanScanner, SameBytesOnOneAndTwoThreads) {
+  Scene s;
+  s.primitives.push_back(plane({2.0, 0.5, 0}, {-1, 0, 0}, 1.0, 1.0, 0.3));
+  Primitive sphere;
+  sphere.kind = PrimitiveKind::kSphere;
+  sphere.center_m = {1.5, -0.2, 0};
+  sphere.radius_m = 0.2;
+  sphere.name = "sphere";
+  s.primitives.push_back(sphere);
+  const RayCaster caster(s);
+  device::DeviceConfig config;
+  config.scan.rays_per_beam = 8;
+  const device::VirtualRangefinder dev(config);
+  std::vector<double> az, el;
+  for (int k = -20; k <= 20; ++k) az.push_back(k);
+  for (int k = -10; k <= 10; ++k) el.push_back(k);
+  const auto pattern = spherical_pattern({az, el, 10});
+  ScanOptions o;
+  o.shots = 5;
+  o.seed = 7;
+  auto run = [&](int threads) {
+    tbb::task_arena arena(threads);
+    ScanResult r;
+    arena.execute([&] { r = run_scan(caster, Footprint(config), dev, pattern, o); });
+    return r;
+  };
+  const auto a = run(1), b = run(2);
+  ASSERT_EQ(a.beams.size(), b.beams.size());
+  int misses = 0;
+  for (std::size_t i = 0; i < a.beams.size(); ++i) {
+    EXPECT_EQ(std::memcmp(&a.beams[i].raw, &b.beams[i].raw, sizeof a.beams[i].raw), 0);
+    if (a.beams[i].surfaces == 0) {
+      ++misses;
+      EXPECT_TRUE(std::isnan(a.beams[i].true_range_m));
+      EXPECT_FALSE(a.beams[i].raw.has_echo());  // REP-117: a miss has no range
+    }
+  }
+  EXPECT_GT(misses, 0);
+}
