@@ -170,7 +170,7 @@ void run_emulate(const EmulateOptions& o, const AppContext& ctx) {
         bytes.assign(f.begin(), f.end());
       }
       corrupter.apply(bytes);
-      io::write_all(fd, bytes, sink);
+      io::write_all(fd, bytes, sink, pty ? 30'000 : -1);  // a pty nobody reads: give up
       ++sent;
     }
   }

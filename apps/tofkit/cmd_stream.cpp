@@ -36,6 +36,8 @@ struct StreamOptions {
   std::uint64_t count = 0;  // 0: until the stream ends
   std::string out;
   bool stats = false;
+  std::uint32_t lwnx_distance_output = link::DecoderOptions{}.lwnx_distance_output;
+  bool tfmini_no_temperature = false;
 };
 
 std::atomic<bool> g_stop{false};
@@ -128,7 +130,10 @@ void run_stream(const StreamOptions& o) {
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
   io::ByteSource source(o.in, o.baud);
-  auto decoder = link::make_decoder(format);
+  link::DecoderOptions options;
+  options.lwnx_distance_output = o.lwnx_distance_output;
+  options.tfmini_temperature = !o.tfmini_no_temperature;
+  auto decoder = link::make_decoder(format, options);
 
   std::FILE* file = stdout;
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> owned(nullptr, &std::fclose);
@@ -210,6 +215,12 @@ const bool registered = register_command("stream", [](CLI::App& sub, AppContext&
   sub.add_option("--count", o->count, "stop after this many frames (default: at end of stream)");
   sub.add_option("--out", o->out, "CSV to write, or - for stdout")->required();
   sub.add_flag("--stats", o->stats, "print every counter at the end");
+  sub.add_option("--lwnx-distance-output", o->lwnx_distance_output,
+                 "LWNX: the device's 'distance output' bits (command 27), which fix the fields "
+                 "of its distance packets")
+      ->capture_default_str();
+  sub.add_flag("--tfmini-no-temperature", o->tfmini_no_temperature,
+               "TFmini: the original TFmini (bytes 6-7 are not a temperature)");
   sub.callback([o] { run_stream(*o); });
 });
 

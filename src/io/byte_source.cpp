@@ -182,9 +182,19 @@ PseudoTerminal::~PseudoTerminal() {
   if (master_ >= 0) ::close(master_);
 }
 
-void write_all(int fd, std::span<const std::uint8_t> bytes, const std::string& name) {
+void write_all(int fd, std::span<const std::uint8_t> bytes, const std::string& name,
+               int timeout_ms) {
   std::size_t done = 0;
   while (done < bytes.size()) {
+    if (timeout_ms >= 0) {
+      pollfd p{fd, POLLOUT, 0};
+      const int ready = ::poll(&p, 1, timeout_ms);
+      if (ready < 0 && errno == EINTR) continue;
+      if (ready == 0) {
+        throw std::runtime_error(name + ": no reader took the bytes for " +
+                                 std::to_string(timeout_ms / 1000) + " s");
+      }
+    }
     const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
     if (n < 0) {
       if (errno == EINTR) continue;

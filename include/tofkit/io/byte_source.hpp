@@ -65,7 +65,9 @@ class PseudoTerminal {
 };
 
 /// Writes all of `bytes` to fd (retrying short writes and EINTR); throws
-/// std::runtime_error naming `name` on failure (a closed reader: EPIPE / EIO).
-void write_all(int fd, std::span<const std::uint8_t> bytes, const std::string& name);
+/// std::runtime_error naming `name` on failure (a closed reader: EPIPE / EIO)
+/// or when fd takes no byte for timeout_ms (negative: wait for ever).
+void write_all(int fd, std::span<const std::uint8_t> bytes, const std::string& name,
+               int timeout_ms = -1);
 
 }  // namespace tofkit::io
