@@ -65,6 +65,9 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
   return d;
 }
 
+/// Smallest max/min ratio of the fitting data's ranges for range terms.
+constexpr double kMinRangeRatio = 1.5;
+
 double clamp_to(double x, double lo, double hi) {
   return std::min(std::max(x, lo), hi);
 }
@@ -300,6 +303,13 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   const std::size_t n = data.residual_m.size();
   CalibratedConfidenceParams p;
   p.exponents = exponents_2d(options.order);
+  // Range terms only when the data span ranges: rows at one distance (plates
+  // at one distance, the paper's protocol) cannot tell how the noise depends
+  // on range, and a polynomial in their narrow range spread would be
+  // extrapolated (clamped, but at its worst edge value) everywhere else.
+  if (!(d.range_max_m >= kMinRangeRatio * d.range_min_m)) {
+    std::erase_if(p.exponents, [](const std::array<int, 2>& e) { return e[1] != 0; });
+  }
   p.log_amplitude = options.log_amplitude;
   p.domain = d;
   p.target_coverage_2sigma = options.target_coverage_2sigma;
