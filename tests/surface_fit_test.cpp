@@ -369,6 +369,54 @@ TEST(BSplineSurface, FortyRowsFitWithDataChosenKnotsAndSmoothing) {
   EXPECT_GT(fit.cv_rms_m, held_out / 1.5) << fit.summary();
 }
 
+// Repeats of one target share its systematic error (here: a per-target
+// offset the surface cannot and should not follow). GCV treats the repeats as
+// independent and lets the spline chase them; cross-validation over whole
+// targets does not, so its fit is closer to the truth on new targets.
+TEST(BSplineSurface, GroupCrossValidationDoesNotChaseRepeats) {
+  std::mt19937_64 rng(31);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  Table train;
+  std::vector<std::uint32_t> group;
+  for (std::uint32_t target = 0; target < 60; ++target) {
+    const double r = 1.0 + 29.0 * unit(rng);
+    const double a = 20.0 * std::pow(200.0, unit(rng));
+    const double target_error = 0.003 * gauss(rng);  // shared by the target's repeats
+    for (int repeat = 0; repeat < 5; ++repeat) {
+      train.range_m.push_back(r + 1e-4 * gauss(rng));
+      train.amplitude.push_back(a * (1.0 + 1e-3 * gauss(rng)));
+      train.temperature_c.push_back(20.0);
+      train.error_m.push_back(walk_truth(r, a, 0) + target_error + 0.0003 * gauss(rng));
+      group.push_back(target);
+    }
+  }
+  BSplineFitOptions options;
+  options.choose_intervals_by_gcv = true;
+  const SurfaceFitResult gcv = fit_bspline_surface(train.data(), options);
+  SurfaceFitData grouped = train.data();
+  grouped.group = group;
+  const SurfaceFitResult kfold = fit_bspline_surface(grouped, options);
+  const Table probe = make_table(3000, walk_truth, 0.0, 32);
+  const auto systematic = [&](const SurfaceFitResult& fit) {
+    std::vector<std::uint8_t> flags;
+    const std::vector<double> value = evaluate(*fit.surface, probe, &flags);
+    double sum = 0;
+    std::size_t inside = 0;
+    for (std::size_t k = 0; k < probe.size(); ++k) {
+      if (flags[k]) continue;
+      sum += (value[k] - probe.error_m[k]) * (value[k] - probe.error_m[k]);
+      ++inside;
+    }
+    return std::sqrt(sum / static_cast<double>(inside));
+  };
+  EXPECT_LT(kfold.effective_parameters, gcv.effective_parameters) << kfold.summary() << "\n"
+                                                                  << gcv.summary();
+  EXPECT_LT(systematic(kfold), systematic(gcv)) << kfold.summary() << "\n" << gcv.summary();
+  // The cross-validated RMS of whole targets sees the per-target error (3 mm).
+  EXPECT_GT(kfold.cv_rms_m, 0.002) << kfold.summary();
+}
+
 TEST(BSplineSurface, OneDistinctValueOnAnAxisIsRefusedNamingTheAxis) {
   Table t = make_table(40, walk_truth, 0.001, 23);
   BSplineFitOptions options;

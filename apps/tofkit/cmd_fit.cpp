@@ -232,6 +232,7 @@ void require_two_distances(const std::vector<ranging::Record>& records) {
 /// Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
 struct SurfaceRows {
   std::vector<double> range, amplitude, temperature, error;
+  std::vector<std::uint32_t> group;  ///< truth group (for cross-validation over whole targets)
 };
 
 SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
@@ -241,6 +242,8 @@ SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
   std::vector<ranging::Range> before(raw.size());
   pipeline.apply(raw, before);
   SurfaceRows rows;
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group = truth_groups(records, groups);
   for (std::size_t i = 0; i < records.size(); ++i) {
     const double d = before[i].distance_m;
     const double truth = records[i].truth.distance_m;
@@ -254,6 +257,7 @@ SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
     rows.amplitude.push_back(a);
     rows.temperature.push_back(t);
     rows.error.push_back(truth - d);  // C = true - measured (thesis Section 4.6)
+    rows.group.push_back(static_cast<std::uint32_t>(group[i]));
   }
   return rows;
 }
@@ -344,7 +348,8 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
           {surface_input.range, surface_input.amplitude,
            o.surface_temperature ? std::span<const double>(surface_input.temperature)
                                  : std::span<const double>()},
-          surface_input.error};
+          surface_input.error,
+          surface_input.group};
       calib::SurfaceFitResult surface;
       if (surface_spec.poly) {
         calib::PolynomialFitOptions poly;

@@ -10,22 +10,17 @@
 #include <string>
 #include <vector>
 
+#include "tofkit/ranging/confidence_model.hpp"
+
 namespace tofkit::calib {
+
+using ranging::band_factor;
 
 namespace {
 
 using Eigen::Index;
 using Eigen::MatrixXd;
 using Eigen::VectorXd;
-
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-void check_lengths(std::size_t range, std::size_t amplitude, std::size_t out, const char* who) {
-  if (range != amplitude || out != amplitude) {
-    throw std::invalid_argument(std::string(who) +
-                                ": range_m, amplitude and sigma_m must have the same length");
-  }
-}
 
 /// Validates fit data; returns the amplitude and range extents.
 SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
@@ -65,9 +60,8 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
   return d;
 }
 
-double clamp_to(double x, double lo, double hi) {
-  return std::min(std::max(x, lo), hi);
-}
+/// Smallest max/min ratio of the fitting data's ranges for range terms.
+constexpr double kMinRangeRatio = 1.5;
 
 /// Monomials x^a y^b with a + b <= order.
 std::vector<std::array<int, 2>> exponents_2d(int order) {
@@ -78,37 +72,11 @@ std::vector<std::array<int, 2>> exponents_2d(int order) {
   return out;
 }
 
-double polynomial_2d(const std::vector<std::array<int, 2>>& exps, const std::vector<double>& c,
-                     double x, double y) {
-  // Orders are small (<= 6), so explicit powers cost little.
-  double px[8], py[8];
-  px[0] = py[0] = 1.0;
-  for (int k = 1; k < 8; ++k) {
-    px[k] = px[k - 1] * x;
-    py[k] = py[k - 1] * y;
-  }
-  double v = 0;
-  for (std::size_t k = 0; k < exps.size(); ++k) v += c[k] * px[exps[k][0]] * py[exps[k][1]];
-  return v;
-}
-
 /// k-th smallest of values (0-based), by partial selection on a copy.
 double order_statistic(std::vector<double> values, std::size_t k) {
   k = std::min(k, values.size() - 1);
   std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
   return values[k];
-}
-
-/// Piecewise-linear interpolation of log k over the band centres, constant
-/// beyond the first and last centre.
-double band_factor(const std::vector<double>& centre, const std::vector<double>& scale, double u) {
-  if (centre.size() == 1 || u <= centre.front()) return scale.front();
-  if (u >= centre.back()) return scale.back();
-  const auto it = std::upper_bound(centre.begin(), centre.end(), u);
-  const std::size_t hi = static_cast<std::size_t>(it - centre.begin());
-  const std::size_t lo = hi - 1;
-  const double w = (u - centre[lo]) / (centre[hi] - centre[lo]);
-  return std::exp((1 - w) * std::log(scale[lo]) + w * std::log(scale[hi]));
 }
 
 std::string percent(double v) {
@@ -120,52 +88,6 @@ std::string percent(double v) {
 }  // namespace
 
 // ------------------------------------------------------------------ thesis
-
-ThesisConfidence::ThesisConfidence(ThesisConfidenceParams params) : params_(std::move(params)) {
-  const auto& p = params_;
-  if (p.coefficients.empty()) throw std::invalid_argument("ThesisConfidence: no coefficients");
-  for (std::size_t k = 0; k < p.coefficients.size(); ++k) {
-    if (!std::isfinite(p.coefficients[k])) {
-      throw std::invalid_argument("ThesisConfidence: coefficients[" + std::to_string(k) +
-                                  "] is not finite");
-    }
-  }
-  if (!std::isfinite(p.amplitude_scaling.center) || !(p.amplitude_scaling.half_width > 0) ||
-      !std::isfinite(p.amplitude_scaling.half_width)) {
-    throw std::invalid_argument("ThesisConfidence: amplitude_scaling needs a positive half_width");
-  }
-  if (!std::isfinite(p.amplitude_min) || !std::isfinite(p.amplitude_max) ||
-      !(p.amplitude_min < p.amplitude_max)) {
-    throw std::invalid_argument("ThesisConfidence: amplitude domain must have min < max");
-  }
-  if (!(p.floor_m2 > 0) || !std::isfinite(p.floor_m2)) {
-    throw std::invalid_argument("ThesisConfidence: floor_m2 must be positive");
-  }
-}
-
-void ThesisConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,
-                             std::span<double> sigma_m) const {
-  // The thesis's metric ignores range, so range_m may also be empty.
-  if (!range_m.empty())
-    check_lengths(range_m.size(), amplitude.size(), sigma_m.size(), "ThesisConfidence::sigma");
-  if (amplitude.size() != sigma_m.size()) {
-    throw std::invalid_argument("ThesisConfidence::sigma: amplitude and sigma_m differ in length");
-  }
-  const auto& p = params_;
-  for (std::size_t k = 0; k < amplitude.size(); ++k) {
-    if (!std::isfinite(amplitude[k])) {
-      sigma_m[k] = kNaN;
-      continue;
-    }
-    // Clamped to the fitting domain: a cubic explodes outside it.
-    const double x =
-        p.amplitude_scaling.apply(clamp_to(amplitude[k], p.amplitude_min, p.amplitude_max));
-    double e2 = 0;
-    for (std::size_t j = p.coefficients.size(); j-- > 0;) e2 = e2 * x + p.coefficients[j];
-    // Thesis Section 4.8: the cubic goes negative at high intensity, so E^2 is floored.
-    sigma_m[k] = std::sqrt(std::max(e2, p.floor_m2));
-  }
-}
 
 std::shared_ptr<const ConfidenceModel> fit_thesis_confidence(
     const ConfidenceFitData& data, const ThesisConfidenceOptions& options) {
@@ -222,73 +144,6 @@ void CalibratedConfidenceOptions::validate() const {
   }
 }
 
-CalibratedConfidence::CalibratedConfidence(CalibratedConfidenceParams params)
-    : params_(std::move(params)) {
-  const auto& p = params_;
-  const std::string who = "CalibratedConfidence";
-  if (p.exponents.empty() || p.exponents.size() != p.coefficients.size()) {
-    throw std::invalid_argument(
-        who + ": exponents and coefficients must be non-empty and of equal length");
-  }
-  for (std::size_t k = 0; k < p.exponents.size(); ++k) {
-    const auto [a, b] = p.exponents[k];
-    if (a < 0 || b < 0 || a > 7 || b > 7) {
-      throw std::invalid_argument(who + ": exponents[" + std::to_string(k) + "] must be in [0, 7]");
-    }
-    if (!std::isfinite(p.coefficients[k])) {
-      throw std::invalid_argument(who + ": coefficients[" + std::to_string(k) + "] is not finite");
-    }
-  }
-  for (const AxisScaling* s : {&p.amplitude_scaling, &p.range_scaling}) {
-    if (!std::isfinite(s->center) || !std::isfinite(s->half_width) || !(s->half_width > 0)) {
-      throw std::invalid_argument(who + ": scalings need a finite center and positive half_width");
-    }
-  }
-  const auto& d = p.domain;
-  if (!(d.range_min_m < d.range_max_m) || !std::isfinite(d.range_min_m) ||
-      !std::isfinite(d.range_max_m)) {
-    throw std::invalid_argument(who + ": domain range must have min < max");
-  }
-  if (!(d.amplitude_min < d.amplitude_max) || !std::isfinite(d.amplitude_min) ||
-      !std::isfinite(d.amplitude_max) || (p.log_amplitude && !(d.amplitude_min > 0))) {
-    throw std::invalid_argument(
-        who + ": domain amplitude must have min < max (and be positive on a log scale)");
-  }
-  if (p.band_coordinate.empty() || p.band_coordinate.size() != p.band_scale.size()) {
-    throw std::invalid_argument(
-        who + ": band_coordinate and band_scale must be non-empty and of equal length");
-  }
-  for (std::size_t k = 0; k < p.band_scale.size(); ++k) {
-    if (!(p.band_scale[k] > 0) || !std::isfinite(p.band_scale[k]) ||
-        !std::isfinite(p.band_coordinate[k]) ||
-        (k > 0 && !(p.band_coordinate[k] > p.band_coordinate[k - 1]))) {
-      throw std::invalid_argument(
-          who + ": band " + std::to_string(k) +
-          " needs a positive scale and a coordinate above the previous band's");
-    }
-  }
-}
-
-void CalibratedConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,
-                                 std::span<double> sigma_m) const {
-  check_lengths(range_m.size(), amplitude.size(), sigma_m.size(), "CalibratedConfidence::sigma");
-  const auto& p = params_;
-  const auto& d = p.domain;
-  for (std::size_t k = 0; k < amplitude.size(); ++k) {
-    if (!std::isfinite(amplitude[k]) || !std::isfinite(range_m[k])) {
-      sigma_m[k] = kNaN;
-      continue;
-    }
-    // Clamped to the fitting domain: no extrapolation of a fitted polynomial.
-    const double a = clamp_to(amplitude[k], d.amplitude_min, d.amplitude_max);
-    const double u = p.log_amplitude ? std::log(a) : a;
-    const double y = p.range_scaling.apply(clamp_to(range_m[k], d.range_min_m, d.range_max_m));
-    const double log_e2 =
-        polynomial_2d(p.exponents, p.coefficients, p.amplitude_scaling.apply(u), y);
-    sigma_m[k] = band_factor(p.band_coordinate, p.band_scale, u) * std::exp(0.5 * log_e2);
-  }
-}
-
 std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     const ConfidenceFitData& data, const CalibratedConfidenceOptions& options) {
   options.validate();
@@ -300,6 +155,13 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   const std::size_t n = data.residual_m.size();
   CalibratedConfidenceParams p;
   p.exponents = exponents_2d(options.order);
+  // Range terms only when the data span ranges: rows at one distance (plates
+  // at one distance, the paper's protocol) cannot tell how the noise depends
+  // on range, and a polynomial in their narrow range spread would be
+  // extrapolated (clamped, but at its worst edge value) everywhere else.
+  if (!(d.range_max_m >= kMinRangeRatio * d.range_min_m)) {
+    std::erase_if(p.exponents, [](const std::array<int, 2>& e) { return e[1] != 0; });
+  }
   p.log_amplitude = options.log_amplitude;
   p.domain = d;
   p.target_coverage_2sigma = options.target_coverage_2sigma;

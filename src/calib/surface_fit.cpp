@@ -28,6 +28,7 @@ struct Columns {
   const double* amplitude = nullptr;
   const double* temperature = nullptr;  // null without a temperature axis
   const double* error = nullptr;
+  const std::uint32_t* group = nullptr;  // null: no groups (GCV instead of k-fold)
   std::size_t rows = 0;
   SurfaceDomain domain;
 };
@@ -61,6 +62,12 @@ Columns validate_data(const SurfaceFitData& data, bool use_temperature, const st
   c.temperature = use_temperature ? data.inputs.temperature_c.data() : nullptr;
   c.error = data.error_m.data();
   c.rows = n;
+  if (!data.group.empty()) {
+    if (data.group.size() != n) {
+      throw std::invalid_argument(who + ": group must have one entry per row");
+    }
+    c.group = data.group.data();
+  }
   double lo = 0, hi = 0;
   check_column(data.error_m, who, "error_m", lo, hi);
   auto& d = c.domain;
@@ -485,17 +492,62 @@ std::size_t distinct_values(const double* x, std::size_t n) {
   return static_cast<std::size_t>(std::unique(v.begin(), v.end()) - v.begin());
 }
 
+/// Rows of one cross-validation fold, owned, viewable as Columns.
+struct Fold {
+  std::vector<double> range, amplitude, temperature, error;
+  Columns columns;
+};
+
+/// K folds of whole groups (group % K); empty when the data carry no groups
+/// or fewer than K distinct groups (GCV is used then).
+std::vector<Fold> make_folds(const Columns& c) {
+  constexpr std::uint32_t kFolds = 5;
+  std::vector<Fold> folds;
+  if (c.group == nullptr) return folds;
+  std::vector<std::uint32_t> distinct(c.group, c.group + c.rows);
+  std::sort(distinct.begin(), distinct.end());
+  if (std::unique(distinct.begin(), distinct.end()) - distinct.begin() < kFolds) return folds;
+  folds.resize(kFolds);
+  for (std::size_t k = 0; k < c.rows; ++k) {
+    Fold& f = folds[c.group[k] % kFolds];
+    f.range.push_back(c.range[k]);
+    f.amplitude.push_back(c.amplitude[k]);
+    if (c.temperature) f.temperature.push_back(c.temperature[k]);
+    f.error.push_back(c.error[k]);
+  }
+  for (Fold& f : folds) {
+    f.columns = c;
+    f.columns.range = f.range.data();
+    f.columns.amplitude = f.amplitude.data();
+    f.columns.temperature = c.temperature ? f.temperature.data() : nullptr;
+    f.columns.error = f.error.data();
+    f.columns.group = nullptr;
+    f.columns.rows = f.error.size();
+  }
+  return folds;
+}
+
+/// Normal equations of one fold.
+struct FoldSystem {
+  MatrixXd gram;
+  VectorXd rhs;
+  double yy = 0;
+  bool empty = true;
+};
+
 /// One penalized fit on a given knot grid; with `choose_smoothing` the
-/// smoothing is chosen by GCV over decades 1e-7 .. 1e1.
+/// smoothing is chosen over decades 1e-7 .. 1e1 by k-fold cross-validation
+/// over whole groups when the data carry groups (repeats of one target are
+/// not independent: GCV would let the spline chase them), else by GCV.
 struct GridFit {
   Grid grid;
   PenalizedSolution solution;
   double smoothing = 0;
-  double gcv = std::numeric_limits<double>::infinity();  // n RSS / (n - edf)^2
+  double score = std::numeric_limits<double>::infinity();  // predicted mean squared error
 };
 
-GridFit fit_on_grid(const Columns& c, const Grid& grid, double smoothing, bool choose_smoothing,
-                    bool with_condition) {
+GridFit fit_on_grid(const Columns& c, const std::vector<Fold>& folds, const Grid& grid,
+                    double smoothing, bool choose_smoothing, bool with_condition) {
   MatrixXd gram;
   VectorXd rhs;
   accumulate_normal_equations(c, grid, gram, rhs);
@@ -506,26 +558,49 @@ GridFit fit_on_grid(const Columns& c, const Grid& grid, double smoothing, bool c
   // on the number of rows or the grid size.
   const double scale = gram.trace() / penalty.trace();
   const double n = static_cast<double>(c.rows);
-  const auto gcv_of = [&](const PenalizedSolution& sol) {
-    const double dof = n - sol.effective_parameters;
-    return dof > 0.5 ? n * sol.rss / (dof * dof) : std::numeric_limits<double>::infinity();
+  std::vector<FoldSystem> systems(folds.size());
+  for (std::size_t f = 0; f < folds.size(); ++f) {
+    if (folds[f].columns.rows == 0) continue;
+    accumulate_normal_equations(folds[f].columns, grid, systems[f].gram, systems[f].rhs);
+    for (double e : folds[f].error) systems[f].yy += e * e;
+    systems[f].empty = false;
+  }
+  // Predicted mean squared error of a smoothing weight: k-fold (held-out
+  // SSE = yy_f - 2 c'r_f + c'G_f c with c fitted without fold f) or GCV,
+  // n RSS / (n - edf)^2 (Craven & Wahba 1979).
+  const auto score_of = [&](double lambda, const PenalizedSolution& all) {
+    if (systems.empty()) {
+      const double dof = n - all.effective_parameters;
+      return dof > 0.5 ? n * all.rss / (dof * dof) : std::numeric_limits<double>::infinity();
+    }
+    double sse = 0;
+    for (const FoldSystem& f : systems) {
+      if (f.empty) continue;
+      const PenalizedSolution train =
+          solve_penalized(gram - f.gram, rhs - f.rhs, yy - f.yy, penalty, lambda, false);
+      const VectorXd& b = train.coefficients;
+      sse += std::max(0.0, f.yy - 2.0 * b.dot(f.rhs) + b.dot(f.gram * b));
+    }
+    return sse / n;
   };
   GridFit fit;
   fit.grid = grid;
   fit.smoothing = smoothing;
   if (choose_smoothing) {
-    // GCV(lambda) = n RSS / (n - edf)^2 (Craven & Wahba 1979), on a grid of decades.
     for (int e = -7; e <= 1; ++e) {
       const double candidate = std::pow(10.0, e);
-      const double g = gcv_of(solve_penalized(gram, rhs, yy, penalty, candidate * scale, false));
-      if (g < fit.gcv) {
-        fit.gcv = g;
+      const double lambda = candidate * scale;
+      const double g =
+          score_of(lambda, systems.empty() ? solve_penalized(gram, rhs, yy, penalty, lambda, false)
+                                           : PenalizedSolution{});
+      if (g < fit.score) {
+        fit.score = g;
         fit.smoothing = candidate;
       }
     }
   }
   fit.solution = solve_penalized(gram, rhs, yy, penalty, fit.smoothing * scale, with_condition);
-  fit.gcv = gcv_of(fit.solution);
+  fit.score = score_of(fit.smoothing * scale, fit.solution);
   return fit;
 }
 
@@ -576,6 +651,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   // coefficient the data leave free (its null space, planes, needs only the
   // spread checked above).
   const bool choose_smoothing = options.choose_smoothing_by_gcv || options.choose_intervals_by_gcv;
+  const std::vector<Fold> folds = make_folds(c);
   GridFit best;
   if (options.choose_intervals_by_gcv) {
     // Ladder of interval counts per axis, capped so an axis never has more
@@ -598,20 +674,20 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
       for (int ia : la) {
         for (int it : lt) {
           set_axes(ir, ia, it);
-          GridFit fit = fit_on_grid(c, make_grid(p, dims), options.smoothing, true, false);
-          if (fit.gcv < best.gcv * (1.0 - 1e-9)) best = std::move(fit);
+          GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, true, false);
+          if (fit.score < best.score * (1.0 - 1e-9)) best = std::move(fit);
         }
       }
     }
-    if (!std::isfinite(best.gcv)) {
+    if (!std::isfinite(best.score)) {
       set_axes(lr.front(), la.front(), lt.front());
-      best = fit_on_grid(c, make_grid(p, dims), options.smoothing, true, false);
+      best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, true, false);
     }
     set_axes(best.grid.axes[0].intervals, best.grid.axes[1].intervals, best.grid.axes[2].intervals);
-    best = fit_on_grid(c, make_grid(p, dims), best.smoothing, false, true);
+    best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, false, true);
   } else {
     set_axes(options.intervals_range, options.intervals_amplitude, options.intervals_temperature);
-    best = fit_on_grid(c, make_grid(p, dims), options.smoothing, choose_smoothing, true);
+    best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, choose_smoothing, true);
   }
   const PenalizedSolution& sol = best.solution;
   p.coefficients.assign(sol.coefficients.data(), sol.coefficients.data() + sol.coefficients.size());
@@ -622,7 +698,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   s.smoothing = best.smoothing;
   s.effective_parameters = sol.effective_parameters;
   s.condition_number = sol.condition_number;
-  s.cv_rms_m = std::isfinite(best.gcv) ? std::sqrt(best.gcv) : 0.0;
+  s.cv_rms_m = std::isfinite(best.score) ? std::sqrt(best.score) : 0.0;
   BSplineSurface probe(p);
   s.residual_rms_m = residual_rms(probe, data);
   p.fit = s;

@@ -74,8 +74,8 @@ double midpoint(double lo, double hi) {
 /// A surface step on one block. NaN inputs are replaced by the domain's
 /// midpoint before evaluation (surfaces need not accept NaN) and the
 /// correction is then set to NaN.
-void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::size_t n) {
-  const calib::SurfaceDomain& d = surface.domain();
+void add_surface(const CorrectionSurface& surface, BlockBuffers& b, std::size_t n) {
+  const SurfaceDomain& d = surface.domain();
   const bool uses_temperature = surface.uses_temperature();
   double* range = b.scratch_a.data();
   double* amplitude = b.scratch_b.data();
@@ -96,7 +96,7 @@ void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::
     amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : amplitude_mid;
     temperature[i] = std::isfinite(b.temperature[i]) ? b.temperature[i] : temperature_mid;
   }
-  calib::SurfaceInputs inputs{
+  SurfaceInputs inputs{
       std::span<const double>(range, n), std::span<const double>(amplitude, n),
       uses_temperature ? std::span<const double>(temperature, n) : std::span<const double>()};
   surface.evaluate(inputs, std::span<double>(correction.data(), n),
@@ -123,7 +123,7 @@ void add_surface(const calib::CorrectionSurface& surface, BlockBuffers& b, std::
   }
 }
 
-void fill_sigma(const calib::ConfidenceModel* confidence, double residual_rms_m, BlockBuffers& b,
+void fill_sigma(const ConfidenceModel* confidence, double residual_rms_m, BlockBuffers& b,
                 std::size_t n, double* sigma) {
   if (confidence == nullptr) {
     for (std::size_t i = 0; i < n; ++i) sigma[i] = residual_rms_m;
@@ -229,7 +229,7 @@ Step make_temperature_step(PiecewiseLinear function, InputDomain temperature_dom
   return step;
 }
 
-Step make_surface_step(std::shared_ptr<const calib::CorrectionSurface> surface) {
+Step make_surface_step(std::shared_ptr<const CorrectionSurface> surface) {
   Step step;
   step.kind = StepKind::kSurface;
   step.surface = std::move(surface);
@@ -246,7 +246,7 @@ void Pipeline::add_step(Step step) {
   steps_.push_back(std::move(step));
 }
 
-void Pipeline::set_confidence(std::shared_ptr<const calib::ConfidenceModel> confidence) {
+void Pipeline::set_confidence(std::shared_ptr<const ConfidenceModel> confidence) {
   confidence_ = std::move(confidence);
 }
 
@@ -270,7 +270,7 @@ void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) c
   }
   BlockBuffers b;
   std::array<double, kBlock> sigma;
-  const calib::ConfidenceModel* confidence = confidence_.get();
+  const ConfidenceModel* confidence = confidence_.get();
   for (std::size_t begin = 0; begin < in.size(); begin += kBlock) {
     const std::size_t n = std::min(kBlock, in.size() - begin);
     const RawMeasurement* raw = in.data() + begin;

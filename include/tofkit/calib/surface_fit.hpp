@@ -1,6 +1,7 @@
 #pragma once
 /// \file Least-squares fits of correction surfaces.
 
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
@@ -13,6 +14,10 @@ namespace tofkit::calib {
 struct SurfaceFitData {
   SurfaceInputs inputs;
   std::span<const double> error_m;
+  /// Optional: the target (group of repeats) of every row. With groups, the
+  /// B-spline's knots and smoothing are chosen by 5-fold cross-validation over
+  /// whole groups instead of GCV (repeats of one target are not independent).
+  std::span<const std::uint32_t> group = {};
 };
 
 struct PolynomialFitOptions {
@@ -34,7 +39,8 @@ struct BSplineFitOptions {
   bool use_temperature = false;
   bool log_amplitude = true;  ///< place amplitude knots on a log scale (intensity spans decades)
   /// Pick `smoothing` by generalized cross-validation over decades 1e-7 .. 1e1
-  /// (Craven & Wahba 1979) instead of using the value above.
+  /// (Craven & Wahba 1979), or k-fold over groups when the data carry them,
+  /// instead of using the value above.
   bool choose_smoothing_by_gcv = false;
   /// Choose the knot intervals of each axis too, by the same generalized
   /// cross-validation, from a ladder of counts (3, 5, 8, 12 per axis; 2, 3, 5

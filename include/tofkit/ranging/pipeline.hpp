@@ -22,8 +22,8 @@
 #include <string_view>
 #include <vector>
 
-#include "tofkit/calib/confidence_model.hpp"
-#include "tofkit/calib/correction_surface.hpp"
+#include "tofkit/ranging/confidence_model.hpp"
+#include "tofkit/ranging/correction_surface.hpp"
 #include "tofkit/ranging/piecewise_linear.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
 #include "tofkit/ranging/time_to_distance.hpp"
@@ -58,7 +58,7 @@ struct Step {
       function;  ///< kGrayvalue (x = pulse_width_ns) / kTemperature (x = temperature_c), y in m
   InputDomain
       domain;  ///< kGrayvalue / kTemperature: x range fitted on; outside -> kCorrOutOfDomain
-  std::shared_ptr<const calib::CorrectionSurface> surface;  ///< kSurface
+  std::shared_ptr<const CorrectionSurface> surface;  ///< kSurface
   StepFitInfo fit;
 
   /// Throws std::invalid_argument naming the problem.
@@ -69,7 +69,7 @@ struct Step {
 [[nodiscard]] Step make_grayvalue_step(PiecewiseLinear function, InputDomain pulse_width_domain_ns);
 [[nodiscard]] Step make_temperature_step(PiecewiseLinear function,
                                          InputDomain temperature_domain_c);
-[[nodiscard]] Step make_surface_step(std::shared_ptr<const calib::CorrectionSurface> surface);
+[[nodiscard]] Step make_surface_step(std::shared_ptr<const CorrectionSurface> surface);
 
 class Pipeline {
  public:
@@ -78,7 +78,7 @@ class Pipeline {
 
   [[nodiscard]] const TimeToDistance& time_to_distance() const { return time_to_distance_; }
   [[nodiscard]] const std::vector<Step>& steps() const { return steps_; }
-  [[nodiscard]] const std::shared_ptr<const calib::ConfidenceModel>& confidence() const {
+  [[nodiscard]] const std::shared_ptr<const ConfidenceModel>& confidence() const {
     return confidence_;
   }
   /// The fit's residual RMS: sigma_m of every range when there is no confidence model.
@@ -86,7 +86,7 @@ class Pipeline {
 
   /// Appends a step (validated; throws std::invalid_argument).
   void add_step(Step step);
-  void set_confidence(std::shared_ptr<const calib::ConfidenceModel> confidence);
+  void set_confidence(std::shared_ptr<const ConfidenceModel> confidence);
   void set_residual_rms_m(double residual_rms_m);
 
   /// sigma_m of a row outside a step's domain is the in-domain sigma times
@@ -116,7 +116,7 @@ class Pipeline {
   TimeToDistance time_to_distance_;
   double metres_per_ns_ = metres_per_ns(TimeToDistance{});
   std::vector<Step> steps_;
-  std::shared_ptr<const calib::ConfidenceModel> confidence_;
+  std::shared_ptr<const ConfidenceModel> confidence_;
   double residual_rms_m_ = kNaN;
 };
 

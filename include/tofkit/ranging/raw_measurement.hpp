@@ -13,20 +13,20 @@ inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 /// Status bits of a RawMeasurement (`flags` column).
 enum RawFlag : std::uint32_t {
-  kRawNoEcho = 1u << 0,         ///< no shot crossed the threshold; distance is empty
-  kRawPartialEchoes = 1u << 1,  ///< some, not all, shots gave an echo
-  kRawSaturated = 1u << 2,      ///< the amplifier clipped (mean echo above saturation)
+  kRawNoEcho = 1u << 0,           ///< no shot crossed the threshold; distance is empty
+  kRawPartialEchoes = 1u << 1,    ///< some, not all, shots gave an echo
+  kRawSaturated = 1u << 2,        ///< the amplifier clipped (mean echo above saturation)
   kRawTurnOnTransient = 1u << 3,  ///< taken while the laser was still in its turn-on transient
-  kRawWarmingUp = 1u << 4,      ///< taken before the electronics reached thermal equilibrium
+  kRawWarmingUp = 1u << 4,        ///< taken before the electronics reached thermal equilibrium
 };
 
 /// One output of a rangefinder: the average of `shots_valid` shots.
 struct RawMeasurement {
-  double tof_ns = kNaN;          ///< mean round-trip time of flight (rising-edge timing)
-  double distance_raw_m = kNaN;  ///< tof converted with the nominal speed of light in air
-  double pulse_width_ns = kNaN;  ///< mean echo pulse width (time over threshold)
-  double amplitude = kNaN;       ///< echo peak amplitude ("intensity"), volts at the comparator
-  double temperature_c = kNaN;   ///< internal temperature sensor reading
+  double tof_ns = kNaN;           ///< mean round-trip time of flight (rising-edge timing)
+  double distance_raw_m = kNaN;   ///< tof converted with the nominal speed of light in air
+  double pulse_width_ns = kNaN;   ///< mean echo pulse width (time over threshold)
+  double amplitude = kNaN;        ///< echo peak amplitude ("intensity"), volts at the comparator
+  double temperature_c = kNaN;    ///< internal temperature sensor reading
   std::uint32_t shots_valid = 0;  ///< shots that produced an echo
   std::uint32_t flags = 0;        ///< RawFlag bits
 
@@ -49,15 +49,15 @@ struct Record {
 
 /// Bits of `correction_flags`.
 enum CorrectionFlag : std::uint32_t {
-  kCorrNoEcho = 1u << 0,           ///< nothing to correct
-  kCorrOutOfDomain = 1u << 1,      ///< an input lies outside the domain the model was fitted on
-  kCorrNonFinite = 1u << 2,        ///< an input needed by the model is NaN
+  kCorrNoEcho = 1u << 0,       ///< nothing to correct
+  kCorrOutOfDomain = 1u << 1,  ///< an input lies outside the domain the model was fitted on
+  kCorrNonFinite = 1u << 2,    ///< an input needed by the model is NaN
 };
 
 /// A corrected range with its expected error.
 struct Range {
-  double distance_m = kNaN;  ///< corrected distance
-  double sigma_m = kNaN;     ///< expected error (1 sigma) of distance_m
+  double distance_m = kNaN;            ///< corrected distance
+  double sigma_m = kNaN;               ///< expected error (1 sigma) of distance_m
   std::uint32_t correction_flags = 0;  ///< CorrectionFlag bits
 };
 

@@ -1,4 +1,4 @@
-#include "tofkit/calib/bspline_surface.hpp"
+#include "tofkit/ranging/bspline_surface.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace tofkit::calib {
+namespace tofkit::ranging {
 
 namespace {
 
@@ -141,4 +141,4 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
   }
 }
 
-}  // namespace tofkit::calib
+}  // namespace tofkit::ranging

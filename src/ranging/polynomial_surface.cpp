@@ -1,11 +1,11 @@
-#include "tofkit/calib/polynomial_surface.hpp"
+#include "tofkit/ranging/polynomial_surface.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
 
-namespace tofkit::calib {
+namespace tofkit::ranging {
 
 namespace {
 
@@ -159,4 +159,4 @@ void PolynomialSurface::evaluate(const SurfaceInputs& inputs, std::span<double> 
   }
 }
 
-}  // namespace tofkit::calib
+}  // namespace tofkit::ranging

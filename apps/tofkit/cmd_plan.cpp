@@ -1,0 +1,115 @@
+// tofkit plan --range-max M --reflectance-min R [--bench]: which calibration
+// plates span the echo powers the field will produce (link budget, paper
+// Eq. 6), printed as `tofkit measure` lines for the virtual device or as a
+// table to follow on a bench.
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "app.hpp"
+#include "tofkit/calib/calibration_plan.hpp"
+
+namespace tofkit::app {
+namespace {
+
+struct PlanOptions {
+  calib::CalibrationPlanOptions plan;
+  bool bench = false;
+  int count = 5;
+};
+
+std::string number(double v) {
+  return fmt::format("{:.3g}", v);
+}
+
+void run_plan(const PlanOptions& o, const AppContext& ctx) {
+  const device::DeviceConfig config = ctx.load_config();
+  const calib::CalibrationPlan plan = calib::plan_calibration(config.link, o.plan);
+  fmt::print(
+      "# field {}-{} m x reflectance {}-{}: received peak power {:.3g} .. {:.3g} W (x{:.0f})\n",
+      number(o.plan.range_min_m), number(o.plan.range_max_m), number(o.plan.reflectance_min),
+      number(o.plan.reflectance_max), plan.field_power_min_w, plan.field_power_max_w,
+      plan.field_power_max_w / plan.field_power_min_w);
+  fmt::print("# {} plates at log-even powers; calibration distance {} m where a plate allows\n",
+             plan.plates.size(), number(plan.calibration_distance_m));
+  if (o.bench) {
+    fmt::print("{:>4} {:>10} {:>12} {:>14} {:>10}\n", "#", "distance_m", "reflectance", "power_W",
+               "SNR");
+    int k = 0;
+    for (const auto& p : plan.plates) {
+      fmt::print("{:>4} {:>10.3f} {:>12.3f} {:>14.4g} {:>10.1f}\n", ++k, p.distance_m,
+                 p.reflectance, p.received_power_w, p.snr);
+    }
+    fmt::print("# temperature run: plate {:.3f} at {:.3f} m, temperatures",
+               plan.temperature_plate.reflectance, plan.temperature_plate.distance_m);
+    for (double t : plan.temperatures_c) fmt::print(" {}", number(t));
+    fmt::print(" C\n");
+    return;
+  }
+  // One measure line per distance (plates sharing a distance together).
+  std::vector<std::pair<double, std::string>> lines;
+  for (const auto& p : plan.plates) {
+    auto it = std::find_if(lines.begin(), lines.end(),
+                           [&](const auto& l) { return l.first == p.distance_m; });
+    if (it == lines.end()) {
+      lines.emplace_back(p.distance_m, "");
+      it = lines.end() - 1;
+    }
+    it->second += (it->second.empty() ? "" : ",") + fmt::format("{:.4f}", p.reflectance);
+  }
+  int part = 0;
+  for (const auto& [distance, reflectances] : lines) {
+    fmt::print("tofkit measure --distance {:.4f} --reflectance {} --count {} --out plates{}.csv\n",
+               distance, reflectances, o.count, ++part);
+  }
+  std::string temperatures;
+  for (double t : plan.temperatures_c)
+    temperatures += (temperatures.empty() ? "" : ",") + number(t);
+  fmt::print(
+      "tofkit measure --distance {:.4f} --reflectance {:.4f} --temperature {} --count {} --out "
+      "temperature.csv\n",
+      plan.temperature_plate.distance_m, plan.temperature_plate.reflectance, temperatures, o.count);
+}
+
+const bool registered = register_command("plan", [](CLI::App& sub, AppContext& ctx) {
+  sub.description(
+      "plan a calibration from the link budget: plates whose echoes span the field's powers "
+      "(measure lines, or --bench for a table)");
+  auto o = std::make_shared<PlanOptions>();
+  auto& p = o->plan;
+  sub.add_option("--range-min", p.range_min_m, "nearest field range, m")->capture_default_str();
+  sub.add_option("--range-max", p.range_max_m, "farthest field range, m")->capture_default_str();
+  sub.add_option("--reflectance-min", p.reflectance_min, "darkest field target")
+      ->capture_default_str();
+  sub.add_option("--reflectance-max", p.reflectance_max, "brightest field target")
+      ->capture_default_str();
+  sub.add_option("--at", p.calibration_distance_m,
+                 "calibration distance, m (default: geometric mean of the field's ranges)");
+  sub.add_option("--plates", p.plates, "number of plates (target powers)")->capture_default_str();
+  sub.add_option("--temperature-min", p.temperature_min_c, "temperature run start, C")
+      ->capture_default_str();
+  sub.add_option("--temperature-max", p.temperature_max_c, "temperature run end, C")
+      ->capture_default_str();
+  sub.add_option("--temperature-step", p.temperature_step_c, "temperature run step, C")
+      ->capture_default_str();
+  sub.add_option("--count", o->count, "repeats per plate in the measure lines")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  sub.add_flag("--bench", o->bench, "print a table to follow on a bench instead");
+  sub.callback([o, &ctx] {
+    try {
+      run_plan(*o, ctx);
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(e.what());
+    }
+  });
+});
+
+}  // namespace
+}  // namespace tofkit::app

@@ -1,0 +1,103 @@
+#include "tofkit/calib/calibration_plan.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace tofkit::calib {
+namespace {
+
+void require(bool ok, const char* field, const char* what) {
+  if (!ok) throw std::invalid_argument(std::string("plan: ") + field + " " + what);
+}
+
+/// Received power of a plate (paper Eq. 6).
+double power_w(const physics::LinkConfig& link, double distance_m, double reflectance) {
+  return physics::received_power_extended_w(link, distance_m, reflectance, 0.0);
+}
+
+/// Distance at which a plate of `reflectance` returns `power` (Pr is
+/// monotone in R: bisection on log R over 1 mm .. 10 km).
+double distance_for_power(const physics::LinkConfig& link, double reflectance, double power) {
+  double lo = std::log(1e-3), hi = std::log(1e4);
+  for (int it = 0; it < 200; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (power_w(link, std::exp(mid), reflectance) > power ? lo : hi) = mid;
+  }
+  return std::exp(0.5 * (lo + hi));
+}
+
+PlannedPlate plate(const physics::LinkConfig& link, double distance_m, double reflectance) {
+  PlannedPlate p;
+  p.distance_m = distance_m;
+  p.reflectance = reflectance;
+  p.received_power_w = power_w(link, distance_m, reflectance);
+  p.snr = physics::link_budget_at(link, distance_m, reflectance, 0.0,
+                                  link.receiver.nominal_temperature_c)
+              .snr;
+  return p;
+}
+
+}  // namespace
+
+void CalibrationPlanOptions::validate() const {
+  require(std::isfinite(range_min_m) && range_min_m > 0, "range_min_m", "must be > 0");
+  require(std::isfinite(range_max_m) && range_max_m > range_min_m, "range_max_m",
+          "must be > range_min_m");
+  require(std::isfinite(reflectance_min) && reflectance_min > 0 && reflectance_min <= 1,
+          "reflectance_min", "must be in (0, 1]");
+  require(
+      std::isfinite(reflectance_max) && reflectance_max >= reflectance_min && reflectance_max <= 1,
+      "reflectance_max", "must be in [reflectance_min, 1]");
+  require(std::isnan(calibration_distance_m) ||
+              (std::isfinite(calibration_distance_m) && calibration_distance_m > 0),
+          "calibration_distance_m", "must be > 0");
+  require(plates >= 2 && plates <= 100, "plates", "must be in [2, 100]");
+  require(std::isfinite(plate_reflectance_min) && plate_reflectance_min > 0 &&
+              plate_reflectance_max > plate_reflectance_min && plate_reflectance_max <= 1,
+          "plate_reflectance_min/max", "must satisfy 0 < min < max <= 1");
+  require(std::isfinite(temperature_min_c) && std::isfinite(temperature_max_c) &&
+              temperature_max_c >= temperature_min_c,
+          "temperature_max_c", "must be >= temperature_min_c");
+  require(std::isfinite(temperature_step_c) && temperature_step_c > 0 &&
+              (temperature_max_c - temperature_min_c) / temperature_step_c <= 1000,
+          "temperature_step_c", "must be > 0 (at most 1000 steps)");
+}
+
+CalibrationPlan plan_calibration(const physics::LinkConfig& link,
+                                 const CalibrationPlanOptions& options) {
+  options.validate();
+  CalibrationPlan plan;
+  plan.field_power_min_w = power_w(link, options.range_max_m, options.reflectance_min);
+  plan.field_power_max_w = power_w(link, options.range_min_m, options.reflectance_max);
+  const double at =
+      std::isnan(options.calibration_distance_m)
+          ? std::round(10.0 * std::sqrt(options.range_min_m * options.range_max_m)) / 10.0
+          : options.calibration_distance_m;
+  plan.calibration_distance_m = at;
+  const double unit_power = power_w(link, at, 1.0);  // a perfect reflector at `at`
+  const double log_lo = std::log(plan.field_power_min_w);
+  const double log_hi = std::log(plan.field_power_max_w);
+  for (int k = 0; k < options.plates; ++k) {
+    const double power = std::exp(log_lo + (log_hi - log_lo) * k / (options.plates - 1));
+    const double rho = power / unit_power;
+    if (rho >= options.plate_reflectance_min && rho <= options.plate_reflectance_max) {
+      plan.plates.push_back(plate(link, at, rho));
+      continue;
+    }
+    // Too bright for any plate at `at`: the brightest plate, nearer; too dim: the darkest, farther.
+    const double r = rho > options.plate_reflectance_max ? options.plate_reflectance_max
+                                                         : options.plate_reflectance_min;
+    plan.plates.push_back(plate(link, distance_for_power(link, r, power), r));
+  }
+  // Temperature run: the middle plate (mid power) over the temperatures.
+  plan.temperature_plate = plan.plates[plan.plates.size() / 2];
+  for (double t = options.temperature_min_c; t <= options.temperature_max_c + 1e-9;
+       t += options.temperature_step_c) {
+    plan.temperatures_c.push_back(t);
+  }
+  return plan;
+}
+
+}  // namespace tofkit::calib
