@@ -312,6 +312,14 @@ TEST_F(Robustness, MessagesNameTheFileLineOrKey) {
   expect_refused("--config bad.toml evaluate --in c.csv", {"bad.toml:2"});
 }
 
+TEST_F(Robustness, OutOfMemoryIsAMessageNotACrash) {
+  // The sanitizers' allocator aborts on an 800 GB request instead of throwing.
+  if (std::getenv("TOFKIT_SANITIZED") != nullptr) GTEST_SKIP() << "allocator under ASan aborts";
+  expect_refused(
+      "--max-rows 1000000000000 measure --distance 0:1e11:1 --reflectance 0.5 --out x.csv",
+      {"out of memory", "--max-rows"});
+}
+
 TEST_F(Robustness, DemoVerdictIsNoWhenNoEchoIsMeasured) {
   const std::string out_command = "cd '" + dir_.string() +
                                   "' && '" TOFKIT_BINARY
