@@ -18,9 +18,11 @@
 #include <type_traits>
 #include <vector>
 
+#include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/config_file.hpp"
+#include "tofkit/io/input_file.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/io/value_list.hpp"
 
@@ -597,4 +599,202 @@ TEST(ValueList, ErrorsNameTheOption) {
       EXPECT_EQ(std::string(e.what()).rfind("--distance: ", 0), 0u) << e.what();
     }
   }
+}
+
+// ---- hardening (issue 7): one number parser, one input reader, one writer ----
+
+TEST(NumberField, RejectsOverflowGarbageAndOverlongFields) {
+  double v = -1;
+  EXPECT_FALSE(io::parse_number("1.5e3", v).has_value());
+  EXPECT_EQ(v, 1500.0);
+  EXPECT_FALSE(io::parse_number("+2", v).has_value());
+  EXPECT_EQ(v, 2.0);
+  // Underflow rounds (as strtod does); only overflow is an error.
+  EXPECT_FALSE(io::parse_number("1e-400", v).has_value());
+  EXPECT_EQ(v, 0.0);
+  EXPECT_FALSE(io::parse_number("4.9e-324", v).has_value());
+  EXPECT_EQ(v, std::numeric_limits<double>::denorm_min());
+  for (const char* bad : {"1e999", "-1e999", "1.8e308"}) {
+    const auto why = io::parse_number(bad, v);
+    ASSERT_TRUE(why.has_value()) << bad;
+    EXPECT_NE(why->find("too large"), std::string::npos) << *why;
+  }
+  EXPECT_FALSE(io::parse_number("1.7e308", v).has_value());  // the largest finite still reads
+  for (const char* bad : {"", "x", "1x", "+-1", "++1", "nan", "inf", "-inf", "0x10", "1,5"}) {
+    EXPECT_TRUE(io::parse_number(bad, v).has_value()) << bad;
+  }
+  EXPECT_TRUE(io::parse_number(std::string(io::kMaxNumberLength + 1, '1'), v).has_value());
+  EXPECT_FALSE(io::parse_number(std::string(io::kMaxNumberLength, '0'), v).has_value());
+}
+
+TEST(NumberField, CsvOverflowNamesFileLineAndColumn) {
+  TempDir dir;
+  write_text(dir / "raw.csv", "tof_ns,amplitude\n13.3,0.5\n13.3, 1e999\n");
+  try {
+    (void)io::read_raw_csv(dir / "raw.csv");
+    FAIL() << "1e999 read as a number";
+  } catch (const std::runtime_error& e) {
+    // Line 3, character 7 (after the blank), field 2.
+    EXPECT_NE(std::string(e.what()).find("raw.csv:3:7: column 2 (amplitude): '1e999' is too large"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(NumberField, LineEndingsLfCrLfAndCrReadAlike) {
+  TempDir dir;
+  const std::string lf = "tof_ns,amplitude,flags\n13.3,0.5,0\n,,1\n26.6,0.25,0\n";
+  std::string crlf, cr;
+  for (char c : lf) {
+    crlf += c == '\n' ? std::string("\r\n") : std::string(1, c);
+    cr += c == '\n' ? '\r' : c;
+  }
+  write_text(dir / "lf.csv", lf);
+  write_text(dir / "crlf.csv", crlf);
+  write_text(dir / "cr.csv", cr);
+  const auto a = io::read_raw_csv(dir / "lf.csv");
+  ASSERT_EQ(a.size(), 3u);
+  for (const char* name : {"crlf.csv", "cr.csv"}) {
+    const auto b = io::read_raw_csv(dir / name);
+    ASSERT_EQ(b.size(), a.size()) << name;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      EXPECT_TRUE(std::isnan(a[i].raw.tof_ns) ? std::isnan(b[i].raw.tof_ns)
+                                              : a[i].raw.tof_ns == b[i].raw.tof_ns);
+      EXPECT_EQ(a[i].raw.flags, b[i].raw.flags);
+    }
+  }
+  // Line numbers count CR-only lines too.
+  write_text(dir / "bad.csv", "tof_ns\r13.3\rx\r");
+  try {
+    (void)io::read_raw_csv(dir / "bad.csv");
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.csv:3:1:"), std::string::npos) << e.what();
+  }
+}
+
+TEST(InputFile, RefusesDirectoriesOversizeAndRowFloods) {
+  TempDir dir;
+  fs::create_directories(dir / "model.json");
+  try {
+    (void)io::read_text_file(dir / "model.json", "model file");
+    FAIL();
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("is a directory"), std::string::npos) << e.what();
+  }
+  auto& limits = io::resource_limits();
+  const io::ResourceLimits saved = limits;
+  write_text(dir / "raw.csv", "tof_ns\n1\n2\n3\n4\n");
+  limits.max_input_bytes = 10;
+  EXPECT_THROW((void)io::read_raw_csv(dir / "raw.csv"), std::runtime_error);
+  limits = saved;
+  limits.max_rows = 3;
+  try {
+    (void)io::read_raw_csv(dir / "raw.csv");
+    ADD_FAILURE() << "4 rows read under a limit of 3";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("--max-rows"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW((void)io::parse_value_list("1,2,3,4", "--x"), std::invalid_argument);
+  EXPECT_THROW((void)io::parse_value_list("1:4:1", "--x"), std::invalid_argument);
+  EXPECT_EQ(io::parse_value_list("1:3:1", "--x").size(), 3u);
+  limits = saved;
+  EXPECT_EQ(io::read_raw_csv(dir / "raw.csv").size(), 4u);
+}
+
+TEST(OutputTransaction, CommitsAllOrNothing) {
+  TempDir dir;
+  write_text(dir / "b.txt", "old b\n");
+  {
+    io::OutputTransaction outputs;
+    io::write_file_atomically(dir / "a.txt", "new a\n");
+    io::write_file_atomically(dir / "b.txt", "new b\n");
+    io::create_output_directories(dir / "sub" / "deeper");
+    io::write_file_atomically(dir / "sub" / "deeper" / "c.txt", "new c\n");
+    EXPECT_EQ(outputs.staged(), 3u);
+    // Staged: nothing visible yet, the old content intact.
+    EXPECT_FALSE(fs::exists(dir / "a.txt"));
+    EXPECT_EQ(read_text(dir / "b.txt"), "old b\n");
+    // no commit: rolled back
+  }
+  EXPECT_FALSE(fs::exists(dir / "a.txt"));
+  EXPECT_FALSE(fs::exists(dir / "sub"));
+  EXPECT_EQ(read_text(dir / "b.txt"), "old b\n");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 1);
+  {
+    io::OutputTransaction outputs;
+    io::write_file_atomically(dir / "a.txt", "new a\n");
+    io::write_file_atomically(dir / "b.txt", "new b\n");
+    EXPECT_THROW(io::write_file_atomically(dir / "a.txt", "again\n"), std::runtime_error);
+    outputs.commit();
+  }
+  EXPECT_EQ(read_text(dir / "a.txt"), "new a\n");
+  EXPECT_EQ(read_text(dir / "b.txt"), "new b\n");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 2);
+}
+
+TEST(OutputTransaction, NeverReplacesInputsLinksOrDevices) {
+  TempDir dir;
+  write_text(dir / "in.csv", "tof_ns\n1\n");
+  fs::create_hard_link(dir / "in.csv", dir / "alias.csv");
+  fs::create_symlink(dir / "in.csv", dir / "link.csv");
+  {
+    io::OutputTransaction outputs;
+    (void)io::read_raw_csv(dir / "in.csv");
+    EXPECT_THROW(io::write_file_atomically(dir / "in.csv", "x"), std::runtime_error);
+    EXPECT_THROW(io::write_file_atomically(dir / "alias.csv", "x"), std::runtime_error);
+    EXPECT_THROW(io::write_file_atomically(dir / "link.csv", "x"), std::runtime_error);
+    EXPECT_THROW(io::write_file_atomically("/dev/null", "x"), std::runtime_error);
+    outputs.commit();
+  }
+  EXPECT_EQ(read_text(dir / "in.csv"), "tof_ns\n1\n");
+  EXPECT_TRUE(fs::is_symlink(dir / "link.csv"));
+  EXPECT_TRUE(fs::is_character_file("/dev/null"));
+  // Outside a command's transaction the input registry is empty again.
+  io::write_file_atomically(dir / "alias.csv", "tof_ns\n2\n");
+}
+
+TEST(ConfigShape, DeepNestingAndLongDottedKeysAreRefusedBeforeParsing) {
+  TempDir dir;
+  std::string header = "[a";
+  for (int i = 0; i < 50'000; ++i) header += ".a";
+  EXPECT_NE(config_error(dir, header + "]\n").find("dev.toml:1:"), std::string::npos);
+  EXPECT_NE(config_error(dir, "x = " + std::string(10'000, '[') + "\n").find("nesting"),
+            std::string::npos);
+  EXPECT_NE(config_error(dir, "x = " + std::string(10'000, '{') + "\n").find("nesting"),
+            std::string::npos);
+  // Dots and brackets inside strings and comments do not count.
+  EXPECT_NO_THROW(io::check_toml_shape("# " + std::string(1000, '.') + std::string(100, '[') +
+                                           "\nname = \"" + std::string(1000, '.') + "\"\n",
+                                       "x.toml"));
+  EXPECT_NO_THROW(io::check_toml_shape(io::dump_device_config(device::preset("paper")), "d"));
+}
+
+TEST(ConfigLimits, DerivedQuantitiesNameTheKeysThatSetThem) {
+  TempDir dir;
+  // The pulse template grows as 1 / bandwidth: refused below ~8 MHz, named by key and origin.
+  const std::string slow = config_error(dir, "[receiver]\nbandwidth_mhz = 1\n");
+  EXPECT_NE(slow.find("dev.toml:2 (receiver.bandwidth_mhz)"), std::string::npos) << slow;
+  EXPECT_NE(slow.find("pulse template"), std::string::npos) << slow;
+  device::DeviceConfig c = device::preset("paper");
+  c.link.receiver.bandwidth_mhz = 9;
+  EXPECT_TRUE(device::check_config_limits(c).empty());
+  c.link.receiver.bandwidth_mhz = 7;
+  EXPECT_FALSE(device::check_config_limits(c).empty());
+  // A rule that names two keys blames the one the user set.
+  const std::string rate = config_error(dir, "[laser]\nrepetition_hz = 1e9\n");
+  EXPECT_NE(rate.find("dev.toml:2 (laser.repetition_hz): "), std::string::npos) << rate;
+  // The waveform record counts the echo spread, not only window_ns.
+  c = device::preset("paper");
+  EXPECT_TRUE(device::check_waveform_limits(c, 0).empty());
+  c.measurement.sample_period_ps = 1;  // 30 ns window: 3e4 samples, fine alone
+  EXPECT_TRUE(device::check_waveform_limits(c, 0).empty());
+  EXPECT_FALSE(device::check_waveform_limits(c, 1000).empty());  // 1 us of echo spread
+  // A plate's spread: footprint x tan(angle), there and back.
+  const double spread = device::plate_echo_spread_ns(c, 100.0, 45.0);
+  const double footprint =
+      c.link.laser.exit_beam_diameter_mm * 1e-3 + 100.0 * c.link.laser.beam_divergence_mrad * 1e-3;
+  EXPECT_NEAR(spread, 2.0 * footprint / 0.299792458, 1e-9);
+  EXPECT_TRUE(device::check_plate_echo(c, 100.0, 80.0).empty());
+  EXPECT_FALSE(device::check_plate_echo(c, 1e5, 89.9).empty());
 }

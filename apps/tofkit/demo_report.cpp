@@ -52,7 +52,7 @@ std::string html_escape(const std::string& s) {
 std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
                                      const experiments::PaperStudyResult& r, bool render) {
   const auto plots = dir / "plots";
-  std::filesystem::create_directories(plots);
+  io::create_output_directories(plots);
   std::vector<Figure> figures;
   auto emit = [&](const PlotSpec& spec, const std::string& caption) {
     const auto files = io::write_plot(plots, spec, render);

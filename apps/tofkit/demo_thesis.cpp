@@ -5,6 +5,7 @@
 #include <cmath>
 #include <map>
 
+#include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/plot.hpp"
 
 namespace tofkit::app {
@@ -36,7 +37,7 @@ nlohmann::json thesis_summary_json(const experiments::ThesisProtocolResult& r) {
 std::vector<Figure> write_thesis_plots(const std::filesystem::path& dir,
                                        const experiments::ThesisProtocolResult& r, bool render) {
   const auto plots = dir / "plots";
-  std::filesystem::create_directories(plots);
+  io::create_output_directories(plots);
   std::vector<Figure> figures;
   auto emit = [&](const io::PlotSpec& spec, const std::string& caption) {
     const auto files = io::write_plot(plots, spec, render);

@@ -74,7 +74,7 @@ int main(int argc, char** argv) {
   } catch (const std::bad_alloc&) {
     return fail(
         "out of memory: the inputs or options ask for more memory than this machine has "
-        "(see --max-rows, --max-input-mb and the limits in README 'Errors and robustness')");
+        "(see --max-rows, --max-input-mb and the limits in README 'Errors, limits and fuzzing')");
   } catch (const std::exception& e) {
     return fail(e.what());
   }

@@ -249,6 +249,7 @@ OutputTransaction::~OutputTransaction() {
     fs::remove(*it, ignored);  // only succeeds while empty
   }
   s.created_directories.clear();
+  s.inputs.clear();
   s.open = false;
 }
 
@@ -278,6 +279,10 @@ void note_input(const fs::path& path) {
   if (::stat(path.c_str(), &info) != 0) return;
   auto& s = state();
   const std::scoped_lock lock(s.mutex);
+  if (!s.open) return;  // inputs of a command: only within its transaction
+  for (const auto& input : s.inputs) {
+    if (input.device == info.st_dev && input.inode == info.st_ino) return;
+  }
   s.inputs.push_back(FileIdentity{info.st_dev, info.st_ino, path.string()});
 }
 

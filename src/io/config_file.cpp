@@ -63,6 +63,8 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
 // name in the wrong section is suggested too.
 std::string suggestion(std::string_view unknown, const std::vector<std::string>& known,
                        bool match_members) {
+  // Edit distance costs |unknown| x |known|: no suggestion for a name no key resembles.
+  if (unknown.size() > 64) return std::string();
   std::string best;
   std::size_t best_distance = std::max<std::size_t>(2, unknown.size() / 3) + 1;
   for (const auto& k : known) {

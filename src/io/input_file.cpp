@@ -68,9 +68,10 @@ std::string read_text_file(const std::filesystem::path& path, std::string_view w
     throw std::runtime_error(name + ": cannot read the " + std::string(what) + ": " + ec.message());
   const std::uint64_t limit = resource_limits().max_input_bytes;
   if (size > limit) {
-    throw std::runtime_error(fmt::format(
-        "{}: {:.1f} MB is larger than the input limit of {:.1f} MB (raise it with --max-input-mb)",
-        name, static_cast<double>(size) / 1048576.0, static_cast<double>(limit) / 1048576.0));
+    throw std::runtime_error(
+        fmt::format("{}: {} bytes is larger than the input limit of {} bytes ({:.4g} MB; raise it "
+                    "with --max-input-mb)",
+                    name, size, limit, static_cast<double>(limit) / 1048576.0));
   }
   std::FILE* file = std::fopen(name.c_str(), "rb");
   if (file == nullptr) {

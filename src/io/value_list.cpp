@@ -59,7 +59,7 @@ std::vector<double> parse_range(std::string_view text, std::string_view option) 
   const double count = std::floor(steps + kTolerance) + 1.0;
   const auto max_values = static_cast<double>(resource_limits().max_rows);
   if (!(count <= max_values)) {
-    fail(option, fmt::format("'{}' has {:g} values, more than the limit of {:g} (raise it with "
+    fail(option, fmt::format("'{}' has {:.0f} values, more than the limit of {:.0f} (raise it with "
                              "--max-rows)",
                              text, count, max_values));
   }

@@ -21,7 +21,7 @@
 /// - a target that exists and is not a regular file (a directory, a device
 ///   node such as /dev/null, a FIFO, a socket or a symbolic link: the rename
 ///   would replace the node itself);
-/// - a target that is the same file (device and inode) as one this process
+/// - a target that is the same file (device and inode) as one the command
 ///   read as input (see note_input; the io readers call it), e.g.
 ///   `--out` equal to `--in` under another name;
 /// - the same target twice in one transaction;
@@ -68,8 +68,10 @@ class OutputTransaction {
 /// Is an OutputTransaction open?
 [[nodiscard]] bool output_transaction_open();
 
-/// Remember that `path` is an input of this process: writing over the same
-/// file (by device and inode, whatever its name) is refused. Readers call it.
+/// Remember that `path` is an input of the command whose transaction is open:
+/// writing over the same file (by device and inode, whatever its name) is
+/// refused until the transaction ends. Readers call it; without an open
+/// transaction it does nothing.
 void note_input(const std::filesystem::path& path);
 
 /// Create `path` and any missing parents (like create_directories); inside a

@@ -23,7 +23,7 @@ namespace tofkit::io {
 /// the work; messages name the option that raises them.
 struct ResourceLimits {
   std::uint64_t max_input_bytes = 256ull << 20;  ///< --max-input-mb (256 MB)
-  std::uint64_t max_rows = 2'000'000;            ///< --max-rows: CSV rows, grid rows, list values
+  std::uint64_t max_rows = 1'000'000;            ///< --max-rows: CSV rows, grid rows, list values
 };
 
 /// The process-wide limits (mutable: the CLI sets them from its options).

@@ -1,0 +1,336 @@
+// The `tofkit` CLI attacked with bad inputs (issue 7's reproducers): every
+// case must exit with status 1, print a message naming the file, line, key or
+// option at fault, and leave its working directory exactly as it was (no
+// file created, changed or left behind, temporaries included).
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+class Robustness : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    static std::atomic<int> counter{0};
+    dir_ = fs::temp_directory_path() /
+           ("tofkit_robustness_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  struct Result {
+    int status = -1;  // exit status, or -signal
+    std::string err;
+  };
+
+  Result run(const std::string& args) const {
+    const std::string command = "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args +
+                                " >/dev/null 2>'" + (scratch() / "stderr.txt").string() + "'";
+    const int raw = std::system(command.c_str());
+    Result r;
+    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : WIFSIGNALED(raw) ? -WTERMSIG(raw) : -1;
+    std::ifstream in(scratch() / "stderr.txt");
+    std::ostringstream s;
+    s << in.rdbuf();
+    r.err = s.str();
+    return r;
+  }
+
+  // Stderr lives outside the directory under test.
+  fs::path scratch() const {
+    fs::path p = dir_;
+    p += "_scratch";
+    fs::create_directories(p);
+    return p;
+  }
+
+  void write(const std::string& name, const std::string& text) const {
+    std::ofstream(dir_ / name, std::ios::binary) << text;
+  }
+
+  // Every entry (hidden ones too): its type, and for files size, mtime and a
+  // hash of the content. (A directory's own mtime changes when a temporary
+  // comes and goes; its entries are what must stay the same.)
+  std::map<std::string, std::string> snapshot() const {
+    std::map<std::string, std::string> entries;
+    for (const auto& e : fs::recursive_directory_iterator(dir_)) {
+      struct stat info {};
+      ::lstat(e.path().c_str(), &info);
+      std::string state = std::to_string(info.st_mode);
+      if (S_ISREG(info.st_mode)) {
+        state += " " + std::to_string(info.st_size) + " " + std::to_string(info.st_mtim.tv_sec) +
+                 "." + std::to_string(info.st_mtim.tv_nsec);
+        if (info.st_size < (1 << 20)) {
+          std::ifstream in(e.path(), std::ios::binary);
+          std::ostringstream s;
+          s << in.rdbuf();
+          state += " " + std::to_string(std::hash<std::string>{}(s.str()));
+        }
+      }
+      entries[fs::relative(e.path(), dir_).string()] = state;
+    }
+    return entries;
+  }
+
+  // The case must fail with status 1, a message containing every `needles`,
+  // and leave the directory untouched.
+  void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
+    const auto before = snapshot();
+    const Result r = run(args);
+    EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
+    EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
+    for (const auto& needle : needles) {
+      EXPECT_NE(r.err.find(needle), std::string::npos)
+          << args << "\nmessage lacks '" << needle << "':\n"
+          << r.err;
+    }
+    EXPECT_EQ(snapshot(), before) << args << ": the directory changed";
+  }
+
+  // A small calibration table and a model fitted on it.
+  void make_calibration() const {
+    ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.1,0.5,0.9 --temperature 10,25,40 "
+                  "--out cal.csv")
+                  .status,
+              0);
+    ASSERT_EQ(run("fit --in cal.csv --chain offset --out model.json").status, 0);
+  }
+
+  // cal.csv with one cell replaced (row 1-based after the header, column by name).
+  void write_with_cell(const std::string& name, std::size_t row, std::size_t column,
+                       const std::string& value) const {
+    std::ifstream in(dir_ / "cal.csv");
+    std::ostringstream out;
+    std::string line;
+    for (std::size_t i = 0; std::getline(in, line); ++i) {
+      if (i == row) {
+        std::vector<std::string> cells;
+        std::stringstream s(line);
+        for (std::string c; std::getline(s, c, ',');) cells.push_back(c);
+        cells[column] = value;
+        line.clear();
+        for (std::size_t k = 0; k < cells.size(); ++k) line += (k ? "," : "") + cells[k];
+      }
+      out << line << "\n";
+    }
+    write(name, out.str());
+  }
+
+  fs::path dir_;
+};
+
+// Item 1: an overflowing squared error must not crash the hinge fit.
+TEST_F(Robustness, HugeCellsInAChainFitAreAnErrorNotACrash) {
+  GTEST_SKIP() << "needs the calibration helper's hinge-fit fix (branch calib: no back() of an "
+                  "empty knot list); remove this skip once merged";
+  make_calibration();
+  write_with_cell("huge_truth.csv", 3, 0, "1e155");
+  write_with_cell("huge_tof.csv", 3, 4, "1e155");
+  for (const char* chain : {"offset,grayvalue", "offset,temperature"}) {
+    for (const char* file : {"huge_truth.csv", "huge_tof.csv"}) {
+      const auto before = snapshot();
+      const Result r =
+          run(std::string("fit --in ") + file + " --chain " + chain + " --out out.json");
+      EXPECT_EQ(r.status, 1) << file << " " << chain << "\n" << r.err;
+      EXPECT_EQ(snapshot(), before);
+    }
+  }
+}
+
+// Item 2: deeply nested configs are refused before the TOML parser sees them.
+TEST_F(Robustness, DeeplyNestedConfigsAreRefused) {
+  std::string header = "[a";
+  for (int i = 1; i < 50'000; ++i) header += ".a";
+  write("deep.toml", header + "]\n");
+  expect_refused("--config deep.toml config", {"deep.toml:1:"});
+  std::string key = "a";
+  for (int i = 1; i < 200'000; ++i) key += ".a";
+  write("dotted.toml", key + " = 1\n");
+  expect_refused("--config dotted.toml config", {"dotted.toml:1:"});
+  write("arrays.toml", "x = " + std::string(50'000, '[') + std::string(50'000, ']') + "\n");
+  expect_refused("--config arrays.toml config", {"arrays.toml:1:", "nesting"});
+}
+
+// Item 3: settings whose derived quantities would hang or exhaust memory.
+TEST_F(Robustness, SettingsThatWouldHangAreRefusedNamingTheKey) {
+  expect_refused(
+      "--set receiver.bandwidth_mhz=1 measure --distance 1 --reflectance 0.5 --out a.csv",
+      {"receiver.bandwidth_mhz", "--set"});
+  expect_refused(
+      "--set receiver.bandwidth_mhz=0.004 measure --distance 1 --reflectance 0.5 --out a.csv",
+      {"receiver.bandwidth_mhz"});
+  expect_refused(
+      "--set measurement.sample_period_ps=0.01 measure --distance 1 --reflectance 0.5 "
+      "--mode waveform --out a.csv",
+      {"measurement.sample_period_ps"});
+  expect_refused("measure --distance 1 --reflectance 0.5 --count 1e8 --out a.csv",
+                 {"--count", "--max-rows"});
+  expect_refused("measure --distance 0:10000000:1 --reflectance 0.5 --out a.csv",
+                 {"--distance", "--max-rows"});
+  expect_refused(
+      "measure --distance 1e5 --reflectance 0.5 --angle 89.9 --mode waveform --out a.csv",
+      {"--distance/--angle"});
+  // The limit is a limit, not a ban: raised, a bigger grid runs.
+  EXPECT_EQ(run("--max-rows 5 measure --distance 1:6:1 --reflectance 0.5 --out a.csv").status, 1);
+  EXPECT_EQ(run("--max-rows 6 measure --distance 1:6:1 --reflectance 0.5 --out a.csv").status, 0);
+}
+
+// Item 4: values that used to be read as something else.
+TEST_F(Robustness, NumbersThatDoNotFitADoubleAreErrorsWithTheirPlace) {
+  make_calibration();
+  write_with_cell("overflow.csv", 3, 4, "1e999");
+  expect_refused("correct --model model.json --in overflow.csv --out c.csv",
+                 {"overflow.csv:4:", "tof_ns", "1e999"});
+  // (The issue's field had 1e8 digits; 1e7 takes the same path at a tenth of the cost.)
+  write_with_cell("long.csv", 2, 4, "1" + std::string(10'000'000, '0'));
+  expect_refused("correct --model model.json --in long.csv --out c.csv",
+                 {"long.csv:3:", "tof_ns", "characters"});
+  fs::remove(dir_ / "long.csv");
+  expect_refused("budget --reflectance nan", {"--reflectance"});
+  expect_refused("measure --distance 1 --reflectance 0.5 --seed -1 --out a.csv", {"--seed -1"});
+  expect_refused("measure --distance 1 --reflectance 0.5 --seed 18446744073709551616 --out a.csv",
+                 {"--seed 18446744073709551616"});
+}
+
+TEST_F(Robustness, OldMacLineEndingsReadLikeUnixOnes) {
+  make_calibration();
+  std::ifstream in(dir_ / "cal.csv");
+  std::ostringstream s;
+  s << in.rdbuf();
+  std::string text = s.str();
+  for (auto& c : text) c = c == '\n' ? '\r' : c;
+  write("cr.csv", text);
+  ASSERT_EQ(run("correct --model model.json --in cal.csv --out lf_out.csv").status, 0);
+  ASSERT_EQ(run("correct --model model.json --in cr.csv --out cr_out.csv").status, 0);
+  std::ifstream a(dir_ / "lf_out.csv"), b(dir_ / "cr_out.csv");
+  std::ostringstream sa, sb;
+  sa << a.rdbuf();
+  sb << b.rdbuf();
+  EXPECT_EQ(sa.str(), sb.str());
+  const std::string lf = sa.str();
+  EXPECT_GT(std::count(lf.begin(), lf.end(), '\n'), 50);
+}
+
+TEST_F(Robustness, InputLargerThanTheLimitIsRefusedNotTruncated) {
+  make_calibration();
+  expect_refused("--max-input-mb 0.003 correct --model model.json --in cal.csv --out c.csv",
+                 {"cal.csv", "--max-input-mb"});
+}
+
+// Item 5: outputs are all-or-nothing and never destroy something else.
+TEST_F(Robustness, AFailingCommandLeavesNoOutputBehind) {
+  make_calibration();
+  // --firmware's file cannot be written (a directory has its name): no model either.
+  fs::create_directories(dir_ / "fw.json");
+  expect_refused("fit --in cal.csv --chain offset --out m2.json --firmware fw", {"fw.json"});
+  // characterize: its JSON cannot be written, so its CSV must not appear.
+  fs::create_directories(dir_ / "out" / "warmup.json");
+  expect_refused("characterize warmup --out out", {"warmup.json"});
+  // demo: the last file fails; none of the others may stay (nor new directories).
+  fs::create_directories(dir_ / "demo" / "summary.json");
+  expect_refused("demo --out demo --no-plots", {"summary.json"});
+}
+
+TEST_F(Robustness, OutputsNeverReplaceInputsLinksOrDevices) {
+  make_calibration();
+  expect_refused("correct --model model.json --in cal.csv --out cal.csv", {"cal.csv", "input"});
+  fs::create_hard_link(dir_ / "cal.csv", dir_ / "same.csv");
+  expect_refused("correct --model model.json --in cal.csv --out same.csv", {"same.csv", "input"});
+  fs::create_symlink("elsewhere.csv", dir_ / "link.csv");
+  expect_refused("correct --model model.json --in cal.csv --out link.csv", {"link.csv", "link"});
+  ASSERT_EQ(::mkfifo((dir_ / "fifo").c_str(), 0600), 0);
+  expect_refused("correct --model model.json --in cal.csv --out fifo", {"fifo", "regular"});
+}
+
+TEST_F(Robustness, SigtermRemovesTemporaries) {
+  ASSERT_EQ(run("measure --distance 1:8:0.001 --reflectance 0.1,0.9 --count 10 --shots 1 "
+                "--out big.csv")
+                .status,
+            0);
+  ASSERT_EQ(run("fit --in big.csv --chain offset --out model.json").status, 0);
+  // Signal a correct at several moments: whenever it arrives, no temporary
+  // may be left (either nothing new, or the finished output).
+  for (int delay_ms : {50, 150, 300, 600}) {
+    const std::string command = "cd '" + dir_.string() +
+                                "' && exec '" TOFKIT_BINARY
+                                "' correct --model model.json --in big.csv --out c.csv "
+                                ">/dev/null 2>&1";
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+      ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
+    ::kill(pid, SIGTERM);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    for (const auto& e : fs::directory_iterator(dir_)) {
+      EXPECT_EQ(e.path().filename().string().find(".tmp."), std::string::npos)
+          << "left behind after SIGTERM at " << delay_ms << " ms: " << e.path();
+    }
+    fs::remove(dir_ / "c.csv");
+  }
+}
+
+// Item 6: messages name the file, line or key.
+TEST_F(Robustness, MessagesNameTheFileLineOrKey) {
+  make_calibration();
+  write("overflow.json", "{\n  \"version\": 1e999\n}\n");
+  expect_refused("correct --model overflow.json --in cal.csv --out c.csv", {"overflow.json:2:"});
+  fs::create_directories(dir_ / "modeldir");
+  expect_refused("correct --model modeldir --in cal.csv --out c.csv", {"modeldir", "directory"});
+  expect_refused(
+      "--set measurement.reference_temperature_c=90 fit --in cal.csv --chain offset --out m.json",
+      {"measurement.reference_temperature_c"});
+  expect_refused("--set laser.repetition_hz=1e9 budget", {"--set laser.repetition_hz=1e9"});
+  expect_refused("--set bogus.key=1 correct --model model.json --in cal.csv --out c.csv",
+                 {"bogus.key"});
+  ASSERT_EQ(run("correct --model model.json --in cal.csv --out c.csv").status, 0);
+  expect_refused("--set bogus.key=1 evaluate --in c.csv", {"bogus.key"});
+  write("bad.toml", "[receiver]\nbandwidth_mhz = \"wide\"\n");
+  expect_refused("--config bad.toml evaluate --in c.csv", {"bad.toml:2"});
+}
+
+TEST_F(Robustness, OutOfMemoryIsAMessageNotACrash) {
+  // The sanitizers' allocator aborts on an 800 GB request instead of throwing.
+  if (std::getenv("TOFKIT_SANITIZED") != nullptr) GTEST_SKIP() << "allocator under ASan aborts";
+  expect_refused(
+      "--max-rows 1000000000000 measure --distance 0:1e11:1 --reflectance 0.5 --out x.csv",
+      {"out of memory", "--max-rows"});
+}
+
+TEST_F(Robustness, DemoVerdictIsNoWhenNoEchoIsMeasured) {
+  const std::string out_command = "cd '" + dir_.string() +
+                                  "' && '" TOFKIT_BINARY
+                                  "' --set discriminator.threshold_v=100 demo --out d2 "
+                                  "--no-plots 2>/dev/null | grep 'within +-11 mm' > verdict.txt";
+  ASSERT_EQ(std::system(out_command.c_str()), 0);
+  std::ifstream v(dir_ / "verdict.txt");
+  std::string line;
+  std::getline(v, line);
+  EXPECT_EQ(line.find("within +-11 mm: yes"), std::string::npos) << line;
+  EXPECT_NE(line.find("without a measurement"), std::string::npos) << line;
+}
+
+}  // namespace
