@@ -84,7 +84,7 @@ def test_the_gil_is_released_while_correcting(model):
     import threading
     import time
 
-    data = synthetic(5_000_000, tofkit.RAW_DTYPE)
+    data = synthetic(ROWS, tofkit.RAW_DTYPE)
     out = np.empty(len(data), dtype=tofkit.RANGE_DTYPE)
     alone = float("inf")
     for _ in range(2):  # the first call also faults in out's pages
