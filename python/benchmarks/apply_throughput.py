@@ -55,7 +55,7 @@ def main():
                                  temperature_c=[0, 15, 25, 40], count=2, shots=100, seed=3)
     model = tofkit.fit_chain(calibration)
     records = synthetic(ROWS)
-    packed = np.zeros(ROWS, dtype=[(n, records.dtype[n]) for n in RAW_FIELDS])
+    packed = np.zeros(ROWS, dtype=tofkit.RAW_DTYPE)
     for n in RAW_FIELDS:
         packed[n] = records[n]
     columns = {n: np.ascontiguousarray(records[n]) for n in RAW_FIELDS}

@@ -15,6 +15,9 @@ namespace py = pybind11;
 /// The raw CSV columns in ranging::Record's layout (80 bytes a row): a
 /// measure() result is the C++ records themselves.
 [[nodiscard]] py::dtype record_dtype();
+/// The device's columns only, in ranging::RawMeasurement's layout (48 bytes a
+/// row): Model.apply hands such an array to the C++ batch as it is.
+[[nodiscard]] py::dtype raw_dtype();
 /// distance_m, sigma_m, correction_flags in ranging::Range's layout.
 [[nodiscard]] py::dtype range_dtype();
 

@@ -1,7 +1,9 @@
 #include "columns.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <string>
@@ -195,6 +197,24 @@ void ColumnSet::gather_records(std::size_t begin, std::span<ranging::Record> out
     }
   }
   for (std::size_t i = 0; i < out.size(); ++i) out[i].raw = raw[i];
+}
+
+void ColumnSet::prefetch_raw(std::size_t begin, std::size_t n) const {
+  constexpr py::ssize_t kLine = 64;
+  for (std::size_t k = kTof; k <= kFlags; ++k) {
+    const Column& c = columns_[k];
+    if (!c.present() || n == 0) continue;
+    const char* first = c.data + static_cast<py::ssize_t>(begin) * c.stride;
+    const char* last = first + static_cast<py::ssize_t>(n - 1) * c.stride;
+    const char* lo = std::min(first, last);
+    const char* hi = std::max(first, last) + c.itemsize;
+    // Columns of one structured array share their lines: fetch them once.
+    if (k > kTof && columns_[kTof].present() && c.stride == columns_[kTof].stride &&
+        std::abs(c.data - columns_[kTof].data) < c.stride) {
+      continue;
+    }
+    for (const char* p = lo; p < hi; p += kLine) __builtin_prefetch(p);
+  }
 }
 
 const ranging::RawMeasurement* ColumnSet::raw_rows(py::ssize_t& stride) const {

@@ -55,6 +55,10 @@ class ColumnSet {
   /// The same with the truth columns (NaN when absent).
   void gather_records(std::size_t begin, std::span<ranging::Record> out) const;
 
+  /// Asks the CPU to fetch rows [begin, begin + n) of the raw columns into
+  /// cache (the gather then overlaps memory with the previous block's compute).
+  void prefetch_raw(std::size_t begin, std::size_t n) const;
+
   /// The rows when the raw columns are the fields of ranging::RawMeasurement
   /// themselves (a RECORD_DTYPE or RawMeasurement-layout array): the first
   /// row and the byte stride between rows; nullptr otherwise.

@@ -23,10 +23,29 @@ namespace {
 
 namespace fs = std::filesystem;
 
-device::DeviceConfig load_config(const std::string& preset, const std::optional<fs::path>& file,
-                                 const std::vector<std::string>& overrides) {
+/// Overrides as "section.key=value" strings from a dict, a list or one string.
+std::vector<std::string> overrides_of(const py::object& set) {
+  std::vector<std::string> out;
+  if (set.is_none()) return out;
+  if (py::isinstance<py::str>(set)) return {set.cast<std::string>()};
+  if (py::isinstance<py::dict>(set)) {
+    for (const auto& [key, value] : set.cast<py::dict>()) {
+      const std::string text = py::isinstance<py::bool_>(value)
+                                   ? (value.cast<bool>() ? "true" : "false")
+                                   : py::str(value).cast<std::string>();
+      out.push_back(py::str(key).cast<std::string>() + "=" + text);
+    }
+    return out;
+  }
+  for (const auto& item : set) out.push_back(py::str(item).cast<std::string>());
+  return out;
+}
+
+device::DeviceConfig load_config(const std::optional<std::string>& preset,
+                                 const std::optional<fs::path>& file, const py::object& set) {
+  const std::vector<std::string> overrides = overrides_of(set);
   try {
-    return io::load_device_config(preset, file, overrides);
+    return io::load_device_config(preset.value_or(""), file, overrides);
   } catch (const io::ConfigError& e) {
     if (file) rethrow_for_file(*file, e);
     throw;
@@ -131,15 +150,18 @@ py::array read_raw(const fs::path& path) {
 void bind_device(py::module_& m) {
   py::class_<device::DeviceConfig>(m, "DeviceConfig",
                                    "A device configuration (the CLI's --preset, --config, --set)")
-      .def(py::init(&load_config), py::arg("preset") = "", py::arg("file") = py::none(),
-           py::arg("overrides") = std::vector<std::string>{},
-           "Start from `preset` (empty: the file's, else paper), apply the TOML `file`, then the "
-           "'section.key=value' overrides. Raises ValueError (FileNotFoundError for a missing "
+      .def(py::init(&load_config), py::arg("preset") = py::none(), py::arg("file") = py::none(),
+           py::arg("set") = py::none(),
+           "As the CLI's --preset, --config and --set: start from `preset` (None: the file's, "
+           "else paper), apply the TOML `file`, then the overrides `set` (a dict {key: value} "
+           "or 'section.key=value' strings). Raises ValueError (FileNotFoundError for a missing "
            "file) with the CLI's message.")
       .def_property_readonly("name", [](const device::DeviceConfig& c) { return c.name; })
       .def("dump", &io::dump_device_config, "The full configuration as TOML (tofkit config --dump)")
       .def("__getitem__", &config_value, py::arg("key"))
       .def("to_dict", &config_dict, "Every key and its value")
+      .def("__repr__",
+           [](const device::DeviceConfig& c) { return "<tofkit.DeviceConfig " + c.name + ">"; })
       .def_static("presets", &device::preset_names);
 
   py::class_<experiments::PlateGrid>(m, "_PlateGrid")

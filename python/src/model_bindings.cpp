@@ -119,6 +119,8 @@ py::array apply(const Model& model, const py::tuple& columns,
   for (std::size_t begin = 0; begin < n; begin += kChunk) {
     const std::size_t count = std::min(kChunk, n - begin);
     const std::span<ranging::RawMeasurement> block(chunk.data(), count);
+    // The next block's reads overlap this block's compute.
+    if (begin + count < n) input.prefetch_raw(begin + count, std::min(kChunk, n - begin - count));
     if (rows != nullptr) {
       // RawMeasurements inside larger rows (a measure() result): copy 48 bytes a row.
       const char* first =

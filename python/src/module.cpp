@@ -41,6 +41,21 @@ py::dtype record_dtype() {
   return py::dtype::from_args(spec);
 }
 
+py::dtype raw_dtype() {
+  using ranging::RawMeasurement;
+  py::dict spec;
+  spec["names"] = py::make_tuple("tof_ns", "distance_raw_m", "pulse_width_ns", "amplitude",
+                                 "temperature_c", "shots_valid", "flags");
+  spec["formats"] = py::make_tuple("<f8", "<f8", "<f8", "<f8", "<f8", "<u4", "<u4");
+  spec["offsets"] =
+      py::make_tuple(offsetof(RawMeasurement, tof_ns), offsetof(RawMeasurement, distance_raw_m),
+                     offsetof(RawMeasurement, pulse_width_ns), offsetof(RawMeasurement, amplitude),
+                     offsetof(RawMeasurement, temperature_c), offsetof(RawMeasurement, shots_valid),
+                     offsetof(RawMeasurement, flags));
+  spec["itemsize"] = sizeof(RawMeasurement);
+  return py::dtype::from_args(spec);
+}
+
 py::dtype range_dtype() {
   using ranging::Range;
   py::dict spec;
@@ -80,6 +95,7 @@ PYBIND11_MODULE(_tofkit, m) {
     }
   });
   m.attr("RECORD_DTYPE") = tp::record_dtype();
+  m.attr("RAW_DTYPE") = tp::raw_dtype();
   m.attr("RANGE_DTYPE") = tp::range_dtype();
   tp::bind_device(m);
   tp::bind_model(m);

@@ -27,6 +27,8 @@ def test_override_types():
     assert config["receiver.bandwidth_mhz"] == 120.5
     assert config["receiver.bias_temperature_compensated"] is False
     assert "paper" in tofkit.DeviceConfig.presets()
+    assert isinstance(config, tofkit.DeviceConfig)
+    assert tofkit.DeviceConfig(set="measurement.shots=3")["measurement.shots"] == 3
 
 
 def errors_match(cli, args, make):

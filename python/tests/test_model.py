@@ -82,10 +82,11 @@ def test_every_input_layout_gives_the_same_ranges(calibration):
     expected = [a.copy() for a in model.apply(records)]  # RECORD_DTYPE rows (80 bytes)
     raw_fields = ["tof_ns", "distance_raw_m", "pulse_width_ns", "amplitude", "temperature_c",
                   "shots_valid", "flags"]
-    packed = np.empty(len(records), dtype=[(n, records.dtype[n]) for n in raw_fields])
+    packed = np.empty(len(records), dtype=tofkit.RAW_DTYPE)
     for n in raw_fields:
         packed[n] = records[n]
     assert packed.dtype.itemsize == 48  # RawMeasurement's layout: handed over as is
+    assert packed.dtype == np.dtype([(n, records.dtype[n]) for n in raw_fields])
     columns = {n: records[n].copy() for n in raw_fields}
     columns["shots_valid"] = columns["shots_valid"].astype(np.int64)
     reversed_view = records[::-1]

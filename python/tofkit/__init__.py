@@ -12,18 +12,21 @@ Errors in keys, files or values raise ValueError (FileNotFoundError for a
 missing file) with the command-line tool's message.
 """
 
-from ._tofkit import RANGE_DTYPE, RECORD_DTYPE, read_raw
+from ._tofkit import RANGE_DTYPE, RAW_DTYPE, RECORD_DTYPE, read_raw
 from .device import DeviceConfig, link_budget, measure
 from .model import Model, fit_chain, fit_surface
 
 RAW_COLUMNS = RECORD_DTYPE.names
-"""The raw CSV columns, in file order (the fields of measure()'s result)."""
+"""The raw CSV columns, in file order (the fields of measure()'s result).
+RAW_DTYPE holds the device's columns only, in the C++ RawMeasurement layout:
+the fastest input of Model.apply (no gather)."""
 
 __all__ = [
     "DeviceConfig",
     "Model",
     "RANGE_DTYPE",
     "RAW_COLUMNS",
+    "RAW_DTYPE",
     "RECORD_DTYPE",
     "fit_chain",
     "fit_surface",

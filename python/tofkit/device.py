@@ -1,43 +1,17 @@
 """The device side: configurations, the virtual rangefinder, the link budget."""
 
-import os
-
 import numpy as np
 
 from . import _tofkit
 
 
-def _override_text(key, value):
-    if isinstance(value, bool):
-        return f"{key}={'true' if value else 'false'}"
-    return f"{key}={value!r}" if isinstance(value, float) else f"{key}={value}"
-
-
-def DeviceConfig(preset=None, file=None, set=None):
-    """A device configuration, as the CLI's ``--preset``, ``--config`` and ``--set``.
-
-    preset: "paper", "accurange" (None: the file's, else "paper").
-    file: a TOML device file.
-    set: overrides, a dict {"receiver.bandwidth_mhz": 120} or a list of
-        "section.key=value" strings, applied after the file.
-
-    Raises ValueError (FileNotFoundError for a missing file) with the CLI's
-    message. The result has ``dump()`` (TOML), ``config["section.key"]``,
-    ``to_dict()`` and ``name``.
-    """
-    if set is None:
-        overrides = []
-    elif isinstance(set, dict):
-        overrides = [_override_text(k, v) for k, v in set.items()]
-    elif isinstance(set, str):
-        overrides = [set]
-    else:
-        overrides = [str(s) for s in set]
-    path = None if file is None else os.fspath(file)
-    return _tofkit.DeviceConfig(preset or "", path, overrides)
-
-
-DeviceConfig.presets = _tofkit.DeviceConfig.presets
+DeviceConfig = _tofkit.DeviceConfig
+"""DeviceConfig(preset=None, file=None, set=None): a device configuration, as
+the CLI's --preset, --config and --set (``set``: a dict {"receiver.bandwidth_mhz":
+120} or "section.key=value" strings, applied after the file). Raises ValueError
+(FileNotFoundError for a missing file) with the CLI's message. Has ``dump()``
+(TOML), ``config["section.key"]``, ``to_dict()``, ``name`` and the static
+``presets()``."""
 
 
 def _values(x, name):
