@@ -379,3 +379,20 @@ TEST(ScanPatterns, RasterSerpentineMirrorAndSpinningGeometry) {
     EXPECT_GE(s.beams[i].time_s, s.beams[i - 1].time_s);
   EXPECT_NEAR(std::asin(s.beams[0].direction[2]) * 180 / std::numbers::pi, 15.0, 1e-9);
 }
+
+TEST(ScanScene, SensorPoseRotatesBeamsRep103) {
+  Pose pose;
+  pose.position_m = {1, 2, 3};
+  pose.rpy_deg = {0, 0, 90};  // yaw left: +x looks along world +y
+  const Vec3 d = pose.rotate({1, 0, 0});
+  EXPECT_NEAR(d[0], 0, 1e-15);
+  EXPECT_NEAR(d[1], 1, 1e-15);
+  pose.rpy_deg = {0, 90, 0};  // pitch +90 about y: +x turns to -z (looks down)
+  const Vec3 down = pose.rotate({1, 0, 0});
+  EXPECT_NEAR(down[2], -1, 1e-15);
+  const Vec3 p = pose.transform({0, 0, 0});
+  EXPECT_EQ(p[0], 1);
+  EXPECT_EQ(p[2], 3);
+  pose.rpy_deg = {90, 0, 0};  // roll about x: +y turns to +z
+  EXPECT_NEAR(pose.rotate({0, 1, 0})[2], 1, 1e-15);
+}
