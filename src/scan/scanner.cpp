@@ -64,8 +64,12 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                               b.angle_deg = surface.angle_deg;
                             }
                           }
-                          b.raw =
-                              device.measure(fp.target, options.conditions, options.seed, i, shots);
+                          device::Conditions conditions = options.conditions;
+                          if (options.clocks_follow_beams) {
+                            conditions.minutes_since_power_on += b.beam.time_s / 60.0;
+                            conditions.ms_since_laser_on += b.beam.time_s * 1e3;
+                          }
+                          b.raw = device.measure(fp.target, conditions, options.seed, i, shots);
                         }
                       });
     if (options.progress) options.progress(end, n);

@@ -35,7 +35,10 @@ struct ScanResult {
 struct ScanOptions {
   std::uint64_t seed = 1;
   int shots = 0;  ///< per beam before the pattern's multiplier (0: measurement.shots)
-  device::Conditions conditions;
+  device::Conditions conditions;  ///< ambient; warm-up and laser-on clocks at the scan's start
+  /// Advance conditions.minutes_since_power_on and ms_since_laser_on with each
+  /// beam's time stamp (warm-up drift and the laser's turn-on show in a scan).
+  bool clocks_follow_beams = true;
   /// Called from the calling thread after each block of beams (done, total).
   std::function<void(std::size_t, std::size_t)> progress;
 };
