@@ -464,3 +464,21 @@ TEST(Device, ModesAgreeInTable1Sunlight) {
     }
   }
 }
+
+TEST(Device, SunlitFalseStopsAreRejectedBeforeAveraging) {
+  // 8 m, rho 0.9 in Table 1 sunlight: noise crosses the threshold before the
+  // echo on a share of the shots. The firmware's median gate drops them, so the
+  // mean stays at the indoor mean and the rejected share shows in shots_valid.
+  auto sun = preset("paper");
+  sun.link.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
+  auto ungated = sun;
+  ungated.measurement.stop_gate_ns = 0;
+  auto indoor_cfg = preset("paper");
+  const auto t = Target::plate(8.0, 0.9);
+  const auto gated = VirtualRangefinder(sun).measure(t, {}, 5, 0, 4000);
+  const auto raw = VirtualRangefinder(ungated).measure(t, {}, 5, 0, 4000);
+  const auto indoor = VirtualRangefinder(indoor_cfg).measure(t, {}, 5, 0, 4000);
+  EXPECT_LT(gated.shots_valid, raw.shots_valid);  // some stops rejected
+  EXPECT_GT(std::abs(raw.distance_raw_m - indoor.distance_raw_m), 0.02);
+  EXPECT_NEAR(gated.distance_raw_m, indoor.distance_raw_m, 3e-3);
+}

@@ -190,6 +190,8 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "1 sigma delay offset drawn at each power-on (a run's seed). Assumption"),
       field("measurement.flicker_delay_ps", &m.flicker_delay_ps, 0, 1e6, kClosed,
             "rms of a slow 1/f delay wander (averaging floor). Assumption"),
+      field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6, kClosed,
+            "false-stop rejection: drop stops this far from the median stop (0: off). Assumption"),
       field("measurement.window_ns", &m.window_ns, 0, 1e5, kOpen,
             "waveform-mode record length around the echo"),
       field("measurement.sample_period_ps", &m.sample_period_ps, 0, 1e6, kOpen,

@@ -537,14 +537,33 @@ struct VirtualRangefinder::Impl {
     const double internal_c = m.temperature_reading_c;
     const int n = shots > 0 ? shots : config.measurement.shots;
     const double offset_ns = slow_offset_ns(rng, stream);
-    double sum_tof = 0, sum_width = 0;
-    std::uint32_t valid = 0;
+    // The firmware keeps each shot's stop, then rejects false stops before
+    // averaging: stops farther than measurement.stop_gate_ns from the median
+    // stop (range gate around the median). Rejected stops lower shots_valid.
+    thread_local std::vector<std::array<double, 2>> stops;
+    stops.clear();
     for (int i = 0; i < n; ++i) {
       double start = 0, rise = 0, fall = 0;
       if (!shot(m, rng, stream, static_cast<std::uint32_t>(i), offset_ns, start, rise, fall))
         continue;
-      sum_tof += rise - start;
-      sum_width += fall - rise;
+      stops.push_back({rise - start, fall - rise});
+    }
+    double sum_tof = 0, sum_width = 0;
+    std::uint32_t valid = 0;
+    const double gate = config.measurement.stop_gate_ns;
+    double median = 0;
+    if (gate > 0 && !stops.empty()) {
+      thread_local std::vector<double> tofs;
+      tofs.clear();
+      for (const auto& st : stops) tofs.push_back(st[0]);
+      const auto mid = tofs.begin() + static_cast<std::ptrdiff_t>(tofs.size() / 2);
+      std::nth_element(tofs.begin(), mid, tofs.end());
+      median = *mid;
+    }
+    for (const auto& st : stops) {
+      if (gate > 0 && std::abs(st[0] - median) > gate) continue;
+      sum_tof += st[0];
+      sum_width += st[1];
       ++valid;
     }
     ranging::RawMeasurement out;

@@ -29,7 +29,7 @@ struct TdcConfig {
                                     ///< (30 ps, 4.5 mm) after the FPGA's code-density calibration.
   bool laser_sync = true;           ///< the laser fires on a clock edge (fixed start phase, as the
                                     ///< paper's FPGA: the INL leaves a periodic error every
-                           ///< c / (2 f_coarse)); false: asynchronous, the INL averages out
+  ///< c / (2 f_coarse)); false: asynchronous, the INL averages out
   double bin_tempco_ppm_per_c =
       100.0;  ///< fine-bin width change per degree of the timing board
               ///< (carry-chain delays: ~1000 ppm/C bare; the residual
@@ -76,8 +76,11 @@ struct MeasurementConfig {
                                      ///< on different "days" differ by this. Assumption (1.5 mm).
   double flicker_delay_ps = 5.0;     ///< rms of a slow 1/f delay wander (eight octaves from 1 mHz
                                      ///< to 0.26 Hz), so averaging stops improving. Assumption.
-  double window_ns = 30.0;           ///< waveform-mode record length around the echo
-  double sample_period_ps = 100.0;   ///< waveform-mode sampling period
+  double stop_gate_ns = 2.0;         ///< firmware's false-stop rejection: stops farther than this
+                              ///< from the median stop are dropped before averaging (0: off).
+                              ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).
+  double window_ns = 30.0;                ///< waveform-mode record length around the echo
+  double sample_period_ps = 100.0;        ///< waveform-mode sampling period
   double reference_temperature_c = 20.0;  ///< air temperature the device assumes for c_air
 };
 
