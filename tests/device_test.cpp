@@ -7,10 +7,13 @@
 
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <vector>
 
+#include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/physics/environment.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
 using namespace tofkit;
@@ -154,26 +157,64 @@ TEST(Device, AveragingShrinksSpreadAsOneOverSqrtN) {
     EXPECT_NEAR(spread_of_means(n) * std::sqrt(double(n)) / sd1, 1.0, 0.2) << n;
 }
 
-TEST(Device, ThermalDriftFollowsTheKneeModel) {
-  const auto cfg = preset("paper");
+TEST(Device, TemperatureDriftArisesFromCausesAndDependsOnEchoStrength) {
+  // Paper Section 5.2 / Fig. 8 at 2.402 m: small below 16 C, about 3.8 mm/C
+  // above. Nothing in the device imposes that law: the timing board's delay
+  // tempco acts above its heater's setpoint, and the APD bias loop's residual
+  // lowers the gain with temperature, so walk adds a drift that depends on the
+  // echo's strength. The TDC fires asynchronously here so that its INL (a
+  // periodic error in range, tested on its own below) does not mix in.
+  auto cfg = preset("paper");
+  cfg.tdc.laser_sync = false;
   const VirtualRangefinder dev(cfg);
-  const auto target = Target::plate(2.402, 0.1);
   const int shots = 20000;
-  // Same seed at every temperature (common random numbers): differences are precise.
-  auto raw_at = [&](double ambient_c) {
-    Conditions c;
-    c.ambient_c = ambient_c;
-    return dev.measure(target, c, 9, 0, shots).distance_raw_m;
-  };
   const double self = cfg.thermal.self_heating_c;
-  const double knee_ambient = cfg.thermal.knee_c - self;
-  const double hot = (raw_at(knee_ambient + 20.0) - raw_at(knee_ambient + 5.0)) / 15.0 * 1e3;
-  EXPECT_NEAR(hot / cfg.thermal.delay_coeff_mm_per_c, 1.0, 0.10);
-  const double cold = (raw_at(knee_ambient - 1.0) - raw_at(knee_ambient - 8.0)) / 7.0 * 1e3;
-  EXPECT_LT(std::abs(cold), 0.25 * cfg.thermal.delay_coeff_mm_per_c);
-  // Internal temperature: ambient + self-heating, settled after power-on.
+  // Same seed at every temperature (common random numbers): differences are precise.
+  auto raw_mm = [&](double internal_c, double rho) {
+    Conditions c;
+    c.ambient_c = internal_c - self;
+    return dev.measure(Target::plate(2.402, rho), c, 9, 0, shots).distance_raw_m * 1e3;
+  };
+  std::map<double, double> hot;
+  for (double rho : {0.05, 0.5, 0.9}) {
+    hot[rho] = (raw_mm(40.0, rho) - raw_mm(20.0, rho)) / 20.0;
+    const double cold = (raw_mm(14.0, rho) - raw_mm(4.0, rho)) / 10.0;
+    SCOPED_TRACE(testing::Message() << "rho " << rho << " hot " << hot[rho] << " cold " << cold);
+    // Looks like Fig. 8: 3.8 mm/C above 16 C (within 20 %), small below.
+    EXPECT_NEAR(hot[rho], 3.8, 0.2 * 3.8);
+    EXPECT_LT(std::abs(cold), 0.25 * hot[rho]);
+  }
+  // The drift depends on the echo's strength by at least 10 % of its size.
+  EXPECT_GT(std::abs(hot[0.05] - hot[0.9]), 0.1 * hot[0.5]);
+  // Oracle for the delay part: with a perfect bias loop (and no laser power or
+  // TDC bin drift), the drift above the
+  // heater's range is the delay tempco alone, c / 2 per ps.
+  auto ideal = cfg;
+  ideal.link.receiver.bias_tracking_error_v_per_c = 0.0;
+  ideal.tdc.bin_tempco_ppm_per_c = 0.0;
+  ideal.link.laser.power_temp_coeff_per_c = 0.0;
+  const VirtualRangefinder ideal_dev(ideal);
+  auto ideal_mm = [&](double internal_c, double rho) {
+    Conditions c;
+    c.ambient_c = internal_c - self;
+    return ideal_dev.measure(Target::plate(2.402, rho), c, 9, 0, shots).distance_raw_m * 1e3;
+  };
+  const double tempco_mm_per_c =
+      cfg.thermal.delay_tempco_ps_per_c * 1e-3 * ideal_dev.tof_to_distance_m(1.0) * 1e3;
+  for (double rho : {0.05, 0.9})
+    EXPECT_NEAR((ideal_mm(40.0, rho) - ideal_mm(20.0, rho)) / 20.0, tempco_mm_per_c, 0.02) << rho;
+  // Below the setpoint the heater holds the board: it follows by 1 / (1 + K).
+  const double k = cfg.thermal.heater_loop_gain;
+  EXPECT_NEAR(
+      timing_board_temperature_c(cfg.thermal, 4.0) - timing_board_temperature_c(cfg.thermal, 14.0),
+      -10.0 / (1.0 + k), 1e-9);
+  // Internal temperature: ambient + self-heating, settled after power-on; the
+  // sensor trails the die during warm-up and agrees once settled.
   EXPECT_NEAR(internal_temperature_c(cfg.thermal, 20.0, 1e9), 20.0 + self, 1e-12);
   EXPECT_NEAR(internal_temperature_c(cfg.thermal, 20.0, 0.0), 20.0, 1e-12);
+  EXPECT_LT(sensor_temperature_c(cfg.thermal, 20.0, 5.0),
+            internal_temperature_c(cfg.thermal, 20.0, 5.0));
+  EXPECT_NEAR(sensor_temperature_c(cfg.thermal, 20.0, 1e9), 20.0 + self, 1e-12);
 }
 
 TEST(Device, AnalyticAndWaveformModesAgree) {
@@ -208,7 +249,9 @@ TEST(Device, AnalyticAndWaveformModesAgree) {
 TEST(Device, SunlitBrightTargetsGiveFalseAlarmsAtRicesRate) {
   // Sunlight on a white target raises the background shot noise; the noise alone
   // then crosses the threshold before the echo at Rice's rate, in both modes.
-  const auto cfg = preset("paper");
+  auto cfg = preset("paper");
+  EXPECT_EQ(cfg.link.environment.solar_irradiance_w_per_m2_um, 0.0);  // indoors by default
+  cfg.link.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
   const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
   const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
   const auto target = Target::plate(2.355, 0.95);
@@ -270,4 +313,172 @@ TEST(Device, InvalidConfigIsRejectedNamingTheKey) {
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("receiver.bandwidth_mhz"), std::string::npos) << e.what();
   }
+}
+
+TEST(Device, AveragingHasAFloorAndPowerOnsDiffer) {
+  // Issue 12: over 12 power-ons (seeds), the spread of 1e4-shot means is at
+  // least 1/1.5 of that of 1e3-shot means (2 m, rho 0.1, indoors): the power-on
+  // offset and the 1/f wander do not average away. Without them it would be 1/sqrt(10).
+  const VirtualRangefinder dev(preset("paper"));
+  const auto target = Target::plate(2.0, 0.1);
+  auto spread = [&](int shots) {
+    double s = 0, s2 = 0;
+    for (std::uint64_t seed = 1; seed <= 12; ++seed) {
+      const double d = dev.measure(target, {}, seed, 0, shots).distance_raw_m;
+      s += d;
+      s2 += d * d;
+    }
+    const double m = s / 12;
+    return std::sqrt(std::max(0.0, (s2 / 12 - m * m) * 12 / 11));
+  };
+  const double sd3 = spread(1000), sd4 = spread(10000);
+  EXPECT_GE(sd4, sd3 / 1.5) << sd3 << " " << sd4;
+  // Oracle: with neither, the 1/sqrt(N) law is back (ratio about 0.32).
+  auto ideal = preset("paper");
+  ideal.measurement.power_on_offset_ps = 0;
+  ideal.measurement.flicker_delay_ps = 0;
+  ideal.tdc.laser_sync = false;
+  const VirtualRangefinder ideal_dev(ideal);
+  double s = 0, s2 = 0;
+  for (std::uint64_t seed = 1; seed <= 12; ++seed) {
+    const double d = ideal_dev.measure(target, {}, seed, 0, 10000).distance_raw_m;
+    s += d;
+    s2 += d * d;
+  }
+  const double m = s / 12;
+  EXPECT_LT(std::sqrt((s2 / 12 - m * m) * 12 / 11), sd4 / 2.0);
+}
+
+TEST(Device, SynchronousLaserLeavesTheTdcInlPeriodicInRange) {
+  // A 5 mm-step sweep over 3 m. With the laser fired on the clock, the stop's
+  // phase in the coarse period is set by the range, so the INL appears as an
+  // error with the period c / (2 f_coarse) (0.75 m); fired asynchronously the
+  // start phase is uniform and the INL averages out.
+  auto cfg = preset("paper");
+  cfg.measurement.power_on_offset_ps = 0;
+  cfg.measurement.flicker_delay_ps = 0;
+  auto async_cfg = cfg;
+  async_cfg.tdc.laser_sync = false;
+  const VirtualRangefinder sync_dev(cfg), async_dev(async_cfg);
+  const double mm_per_ns = sync_dev.tof_to_distance_m(1.0) * 1e3;
+  const double period_m = mm_per_ns * 1e-3 * 1e3 / cfg.tdc.coarse_clock_mhz;
+  const int steps = 600;
+  std::vector<double> diff(steps), noise(steps);
+  for (int i = 0; i < steps; ++i) {
+    const auto t = Target::plate(1.0 + 0.005 * i, 0.5);
+    const double a = async_dev.measure(t, {}, 3, 0, 2000).distance_raw_m;
+    diff[i] = 1e3 * (sync_dev.measure(t, {}, 3, 0, 2000).distance_raw_m - a);
+    noise[i] = 1e3 * (async_dev.measure(t, {}, 4, 0, 2000).distance_raw_m - a);
+  }
+  auto rms_about_mean = [](const std::vector<double>& v) {
+    double s = 0, s2 = 0;
+    for (double x : v) {
+      s += x;
+      s2 += x * x;
+    }
+    const double m = s / double(v.size());
+    return std::sqrt(s2 / double(v.size()) - m * m);
+  };
+  // The INL table's rms in mm: the oracle for the sync error's size.
+  const Tdc tdc(cfg.tdc);
+  double inl2 = 0;
+  for (double v : tdc.inl_lsb()) inl2 += v * v;
+  const double inl_rms_mm =
+      std::sqrt(inl2 / double(tdc.inl_lsb().size())) * tdc.lsb_ns() * mm_per_ns;
+  const double sync_rms = rms_about_mean(diff), async_rms = rms_about_mean(noise);
+  EXPECT_GT(sync_rms, 0.5 * inl_rms_mm) << sync_rms << " " << inl_rms_mm;
+  EXPECT_LT(async_rms, 0.5 * sync_rms) << async_rms;
+  // Periodic: the error one coarse period (0.75 m) later repeats.
+  const auto lag = static_cast<int>(std::lround(period_m / 0.005));
+  double sxy = 0, sxx = 0, syy = 0;
+  for (int i = 0; i + lag < steps; ++i) {
+    sxy += diff[i] * diff[i + lag];
+    sxx += diff[i] * diff[i];
+    syy += diff[i + lag] * diff[i + lag];
+  }
+  EXPECT_GT(sxy / std::sqrt(sxx * syy), 0.6);
+}
+
+TEST(Device, AmplitudeClipsAmbiguityAliasesAndTheNearZoneIsBlind) {
+  const auto cfg = preset("paper");
+  const VirtualRangefinder dev(cfg);
+  // The amplitude reading never exceeds its stage's clip: near echoes read alike.
+  const auto near = dev.measure(Target::plate(0.05, 0.99), {}, 1, 0, 200);
+  const auto mid = dev.measure(Target::plate(0.3, 0.99), {}, 1, 0, 200);
+  ASSERT_TRUE(near.has_echo());
+  ASSERT_TRUE(mid.has_echo());
+  EXPECT_LE(near.amplitude, cfg.link.receiver.amplitude_clip_v);
+  EXPECT_LE(mid.amplitude, cfg.link.receiver.amplitude_clip_v);
+  EXPECT_NEAR(near.amplitude, mid.amplitude, 1e-12);
+  // Range ambiguity: at 5 MHz an echo from 40 m arrives 10 m after the next pulse.
+  auto fast = cfg;
+  fast.link.laser.repetition_hz = 5e6;
+  const VirtualRangefinder fast_dev(fast);
+  const auto far = fast_dev.measure(Target::plate(40.0, 0.9), {}, 1, 0, 1000);
+  const double ambiguity_m = fast_dev.tof_to_distance_m(1e9 / fast.link.laser.repetition_hz);
+  if (far.has_echo()) EXPECT_NEAR(far.distance_raw_m, 40.0 - ambiguity_m, 0.5);
+  // Biaxial optics: at 0.01 m the receiver's field misses the beam.
+  EXPECT_EQ(physics::overlap_fraction(cfg.link.laser, cfg.link.receiver, 0.01), 0.0);
+  EXPECT_FALSE(dev.measure(Target::plate(0.01, 0.99), {}, 1, 0, 200).has_echo());
+  EXPECT_NEAR(physics::overlap_fraction(cfg.link.laser, cfg.link.receiver, 1.0), 1.0, 1e-12);
+}
+
+TEST(Device, UncompensatedBiasChangesGainNotTheAmplifierNoise) {
+  // With a fixed APD bias the gain follows the breakdown drift, but the
+  // amplifier's noise is the amplifier's: at the nominal temperature both
+  // settings read the same range.
+  auto cfg = preset("paper");
+  cfg.tdc.laser_sync = false;
+  auto fixed = cfg;
+  fixed.link.receiver.bias_temperature_compensated = false;
+  Conditions c;
+  c.ambient_c = cfg.link.receiver.nominal_temperature_c - cfg.thermal.self_heating_c;
+  const auto t = Target::plate(2.402, 0.5);
+  const double a = VirtualRangefinder(cfg).measure(t, c, 2, 0, 5000).distance_raw_m;
+  const double b = VirtualRangefinder(fixed).measure(t, c, 2, 0, 5000).distance_raw_m;
+  EXPECT_NEAR(a, b, 1e-3);
+  const auto n1 = physics::noise_currents(cfg.link.receiver, 0, 0, 100.0);
+  const auto n2 = physics::noise_currents(cfg.link.receiver, 0, 0, 50.0);
+  EXPECT_DOUBLE_EQ(n1.thermal_a, n2.thermal_a);
+}
+
+TEST(Device, ModesAgreeInTable1Sunlight) {
+  // Issue 12: analytic vs waveform in Table 1 sunlight, (1.5, 5 m) x (0.1, 0.8),
+  // 3000 single shots each: spreads within 15 %, means within 1 mm. False stops
+  // are single shots too (they are not rejected here), and where they dominate
+  // the spread the mean's own standard error exceeds 1 mm: the bound is then 3
+  // standard errors of the difference.
+  auto cfg = preset("paper");
+  cfg.link.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
+  const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
+  const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
+  const int shots = static_cast<int>(3000 * sanitized_scale());
+  for (double r : {1.5, 5.0}) {
+    for (double rho : {0.1, 0.8}) {
+      SCOPED_TRACE(testing::Message() << "R=" << r << " rho=" << rho);
+      const auto a = single_shots(analytic, Target::plate(r, rho), shots, 17);
+      const auto w = single_shots(waveform, Target::plate(r, rho), shots, 17);
+      const double se = std::sqrt((a.sd * a.sd + w.sd * w.sd) / shots);
+      EXPECT_NEAR(a.mean, w.mean, std::max(1e-3, 3.0 * se));
+      EXPECT_NEAR(w.sd / a.sd, 1.0, 0.15);
+    }
+  }
+}
+
+TEST(Device, SunlitFalseStopsAreRejectedBeforeAveraging) {
+  // 8 m, rho 0.9 in Table 1 sunlight: noise crosses the threshold before the
+  // echo on a share of the shots. The firmware's median gate drops them, so the
+  // mean stays at the indoor mean and the rejected share shows in shots_valid.
+  auto sun = preset("paper");
+  sun.link.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
+  auto ungated = sun;
+  ungated.measurement.stop_gate_ns = 0;
+  auto indoor_cfg = preset("paper");
+  const auto t = Target::plate(8.0, 0.9);
+  const auto gated = VirtualRangefinder(sun).measure(t, {}, 5, 0, 4000);
+  const auto raw = VirtualRangefinder(ungated).measure(t, {}, 5, 0, 4000);
+  const auto indoor = VirtualRangefinder(indoor_cfg).measure(t, {}, 5, 0, 4000);
+  EXPECT_LT(gated.shots_valid, raw.shots_valid);  // some stops rejected
+  EXPECT_GT(std::abs(raw.distance_raw_m - indoor.distance_raw_m), 0.02);
+  EXPECT_NEAR(gated.distance_raw_m, indoor.distance_raw_m, 3e-3);
 }

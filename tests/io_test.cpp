@@ -161,7 +161,8 @@ TEST(DeviceConfig, KeysAreUniqueWithSaneRangesAndDescriptions) {
        {"laser.wavelength_nm", "laser.peak_power_w", "laser.pulse_width_ns", "laser.repetition_hz",
         "receiver.aperture_diameter_mm", "receiver.bandwidth_mhz", "receiver.apd_gain",
         "receiver.excess_noise_factor", "receiver.responsivity_a_per_w",
-        "discriminator.threshold_v", "tdc.lsb_ps", "thermal.delay_coeff_mm_per_c", "thermal.knee_c",
+        "discriminator.threshold_v", "tdc.lsb_ps", "thermal.delay_tempco_ps_per_c",
+        "receiver.bias_tracking_error_v_per_c", "tdc.laser_sync", "tdc.bin_tempco_ppm_per_c",
         "measurement.shots"}) {
     EXPECT_EQ(std::count(keys.begin(), keys.end(), key), 1) << key;
   }

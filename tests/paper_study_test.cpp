@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "tofkit/device/device_config.hpp"
 #include "tofkit/experiments/paper_reference.hpp"
 
 using namespace tofkit;
@@ -63,9 +64,17 @@ TEST(PaperStudy, ReproducesThePapersFigures) {
   }
 }
 
-TEST(PaperStudy, BeyondThePaperVerificationWithin3mm) {
+TEST(PaperStudy, VerificationResidualIsWithinTheTwinsUncorrectableErrors) {
+  // What no gray-value or temperature fit can remove: the TDC's INL (the laser
+  // fires on the clock, so it stays, periodic in range) and the run's power-on
+  // offset (the test is a later power-on than the calibration). The old
+  // twin's "within 3 mm" came from a twin built from the fitted corrections.
+  const auto cfg = device::preset("paper");
+  const double mm_per_ps = 0.5 * 299792458.0 * 1e-12 * 1e3;
+  const double inl_mm = cfg.tdc.inl_lsb * cfg.tdc.lsb_ps * mm_per_ps;
+  const double power_on_mm = std::sqrt(2.0) * cfg.measurement.power_on_offset_ps * mm_per_ps;
   for (const auto& row : study().verification_rows)
-    EXPECT_LE(std::abs(row.deviation_mm), 3.0) << row.actual_m;
+    EXPECT_LE(std::abs(row.deviation_mm), 2.0 * inl_mm + 3.0 * power_on_mm) << row.actual_m;
 }
 
 TEST(PaperStudy, FindsThePapersKnees) {

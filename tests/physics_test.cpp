@@ -57,8 +57,16 @@ TEST(LinkBudget, MaxRangeEq7InvertsEq6) {
 
 TEST(LinkBudget, BackgroundPowerIsLinearInSunAndZeroInTheDark) {
   auto link = paper_link();
+  EXPECT_EQ(link.environment.solar_irradiance_w_per_m2_um, 0.0);  // indoors by default
+  link.environment.solar_irradiance_w_per_m2_um = kTable1SolarIrradiance_w_per_m2_um;
   const double pb = background_power_w(link, 0.1, 0.0);
   EXPECT_GT(pb, 0.0);
+  // One rho: the sunlit term is linear in rho. As printed (a switch), rho^2.
+  EXPECT_NEAR(background_power_w(link, 0.8, 0.0) / pb, 8.0, 1e-9);
+  auto printed = link;
+  printed.environment.eq9_as_printed = true;
+  EXPECT_NEAR(background_power_w(printed, 0.1, 0.0) / pb, 0.1, 1e-12);
+  EXPECT_NEAR(background_power_w(printed, 0.8, 0.0) / pb, 6.4, 1e-9);
   link.environment.solar_irradiance_w_per_m2_um *= 2.0;
   EXPECT_NEAR(background_power_w(link, 0.1, 0.0) / pb, 2.0, 1e-12);
   link.environment.solar_irradiance_w_per_m2_um = 0.0;
@@ -83,7 +91,10 @@ TEST(Snr, FallsAsOneOverRWhenSignalShotNoiseDominates) {
 }
 
 TEST(Snr, PaperFigure3RangeAtSnr10IsAbout10m) {
-  const auto link = paper_link();
+  // Fig. 3's budget: Table 1's sunlight, background by Eq. 9 as printed.
+  auto link = paper_link();
+  link.environment.solar_irradiance_w_per_m2_um = kTable1SolarIrradiance_w_per_m2_um;
+  link.environment.eq9_as_printed = true;
   const double r10 = range_at_snr(link, 10.0, 0.1);
   EXPECT_GT(r10, 9.0);
   EXPECT_LT(r10, 11.0);

@@ -1,24 +1,59 @@
 #include "tofkit/device/tdc.hpp"
 
 #include <algorithm>
-
-#include "tofkit/physics/constants.hpp"
+#include <cmath>
 
 namespace tofkit::device {
+namespace {
+
+/// SplitMix64: a fixed pseudo-random sequence (the INL is a property of the
+/// chip, the same at every power-on).
+std::uint64_t splitmix64(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+
+}  // namespace
 
 Tdc::Tdc(const TdcConfig& config) {
   // The interpolator divides one coarse period into an integer number of bins.
-  const double period_ns = 1e3 / config.coarse_clock_mhz;
-  bins_ = std::max<std::int64_t>(1, std::llround(period_ns / (config.lsb_ps * 1e-3)));
-  lsb_ns_ = period_ns / static_cast<double>(bins_);
+  period_ns_ = 1e3 / config.coarse_clock_mhz;
+  inv_period_ = 1.0 / period_ns_;
+  const auto bins = std::max<std::int64_t>(1, std::llround(period_ns_ / (config.lsb_ps * 1e-3)));
+  lsb_ns_ = period_ns_ / static_cast<double>(bins);
   inv_lsb_ = 1.0 / lsb_ns_;
-  inl_lsb_.resize(static_cast<std::size_t>(bins_));
-  for (std::int64_t k = 0; k < bins_; ++k) {
-    // Sinusoidal INL over the coarse period, a common shape of carry-chain TDCs.
-    inl_lsb_[static_cast<std::size_t>(k)] =
-        config.inl_lsb *
-        std::sin(2.0 * physics::kPi * (static_cast<double>(k) + 0.5) / static_cast<double>(bins_));
+  last_bin_ = static_cast<double>(bins - 1);
+  const auto n = static_cast<std::size_t>(bins);
+  // Code-density style INL: carry-chain bin widths (DNL) err randomly, and the
+  // errors are correlated over a few bins (slices of the chain share routing),
+  // so the INL, their running sum, wanders over several bins. The chain spans
+  // exactly one coarse period, so the INL closes (zero at both ends).
+  std::uint64_t state = 0x7D1C0DE5u;
+  std::vector<double> white(n);
+  for (auto& w : white) w = static_cast<double>(splitmix64(state) >> 11) * 0x1.0p-53 - 0.5;
+  constexpr std::size_t kCorrelationBins = 4;
+  std::vector<double> dnl(n, 0.0);
+  for (std::size_t k = 0; k < n; ++k)
+    for (std::size_t j = 0; j < kCorrelationBins; ++j) dnl[k] += white[(k + j) % n];
+  double mean = 0;
+  for (double d : dnl) mean += d;
+  mean /= static_cast<double>(n);
+  inl_lsb_.assign(n, 0.0);
+  double acc = 0, peak = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    acc += dnl[k] - mean;  // the bins' edges; the code's centre sits half a DNL in
+    inl_lsb_[k] = acc - 0.5 * (dnl[k] - mean);
   }
+  double centre = 0;
+  for (double v : inl_lsb_) centre += v;
+  centre /= static_cast<double>(n);
+  for (auto& v : inl_lsb_) {
+    v -= centre;
+    peak = std::max(peak, std::abs(v));
+  }
+  for (auto& v : inl_lsb_) v = peak > 0 ? v * config.inl_lsb / peak : 0.0;
 }
 
 }  // namespace tofkit::device

@@ -25,6 +25,10 @@ constexpr double kLevelSpanSigma = 6.0;    // the tables cover threshold +- 6 si
 constexpr double kCompositeStepNs = 0.01;  // grid of the noise-free composite echo
 constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;  // per-measurement draws
 constexpr int kFootprintNodes = 5;  // Gauss-Chebyshev nodes across a tilted footprint
+constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-on) draws
+constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
+constexpr double kFlickerLowestHz = 1e-3;
+constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 
 /// Counter-based random numbers (Random123 Philox4x32-10): the draw for
 /// (seed, stream, shot, block) is fixed whatever thread computes it.
@@ -91,6 +95,7 @@ struct MeasurementSetup {
   double recovery_ns = 0;         // extra clip time of an overdriven amplifier
   bool saturated = false;
   double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
+  double tdc_bin_scale = 1;   // fine-bin width relative to nominal (timing board temperature)
   double temperature_reading_c = 0;
   double amplitude_noise_rel = 0;
   double turn_on_start_ms = 0;
@@ -111,6 +116,7 @@ struct VirtualRangefinder::Impl {
   Tdc tdc;
   double volts_per_watt_unity_gain;  // responsivity x transimpedance x bandwidth peak loss
   double c_nominal_m_per_ns;         // the device's assumed speed of light in air
+  double pulse_period_ns;            // 1 / f_rep
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -125,6 +131,7 @@ struct VirtualRangefinder::Impl {
                                config.link.environment.relative_humidity_pct};
     c_nominal_m_per_ns =
         physics::speed_of_light_in_air_m_per_s(config.link.laser.wavelength_nm, air) * 1e-9;
+    pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
   }
 
   [[nodiscard]] std::vector<EchoComponent> components(const Target& target, double ambient_c,
@@ -139,10 +146,15 @@ struct VirtualRangefinder::Impl {
     for (const auto& s : target.surfaces) {
       if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) continue;
       // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-      const double power_w = s.fraction * physics::received_power_extended_w(
-                                              link, s.distance_m, s.reflectance, s.angle_deg);
+      // Biaxial optics: only the share of the footprint inside the receiver's field.
+      const double power_w =
+          s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
+          physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
+      if (power_w <= 0.0) continue;
       const double amplitude = power_w * volts_per_watt;
-      const double delay = 2.0 * s.distance_m / c_m_per_ns;
+      // The comparator is re-armed at every pulse: an echo later than the pulse
+      // period arrives after a later pulse and is timed from that one (ambiguity).
+      const double delay = std::fmod(2.0 * s.distance_m / c_m_per_ns, pulse_period_ns);
       // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
       // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
       const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
@@ -198,7 +210,11 @@ struct VirtualRangefinder::Impl {
     MeasurementSetup m;
     const double internal_c =
         internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    const double gain = physics::apd_gain_at(rx, internal_c);
+    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
+    // behind its heater; the APD's gain follows the board's temperature through
+    // the bias loop's residual.
+    const double board_c = timing_board_temperature_c(th, internal_c);
+    const double gain = physics::apd_gain_at(rx, board_c);
     const double power_scale = std::max(0.0, 1.0 + config.link.laser.power_temp_coeff_per_c *
                                                        (internal_c - rx.nominal_temperature_c));
     const auto comps = components(target, cond.ambient_c, gain, power_scale);
@@ -219,12 +235,15 @@ struct VirtualRangefinder::Impl {
                                    : 0.0;
     }
 
-    // Delays: fixed chain delay plus its thermal drift, as extra round-trip time.
-    const double drift_mm = delay_drift_mm(th, internal_c) +
-                            warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
-    m.fixed_delay_ns =
-        config.measurement.fixed_delay_ns + 2.0 * drift_mm * 1e-3 / c_nominal_m_per_ns;
-    m.temperature_reading_c = internal_c;
+    // Delays: fixed chain delay plus the timing board's delay tempco and the
+    // unseen warm-up gradient, as extra round-trip time.
+    const double board_dt = board_c - rx.nominal_temperature_c;
+    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
+    m.fixed_delay_ns = config.measurement.fixed_delay_ns +
+                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
+                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
+    m.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
+    m.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
     m.amplitude_noise_rel = rx.amplitude_noise_rel;
     m.turn_on_start_ms = cond.ms_since_laser_on;
     if (comps.empty()) {
@@ -453,9 +472,32 @@ struct VirtualRangefinder::Impl {
   }
 
   /// One shot, returning false when no echo crossed the threshold.
+  /// Delay offset (ns) common to every shot of one measurement: the run's
+  /// power-on offset plus the slow 1/f wander at the measurement's time
+  /// (stream i starts i measurement periods after power-on).
+  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, std::uint64_t stream) const {
+    const auto& mc = config.measurement;
+    const auto power_on = rng.draw(kPowerOnStream, 0, 0);
+    const double offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
+    if (mc.flicker_delay_ps <= 0.0) return offset;
+    // 1/f noise has equal power per octave: one sinusoid of random phase per
+    // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
+    const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
+    const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
+    double wander = 0;
+    for (int k = 0; k < kFlickerOctaves; k += 4) {
+      const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
+      for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
+        const double f_hz = kFlickerLowestHz * std::ldexp(1.0, k + j);
+        wander += amplitude * std::sin(2.0 * kPi * (f_hz * t_s + unit_open(r[j])));
+      }
+    }
+    return offset + wander;
+  }
+
   [[nodiscard]] bool shot(const MeasurementSetup& m, const CounterRng& rng, std::uint64_t stream,
-                          std::uint32_t index, double& start_ns, double& stop_rise_ns,
-                          double& stop_fall_ns) const {
+                          std::uint32_t index, double offset_ns, double& start_ns,
+                          double& stop_rise_ns, double& stop_fall_ns) const {
     const auto r = rng.draw(stream, index, 0);
     double rise = 0, fall = 0;
     bool echo = false;
@@ -474,13 +516,16 @@ struct VirtualRangefinder::Impl {
       echo = crossings_waveform(m, rng, stream, index, unit_open(r[0]), rise, fall);
     }
     if (!echo) return false;
-    // The laser fires asynchronously to the TDC clock: the start phase is
-    // uniform over a coarse period, so quantization and INL average out.
-    const double phase = unit_open(r[2]) * tdc.period_ns();
-    const double delay = m.fixed_delay_ns + turn_on_bias_ns(m, index);
-    start_ns = tdc.quantize_ns(phase);
-    stop_rise_ns = tdc.quantize_ns(phase + delay + rise);
-    stop_fall_ns = tdc.quantize_ns(phase + delay + fall);
+    // laser_sync: the laser fires on a clock edge, so the start has a fixed
+    // phase and the stop's phase is set by the range: the INL stays, periodic
+    // in range. Asynchronous: the start phase is uniform over a coarse period,
+    // so quantization and INL average out.
+    const double phase =
+        (config.tdc.laser_sync ? kSyncStartPhase : unit_open(r[2])) * tdc.period_ns();
+    const double delay = m.fixed_delay_ns + offset_ns + turn_on_bias_ns(m, index);
+    start_ns = tdc.quantize_ns(phase, m.tdc_bin_scale);
+    stop_rise_ns = tdc.quantize_ns(phase + delay + rise, m.tdc_bin_scale);
+    stop_fall_ns = tdc.quantize_ns(phase + delay + fall, m.tdc_bin_scale);
     return true;
   }
 
@@ -491,13 +536,34 @@ struct VirtualRangefinder::Impl {
     const auto m = setup(target, cond);
     const double internal_c = m.temperature_reading_c;
     const int n = shots > 0 ? shots : config.measurement.shots;
-    double sum_tof = 0, sum_width = 0;
-    std::uint32_t valid = 0;
+    const double offset_ns = slow_offset_ns(rng, stream);
+    // The firmware keeps each shot's stop, then rejects false stops before
+    // averaging: stops farther than measurement.stop_gate_ns from the median
+    // stop (range gate around the median). Rejected stops lower shots_valid.
+    thread_local std::vector<std::array<double, 2>> stops;
+    stops.clear();
     for (int i = 0; i < n; ++i) {
       double start = 0, rise = 0, fall = 0;
-      if (!shot(m, rng, stream, static_cast<std::uint32_t>(i), start, rise, fall)) continue;
-      sum_tof += rise - start;
-      sum_width += fall - rise;
+      if (!shot(m, rng, stream, static_cast<std::uint32_t>(i), offset_ns, start, rise, fall))
+        continue;
+      stops.push_back({rise - start, fall - rise});
+    }
+    double sum_tof = 0, sum_width = 0;
+    std::uint32_t valid = 0;
+    const double gate = config.measurement.stop_gate_ns;
+    double median = 0;
+    if (gate > 0 && !stops.empty()) {
+      thread_local std::vector<double> tofs;
+      tofs.clear();
+      for (const auto& st : stops) tofs.push_back(st[0]);
+      const auto mid = tofs.begin() + static_cast<std::ptrdiff_t>(tofs.size() / 2);
+      std::nth_element(tofs.begin(), mid, tofs.end());
+      median = *mid;
+    }
+    for (const auto& st : stops) {
+      if (gate > 0 && std::abs(st[0] - median) > gate) continue;
+      sum_tof += st[0];
+      sum_width += st[1];
       ++valid;
     }
     ranging::RawMeasurement out;
@@ -514,8 +580,12 @@ struct VirtualRangefinder::Impl {
       out.tof_ns = sum_tof / valid;
       out.pulse_width_ns = sum_width / valid;
       out.distance_raw_m = 0.5 * out.tof_ns * c_nominal_m_per_ns;
-      // Peak amplitude from the receiver's separate peak detector, averaged over the shots.
-      out.amplitude = m.peak_v * (1.0 + m.amplitude_noise_rel * z[1] / std::sqrt(double(valid)));
+      // Peak amplitude from the receiver's peak detector, averaged over the shots;
+      // it follows the amplifier, so it reads no more than the clip level.
+      const double peak = std::min(m.peak_v, config.link.receiver.amplitude_clip_v);
+      out.amplitude =
+          std::min(peak * (1.0 + m.amplitude_noise_rel * z[1] / std::sqrt(double(valid))),
+                   config.link.receiver.amplitude_clip_v);
       if (valid < static_cast<std::uint32_t>(n)) out.flags |= ranging::kRawPartialEchoes;
       if (m.saturated) out.flags |= ranging::kRawSaturated;
     }
@@ -575,7 +645,7 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   const auto m = impl_->setup(target, conditions);
   Shot s;
   double start = 0, rise = 0, fall = 0;
-  s.echo = impl_->shot(m, rng, stream, shot, start, rise, fall);
+  s.echo = impl_->shot(m, rng, stream, shot, impl_->slow_offset_ns(rng, stream), start, rise, fall);
   if (s.echo) {
     s.tof_ns = rise - start;
     s.pulse_width_ns = fall - rise;

@@ -47,7 +47,9 @@ double received_power_small_w(const LinkConfig& link, double distance_m, double 
 }
 
 double background_power_w(const LinkConfig& link, double reflectance, double angle_deg) {
-  // Paper Eq. 9 as printed (rho appears twice; this reproduces the paper's Figure 3).
+  // Paper Eq. 9. As printed it has rho twice (in the prefactor and in the sunlit
+  // term); the radiometry has it once (the sunlit term). The printed form is kept
+  // behind a switch because it is what reproduces the paper's Figure 3.
   const auto& rx = link.receiver;
   const auto& env = link.environment;
   const double d_r = rx.aperture_diameter_mm * 1e-3;
@@ -56,7 +58,8 @@ double background_power_w(const LinkConfig& link, double reflectance, double ang
   const double sunlit = ta * reflectance * env.solar_irradiance_w_per_m2_um *
                         std::cos(deg_to_rad(env.sun_angle_deg)) * std::cos(deg_to_rad(angle_deg));
   const double sky = kPi * env.sky_radiance_w_per_m2_sr_um * (1.0 - ta);
-  return kPi / 16.0 * rx.optics_efficiency * reflectance * rx.field_of_view_rad *
+  const double printed_rho = env.eq9_as_printed ? reflectance : 1.0;
+  return kPi / 16.0 * rx.optics_efficiency * printed_rho * rx.field_of_view_rad *
          rx.field_of_view_rad * d_r * d_r * dlambda_um * (sunlit + sky);
 }
 
@@ -69,14 +72,35 @@ double max_range_extended_m(const LinkConfig& link, double reflectance, double a
 }
 
 double apd_gain_at(const ReceiverConfig& receiver, double temperature_c) {
-  if (receiver.bias_temperature_compensated) return receiver.apd_gain;
-  // Near breakdown M ~ const / (V_br - V_bias); V_br rises 0.65 V/C at fixed bias.
-  const double margin =
-      receiver.bias_margin_v +
-      receiver.breakdown_temp_coeff_v_per_c * (temperature_c - receiver.nominal_temperature_c);
+  // Near breakdown M ~ const / (V_br - V_bias); V_br rises 0.65 V/C. A fixed bias
+  // loses that margin's worth of gain; a tracking loop follows V_br up to its
+  // residual error, so the margin changes by -error per degree.
+  const double dt = temperature_c - receiver.nominal_temperature_c;
+  const double margin_rate = receiver.bias_temperature_compensated
+                                 ? -receiver.bias_tracking_error_v_per_c
+                                 : receiver.breakdown_temp_coeff_v_per_c;
+  const double margin = receiver.bias_margin_v + margin_rate * dt;
   const double min_margin = 0.05 * receiver.bias_margin_v;
   const double gain = receiver.apd_gain * receiver.bias_margin_v / std::max(margin, min_margin);
   return std::max(gain, 1.0);
+}
+
+double overlap_fraction(const LaserConfig& laser, const ReceiverConfig& receiver,
+                        double distance_m) {
+  // Two discs at distance R: the beam footprint (radius a) and the receiver's
+  // field (radius b = aperture / 2 + R theta_r / 2), centres apart by the axis
+  // offset d. The received share is their intersection over the beam's area.
+  const double a = 0.5 * footprint_diameter_m(laser, distance_m);
+  const double b =
+      0.5 * (receiver.aperture_diameter_mm * 1e-3 + distance_m * receiver.field_of_view_rad);
+  const double d = receiver.axis_offset_mm * 1e-3;
+  if (d >= a + b) return 0.0;
+  if (d <= std::abs(b - a)) return b >= a ? 1.0 : (b * b) / (a * a);
+  const double alpha = std::acos(std::clamp((d * d + a * a - b * b) / (2 * d * a), -1.0, 1.0));
+  const double beta = std::acos(std::clamp((d * d + b * b - a * a) / (2 * d * b), -1.0, 1.0));
+  const double lens =
+      a * a * (alpha - std::sin(2 * alpha) / 2) + b * b * (beta - std::sin(2 * beta) / 2);
+  return std::clamp(lens / (kPi * a * a), 0.0, 1.0);
 }
 
 NoiseCurrents noise_currents(const ReceiverConfig& receiver, double signal_power_w,
@@ -90,8 +114,10 @@ NoiseCurrents noise_currents(const ReceiverConfig& receiver, double signal_power
   n.signal_shot_a = std::sqrt(shot_factor * r0 * signal_power_w);
   n.background_shot_a = std::sqrt(shot_factor * r0 * background_power_w);
   n.dark_shot_a = std::sqrt(shot_factor * receiver.dark_current_na * 1e-9);
-  // The NEP, referred to the output through the multiplied responsivity.
-  n.thermal_a = receiver.nep_w_per_sqrt_hz * r0 * apd_gain * std::sqrt(bandwidth_hz);
+  // The amplifier's noise, referred to the APD output through the multiplied
+  // responsivity at the nominal gain the NEP is specified at: it is the
+  // amplifier's, so it does not follow the APD's actual gain.
+  n.thermal_a = receiver.nep_w_per_sqrt_hz * r0 * receiver.apd_gain * std::sqrt(bandwidth_hz);
   n.total_a =
       std::sqrt(n.signal_shot_a * n.signal_shot_a + n.background_shot_a * n.background_shot_a +
                 n.dark_shot_a * n.dark_shot_a + n.thermal_a * n.thermal_a);

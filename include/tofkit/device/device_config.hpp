@@ -20,34 +20,67 @@ struct DiscriminatorConfig {
 
 /// Time-to-digital converter: coarse counter plus fine interpolator.
 struct TdcConfig {
-  double lsb_ps = 60.0;            ///< fine interpolator LSB (FPGA carry-chain TDC). Assumption.
+  double lsb_ps = 60.0;             ///< fine interpolator LSB (FPGA carry-chain TDC). Assumption.
   double coarse_clock_mhz = 200.0;  ///< coarse counter clock. Assumption.
-  double inl_lsb = 0.5;            ///< peak integral nonlinearity of the interpolator, LSB,
-                                   ///< sinusoidal over one coarse period. Assumption.
+  double inl_lsb = 0.5;             ///< peak integral nonlinearity of the interpolator, LSB. The
+                                    ///< table is code-density style: accumulated random bin-width
+                                    ///< errors (DNL), correlated over several bins as in carry
+                                    ///< chains, closing over one coarse period. Assumption: 0.5 LSB
+                                    ///< (30 ps, 4.5 mm) after the FPGA's code-density calibration.
+  bool laser_sync = true;           ///< the laser fires on a clock edge (fixed start phase, as the
+                                    ///< paper's FPGA: the INL leaves a periodic error every
+  ///< c / (2 f_coarse)); false: asynchronous, the INL averages out
+  double bin_tempco_ppm_per_c =
+      100.0;  ///< fine-bin width change per degree of the timing board
+              ///< (carry-chain delays: ~1000 ppm/C bare; the residual
+              ///< after per-power-on code-density calibration. Assumption)
 };
 
-/// Thermal behaviour of delays, sensor and warm-up.
+/// Thermal behaviour: where the heat is, and what each temperature moves.
+/// No drift law is imposed here: range drift arises from delay tempcos of the
+/// timing board, APD gain drift through walk, and the TDC bin width.
 struct ThermalConfig {
-  double knee_c = 16.0;                  ///< paper Section 5.2: linear drift above 16 C
-  double delay_coeff_mm_per_c = 3.8;     ///< paper Section 5.2: 3.8 mm/C above the knee
-  double below_knee_coeff_mm_per_c2 = 0.02;  ///< small non-linear (quadratic) drift below the
-                                             ///< knee, mm/C^2 (paper: "small, non-linear")
-  double self_heating_c = 6.0;           ///< steady-state internal rise above ambient. Assumption.
-  double warmup_time_constant_min = 8.0;  ///< internal temperature time constant after power-on
-                                          ///< (settles in ~4 tau: thesis 25-35 min). Assumption.
-  double warmup_delay_coeff_mm_per_c = 0.0;  ///< extra delay drift while the board warms up,
-                                             ///< beyond what the sensor sees. Assumption.
-  double sensor_resolution_c = 0.0625;   ///< temperature sensor LSB (12-bit digital sensor)
-  double sensor_noise_c = 0.05;          ///< temperature sensor noise (1 sigma)
+  double delay_tempco_ps_per_c = 20.5;  ///< trigger-to-emission plus receive-chain delay drift
+                                        ///< per degree of the front-end board (laser driver,
+                                        ///< comparator, LVDS, FPGA I/O). Assumption, set so that
+                                        ///< with the APD bias loop's walk (receiver.
+                                        ///< bias_tracking_error_v_per_c) the paper's 3.8 mm/C
+                                        ///< above 16 C at 2.402 m (Section 5.2) arises.
+  double heater_setpoint_c = 16.0;  ///< the front-end board's cold-weather heater holds it up to
+                                    ///< this temperature. Assumption: reproduces the paper's
+                                    ///< "small, non-linear below 16 C" (Fig. 8): below it the
+                                    ///< board (delays, APD) hardly follows the enclosure.
+  double heater_loop_gain = 10.0;   ///< proportional heater loop gain (W/C of error over W/C of
+                                    ///< board-to-enclosure conductance): the board droops by
+                                    ///< 1 / (1 + gain) of the enclosure's change below setpoint
+  double heater_max_rise_c = 30.0;  ///< most the heater can lift the board above the enclosure
+  double self_heating_c = 6.0;      ///< steady-state internal rise above ambient. Assumption.
+  double warmup_time_constant_min = 8.0;  ///< timing board (die) temperature time constant after
+                                          ///< power-on (settles in ~4 tau: thesis 25-35 min).
+  double sensor_lag_min = 3.0;  ///< the enclosure temperature sensor lags the die by this extra
+                                ///< time constant (it sits on the case, not the die). Assumption.
+  double warmup_delay_coeff_mm_per_c = 0.0;  ///< extra delay drift while the board warms up
+                                             ///< (gradients across the board). Assumption.
+  double sensor_resolution_c = 0.0625;       ///< temperature sensor LSB (12-bit digital sensor)
+  double sensor_noise_c = 0.05;              ///< temperature sensor noise (1 sigma)
 };
 
 /// Timing and averaging of one output measurement.
 struct MeasurementConfig {
   int shots = 1000;                  ///< shots averaged per output (1 MHz -> 1 kHz)
-  double fixed_delay_ns = 2.5;       ///< trigger-to-emission plus receive-chain delay at the
-                                     ///< knee temperature (constant; calibrated out). Assumption.
-  double window_ns = 30.0;           ///< waveform-mode record length around the echo
-  double sample_period_ps = 100.0;   ///< waveform-mode sampling period
+  double fixed_delay_ns = 2.5;       ///< trigger-to-emission plus receive-chain delay with the
+                                     ///< timing board at receiver.nominal_temperature_c
+                                     ///< (constant; calibrated out). Assumption.
+  double power_on_offset_ps = 10.0;  ///< 1 sigma of a delay offset drawn at each power-on (a run's
+                                     ///< seed): comparator offset, PLL/TDC start-up phase. Two runs
+                                     ///< on different "days" differ by this. Assumption (1.5 mm).
+  double flicker_delay_ps = 5.0;     ///< rms of a slow 1/f delay wander (eight octaves from 1 mHz
+                                     ///< to 0.26 Hz), so averaging stops improving. Assumption.
+  double stop_gate_ns = 2.0;         ///< firmware's false-stop rejection: stops farther than this
+                              ///< from the median stop are dropped before averaging (0: off).
+                              ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).
+  double window_ns = 30.0;                ///< waveform-mode record length around the echo
+  double sample_period_ps = 100.0;        ///< waveform-mode sampling period
   double reference_temperature_c = 20.0;  ///< air temperature the device assumes for c_air
 };
 
@@ -71,8 +104,8 @@ struct DeviceConfig {
 struct ConfigField {
   std::string key;  ///< "section.name_unit"
   std::variant<double*, int*, bool*> value;
-  double min = 0;           ///< smallest valid value (inclusive unless min_exclusive)
-  double max = 0;           ///< largest valid value (inclusive)
+  double min = 0;  ///< smallest valid value (inclusive unless min_exclusive)
+  double max = 0;  ///< largest valid value (inclusive)
   bool min_exclusive = false;
   std::string description;  ///< one line, with source or "Assumption"
 };

@@ -1,23 +1,30 @@
 #pragma once
-/// \file Thermal behaviour: internal temperature after power-on and the drift
-/// of the fixed delays with it (paper Section 5.2; thesis cold-start warm-up).
+/// \file Thermal state of the device: where the heat is after power-on, what
+/// the temperature sensor sees, and the timing board's heater. No drift law is
+/// imposed here; the range drift follows from what each temperature moves
+/// (delay tempcos, APD gain through walk, TDC bin width) in the rangefinder.
 
 #include "tofkit/device/device_config.hpp"
 
 namespace tofkit::device {
 
-/// Internal (board) temperature: ambient plus self-heating that builds up after
-/// power-on with a first-order time constant (thesis: 25-35 min to settle).
+/// Die (timing electronics) temperature before the heater: ambient plus
+/// self-heating that builds up after power-on with a first-order time constant
+/// (thesis: 25-35 min to settle).
 [[nodiscard]] double internal_temperature_c(const ThermalConfig& thermal, double ambient_c,
                                             double minutes_since_power_on);
 
-/// Extra range (mm) caused by the temperature drift of the trigger and receive
-/// delays: linear above the knee (paper: 3.8 mm/C above 16 C), small and
-/// quadratic below it.
-[[nodiscard]] double delay_drift_mm(const ThermalConfig& thermal, double internal_c);
+/// What the enclosure's temperature sensor sees: the die temperature through a
+/// further first-order lag (thermal.sensor_lag_min), so it trails during warm-up.
+[[nodiscard]] double sensor_temperature_c(const ThermalConfig& thermal, double ambient_c,
+                                          double minutes_since_power_on);
 
-/// Extra range (mm) during warm-up not seen by the temperature sensor
-/// (gradients between the sensor and the timing electronics).
+/// Timing board temperature: the die temperature lifted by a proportional
+/// cold-weather heater below its setpoint (limited to heater_max_rise_c).
+[[nodiscard]] double timing_board_temperature_c(const ThermalConfig& thermal, double internal_c);
+
+/// Extra range (mm) during warm-up from gradients across the board (the die's
+/// remaining rise times warmup_delay_coeff_mm_per_c).
 [[nodiscard]] double warmup_drift_mm(const ThermalConfig& thermal, double ambient_c,
                                      double minutes_since_power_on);
 

@@ -34,8 +34,9 @@ struct LinkConfig {
 [[nodiscard]] double received_power_small_w(const LinkConfig& link, double distance_m,
                                             double cross_section_m2);
 
-/// Background power from sunlit target and sky, paper Eq. 9 as printed:
-/// Pb = (pi/16) Tr rho theta_r^2 d_r^2 dlambda [Ta rho H cos(theta) cos(phi) + pi N (1 - Ta)].
+/// Background power from sunlit target and sky, paper Eq. 9 with one rho:
+/// Pb = (pi/16) Tr theta_r^2 d_r^2 dlambda [Ta rho H cos(theta) cos(phi) + pi N (1 - Ta)];
+/// with environment.eq9_as_printed, the printed form (an extra rho in front).
 [[nodiscard]] double background_power_w(const LinkConfig& link, double reflectance,
                                         double angle_deg);
 
@@ -43,10 +44,15 @@ struct LinkConfig {
 [[nodiscard]] double max_range_extended_m(const LinkConfig& link, double reflectance,
                                           double angle_deg, double min_power_w);
 
-/// APD gain M at a temperature: fixed bias loses gain as the breakdown voltage
-/// rises (M ~ 1 / (1 - (V/V_br)^n) approximated as M0 * margin0 / margin(T));
-/// a temperature-compensated bias keeps M0.
+/// APD gain M at a temperature: M ~ M0 * margin0 / margin(T) with margin =
+/// V_br - V_bias. A fixed bias loses 0.65 V/C of margin; a compensated bias
+/// loop tracks V_br up to receiver.bias_tracking_error_v_per_c.
 [[nodiscard]] double apd_gain_at(const ReceiverConfig& receiver, double temperature_c);
+
+/// Share of the beam footprint the receiver sees at a distance (biaxial
+/// optics): 0 in the near blind zone, 1 once the field covers the footprint.
+[[nodiscard]] double overlap_fraction(const LaserConfig& laser, const ReceiverConfig& receiver,
+                                      double distance_m);
 
 /// Noise currents at the APD output (multiplied), paper Eq. 8.
 struct NoiseCurrents {

@@ -27,8 +27,23 @@ struct ReceiverConfig {
   double nominal_temperature_c = 25.0;  ///< temperature at which apd_gain holds
   double breakdown_temp_coeff_v_per_c = 0.65;  ///< Si APD breakdown drift (DESIGN.md)
   double bias_margin_v = 10.0;  ///< V_br - V_bias at the nominal temperature (sets dM/dT)
-  bool bias_temperature_compensated = true;  ///< the paper's design tracks V_br with the
-                                             ///< temperature sensor, holding M constant
+  bool bias_temperature_compensated = true;   ///< the paper's design tracks V_br with the
+                                              ///< temperature sensor, holding M nearly constant
+  double bias_tracking_error_v_per_c = -0.3;  ///< residual of that bias loop: the bias follows
+                                              ///< V_br with 0.65 V/C minus this error per degree,
+                                              ///< so the margin grows by |error| per degree and M
+                                              ///< falls (walk drifts with temperature and depends
+                                              ///< on echo strength). Assumption: a thermistor-table
+                                              ///< loop off by half its slope; gives the drift at
+                                              ///< 2.402 m its 10 % dependence on reflectance.
+  double amplitude_clip_v = 4.0;  ///< ceiling of the amplitude (peak-detector) reading: the stage
+                                  ///< it taps clips here (0.05 m and 0.3 m at rho 0.99 read alike).
+                                  ///< Assumption: the paper's peak detector follows the amplifier
+                                  ///< (= saturation_v).
+  double axis_offset_mm = 15.0;   ///< biaxial optics: distance between the emitter's and the
+                                  ///< receiver's optical axes. The receiver's field (aperture plus
+                                  ///< field angle) overlaps the beam only past a blind zone.
+                                  ///< Assumption: side-by-side 3 mm beam and 26 mm lens.
 };
 
 }  // namespace tofkit::physics
