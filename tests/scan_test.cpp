@@ -354,3 +354,28 @@ TEST(ScanScanner, SameBytesOnOneAndTwoThreads) {
   }
   EXPECT_GT(misses, 0);
 }
+
+TEST(ScanPatterns, RasterSerpentineMirrorAndSpinningGeometry) {
+  // Raster: serpentine rows, every point once, time includes moves and dwell.
+  const auto r = raster_pattern({{0.0, 0.01, 0.02}, {0.0, 0.01}, 4, 0.01}, 1e-3);
+  ASSERT_EQ(r.beams.size(), 6u);
+  EXPECT_EQ(r.shots_multiplier, 4);
+  EXPECT_EQ(r.beams[0].column, 0);
+  EXPECT_EQ(r.beams[2].column, 2);
+  EXPECT_EQ(r.beams[3].column, 2);  // the second row runs back
+  EXPECT_NEAR(r.beams[1].time_s - r.beams[0].time_s, 4e-3 + 0.01 / 0.01, 1e-12);
+  EXPECT_NEAR(r.beams[0].origin_m[1], 0.02, 0);  // column 0 is the largest y (left)
+  // Mirror: one profile per revolution, elevations in the x-z plane.
+  const auto m = mirror_pattern({{-10, 0, 10}, 3, 20, 0});
+  ASSERT_EQ(m.beams.size(), 9u);
+  EXPECT_NEAR(m.beams[3].time_s - m.beams[0].time_s, 0.05, 1e-12);
+  for (const auto& b : m.beams) EXPECT_EQ(b.direction[1], 0.0);
+  // Spinning: all elevations fire together; 0.5 deg steps at 10 Hz.
+  const auto s = spinning_pattern({{-15, -5, 5, 15}, 0.5, 10, 2});
+  ASSERT_EQ(s.beams.size(), 4u * 720u * 2u);
+  EXPECT_EQ(s.rows, 8);
+  EXPECT_NEAR(s.beams.back().time_s, (2 * 720 - 1) / 7200.0, 1e-12);
+  for (std::size_t i = 1; i < s.beams.size(); ++i)
+    EXPECT_GE(s.beams[i].time_s, s.beams[i - 1].time_s);
+  EXPECT_NEAR(std::asin(s.beams[0].direction[2]) * 180 / std::numbers::pi, 15.0, 1e-9);
+}

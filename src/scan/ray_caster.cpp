@@ -269,7 +269,7 @@ RayCaster::RayCaster(Scene scene) : impl_(std::make_unique<Impl>()) {
     throw std::invalid_argument(text);
   }
   impl_->scene = std::move(scene);
-  impl_->device = rtcNewDevice("threads=1");  // traversal only; TBB runs the rays
+  impl_->device = rtcNewDevice(nullptr);
   if (impl_->device == nullptr) throw std::runtime_error("Embree: cannot create a device");
   impl_->rtc_scene = rtcNewScene(impl_->device);
   rtcSetSceneFlags(impl_->rtc_scene, RTC_SCENE_FLAG_ROBUST);

@@ -56,6 +56,14 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                           footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
                           b.true_range_m = fp.true_range_m;
                           b.surfaces = static_cast<int>(fp.target.surfaces.size());
+                          double largest = 0;
+                          for (const auto& surface : fp.target.surfaces) {
+                            if (surface.fraction > largest) {
+                              largest = surface.fraction;
+                              b.reflectance = surface.reflectance;
+                              b.angle_deg = surface.angle_deg;
+                            }
+                          }
                           b.raw =
                               device.measure(fp.target, options.conditions, options.seed, i, shots);
                         }

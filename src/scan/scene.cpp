@@ -2,6 +2,7 @@
 
 #include <Random123/philox.h>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -50,7 +51,12 @@ double Reflectance::at(double u_m, double v_m) const {
     case Kind::kChecker: {
       const auto i = static_cast<std::int64_t>(std::floor(u_m / cell_m));
       const auto j = static_cast<std::int64_t>(std::floor(v_m / cell_m));
-      if (random) return random_min + (random_max - random_min) * cell_uniform(seed, i, j);
+      if (random) {
+        const double x = cell_uniform(seed, i, j);
+        if (values.empty()) return random_min + (random_max - random_min) * x;
+        return values[std::min(values.size() - 1,
+                               static_cast<std::size_t>(x * static_cast<double>(values.size())))];
+      }
       const auto n = static_cast<std::int64_t>(values.size());
       return values[static_cast<std::size_t>((((i + j) % n) + n) % n)];
     }

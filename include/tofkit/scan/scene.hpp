@@ -20,7 +20,8 @@ struct Reflectance {
   double value = 0.5;          ///< kUniform: Lambertian reflectance rho
   std::vector<double> values;  ///< kStripes / kChecker: listed values (cycled)
   double cell_m = 0.02;        ///< stripe width / checker cell size
-  bool random = false;         ///< kChecker: values drawn per cell from the seed
+  bool random = false;         ///< kChecker: each cell draws from `values` (or, if empty, uniformly
+                               ///< from [random_min, random_max]) with the seed
   std::uint64_t seed = 1;      ///< kChecker with random = true
   double random_min = 0.02;    ///< range of random checker values
   double random_max = 0.9;

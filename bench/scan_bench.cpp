@@ -1,0 +1,185 @@
+// Beams per second of a 1-megabeam spherical scan (1024 x 1024) of a mesh
+// scene (a 131k-triangle sphere in a 12-triangle room), with 1 and 16 rays per
+// beam, on 2 threads, beside the baseline measured in the same run: bare
+// Embree casting the same rays (rtcIntersect1 on the same scene, no
+// refinement, no footprint grouping). Stages:
+//   EmbreeBare/R     the R rays of every beam, bare Embree
+//   Footprint/R      tofkit casting + double refinement + grouping into a Target
+//   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot)
+#include <benchmark/benchmark.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+#include <numbers>
+#include <vector>
+
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/scan/footprint.hpp"
+#include "tofkit/scan/pattern.hpp"
+#include "tofkit/scan/scanner.hpp"
+
+using namespace tofkit;
+using namespace tofkit::scan;
+
+namespace {
+
+constexpr int kSide = 1024;  // 1024 x 1024 = 1 M beams
+constexpr int kThreads = 2;
+
+Scene mesh_scene() {
+  Scene s;
+  Primitive sphere;
+  sphere.kind = PrimitiveKind::kMesh;
+  sphere.name = "sphere";
+  sphere.reflectance.value = 0.5;
+  const int n_lat = 256, n_lon = 256;  // 2 x 256 x 255 triangles
+  const Vec3 c{3.0, 0.0, 0.0};
+  for (int i = 0; i <= n_lat; ++i) {
+    for (int j = 0; j < n_lon; ++j) {
+      const double th = std::numbers::pi * i / n_lat, ph = 2 * std::numbers::pi * j / n_lon;
+      sphere.vertices.push_back({c[0] + std::sin(th) * std::cos(ph),
+                                 c[1] + std::sin(th) * std::sin(ph), c[2] + std::cos(th)});
+    }
+  }
+  for (int i = 0; i < n_lat; ++i) {
+    for (int j = 0; j < n_lon; ++j) {
+      const auto a = static_cast<std::uint32_t>(i * n_lon + j),
+                 b = static_cast<std::uint32_t>(i * n_lon + (j + 1) % n_lon);
+      const auto d = a + n_lon, e = b + n_lon;
+      if (i > 0) sphere.triangles.push_back({a, b, e});
+      if (i < n_lat - 1) sphere.triangles.push_back({a, e, d});
+    }
+  }
+  s.primitives.push_back(sphere);
+  Primitive room;
+  room.kind = PrimitiveKind::kMesh;
+  room.name = "room";
+  room.reflectance.value = 0.3;
+  for (int k = 0; k < 8; ++k)
+    room.vertices.push_back({k & 1 ? 6.0 : -6.0, k & 2 ? 6.0 : -6.0, k & 4 ? 4.0 : -2.0});
+  const std::uint32_t faces[6][4] = {{0, 2, 6, 4}, {1, 5, 7, 3}, {0, 4, 5, 1},
+                                     {2, 3, 7, 6}, {0, 1, 3, 2}, {4, 6, 7, 5}};
+  for (const auto& f : faces) {
+    room.triangles.push_back({f[0], f[1], f[2]});
+    room.triangles.push_back({f[0], f[2], f[3]});
+  }
+  s.primitives.push_back(room);
+  return s;
+}
+
+struct Fixture {
+  RayCaster caster{mesh_scene()};
+  BeamPattern pattern;
+  Fixture() {
+    std::vector<double> az, el;
+    for (int k = 0; k < kSide; ++k) {
+      az.push_back(-60.0 + 120.0 * k / (kSide - 1));
+      el.push_back(-40.0 + 80.0 * k / (kSide - 1));
+    }
+    pattern = spherical_pattern({az, el, 10});
+  }
+};
+
+Fixture& fixture() {
+  static Fixture f;
+  return f;
+}
+
+device::DeviceConfig config_with(int rays) {
+  device::DeviceConfig c;
+  c.scan.rays_per_beam = rays;
+  return c;
+}
+
+void BM_EmbreeBare(benchmark::State& state) {
+  const int rays = static_cast<int>(state.range(0));
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, kThreads);
+  auto& f = fixture();
+  const Footprint fp(config_with(rays));
+  const RTCScene scene = f.caster.embree_scene();
+  for (auto _ : state) {
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256), [&](const auto& block) {
+          RTCIntersectContext context;
+          rtcInitIntersectContext(&context);
+          float sum = 0;
+          for (std::size_t i = block.begin(); i != block.end(); ++i) {
+            const Vec3& axis = f.pattern.beams[i].direction;
+            Vec3 e1, e2;
+            plane_axes(axis, e1, e2);
+            // The same rays as Footprint::trace (the axis alone for one ray).
+            for (const auto& s : fp.sub_rays()) {
+              const Vec3 o = (fp.exit_radius_m() * s.x) * e1 + (fp.exit_radius_m() * s.y) * e2;
+              const Vec3 d = rays == 1
+                                 ? axis
+                                 : normalized(axis + std::tan(fp.half_divergence_rad() * s.x) * e1 +
+                                              std::tan(fp.half_divergence_rad() * s.y) * e2);
+              RTCRayHit rh{};
+              rh.ray.org_x = static_cast<float>(o[0]), rh.ray.org_y = static_cast<float>(o[1]),
+              rh.ray.org_z = static_cast<float>(o[2]);
+              rh.ray.dir_x = static_cast<float>(d[0]), rh.ray.dir_y = static_cast<float>(d[1]),
+              rh.ray.dir_z = static_cast<float>(d[2]);
+              rh.ray.tfar = std::numeric_limits<float>::infinity();
+              rh.ray.mask = 0xFFFFFFFFu;
+              rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+              rtcIntersect1(scene, &context, &rh);
+              sum += rh.ray.tfar;
+            }
+          }
+          benchmark::DoNotOptimize(sum);
+        });
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+}
+
+void BM_Footprint(benchmark::State& state) {
+  const int rays = static_cast<int>(state.range(0));
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, kThreads);
+  auto& f = fixture();
+  const Footprint fp(config_with(rays));
+  for (auto _ : state) {
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256), [&](const auto& block) {
+          Footprint::Result r;
+          double sum = 0;
+          for (std::size_t i = block.begin(); i != block.end(); ++i) {
+            fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
+            sum += r.true_range_m + static_cast<double>(r.target.surfaces.size());
+          }
+          benchmark::DoNotOptimize(sum);
+        });
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+}
+
+void BM_Scan(benchmark::State& state) {
+  const int rays = static_cast<int>(state.range(0));
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, kThreads);
+  auto& f = fixture();
+  const auto config = config_with(rays);
+  const device::VirtualRangefinder dev(config, device::SimulationMode::kAnalytic);
+  ScanOptions o;
+  o.shots = 1;
+  for (auto _ : state) {
+    const auto result = run_scan(f.caster, Footprint(config), dev, f.pattern, o);
+    benchmark::DoNotOptimize(result.beams.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+}
+
+}  // namespace
+
+BENCHMARK(BM_EmbreeBare)
+    ->Arg(1)
+    ->Arg(16)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
+BENCHMARK(BM_Footprint)
+    ->Arg(1)
+    ->Arg(16)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
+BENCHMARK(BM_Scan)->Arg(1)->Arg(16)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);

@@ -1,0 +1,394 @@
+#include "tofkit/io/scan_output.hpp"
+
+#include <fmt/format.h>
+#include <spng.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <stdexcept>
+
+namespace tofkit::io {
+namespace {
+
+namespace fs = std::filesystem;
+
+template <typename T>
+void put(std::string& out, T value) {
+  char bytes[sizeof(T)];
+  std::memcpy(bytes, &value, sizeof(T));  // little-endian host (x86-64, aarch64)
+  out.append(bytes, sizeof(T));
+}
+
+std::string encode_png(int rows, int columns, int bit_depth, int color_type, const void* data,
+                       std::size_t size) {
+  spng_ctx* ctx = spng_ctx_new(SPNG_CTX_ENCODER);
+  if (ctx == nullptr) throw std::runtime_error("PNG: cannot create an encoder");
+  spng_set_option(ctx, SPNG_ENCODE_TO_BUFFER, 1);
+  spng_ihdr ihdr{};
+  ihdr.width = static_cast<std::uint32_t>(columns);
+  ihdr.height = static_cast<std::uint32_t>(rows);
+  ihdr.bit_depth = static_cast<std::uint8_t>(bit_depth);
+  ihdr.color_type = static_cast<std::uint8_t>(color_type);
+  spng_set_ihdr(ctx, &ihdr);
+  int err = spng_encode_image(ctx, data, size, SPNG_FMT_PNG, SPNG_ENCODE_FINALIZE);
+  std::string out;
+  if (err == 0) {
+    std::size_t length = 0;
+    void* buffer = spng_get_png_buffer(ctx, &length, &err);
+    if (buffer != nullptr) {
+      out.assign(static_cast<const char*>(buffer), length);
+      std::free(buffer);
+    }
+  }
+  spng_ctx_free(ctx);
+  if (err != 0) throw std::runtime_error(std::string("PNG encoding failed: ") + spng_strerror(err));
+  return out;
+}
+
+// Finite values' [q, 1 - q] quantiles (for colour limits).
+std::pair<double, double> limits(const scan::Image& image, double q) {
+  std::vector<float> v;
+  for (const float x : image.values) {
+    if (std::isfinite(x)) v.push_back(x);
+  }
+  if (v.empty()) return {0, 1};
+  std::sort(v.begin(), v.end());
+  const auto at = [&](double f) {
+    return v[static_cast<std::size_t>(f * static_cast<double>(v.size() - 1))];
+  };
+  double lo = at(q), hi = at(1 - q);
+  if (!(hi > lo)) hi = lo + 1e-3;
+  return {lo, hi};
+}
+
+// Google's Turbo colour map (polynomial approximation), t in [0, 1].
+std::array<unsigned char, 3> turbo(double t) {
+  t = std::clamp(t, 0.0, 1.0);
+  const double r =
+      0.13572138 +
+      t * (4.61539260 +
+           t * (-42.66032258 + t * (132.13108234 + t * (-152.94239396 + t * 59.28637943))));
+  const double g =
+      0.09140261 +
+      t * (2.19418839 + t * (4.84296658 + t * (-14.18503333 + t * (4.27729857 + t * 2.82956604))));
+  const double b =
+      0.10667330 +
+      t * (12.64194608 +
+           t * (-60.58204836 + t * (110.36276771 + t * (-89.90310912 + t * 27.34824973))));
+  auto c = [](double x) {
+    return static_cast<unsigned char>(std::lround(255 * std::clamp(x, 0.0, 1.0)));
+  };
+  return {c(r), c(g), c(b)};
+}
+
+// 3 x 5 pixel glyphs for scale-bar labels.
+const char* glyph(char ch) {
+  switch (ch) {
+    case '0':
+      return "111101101101111";
+    case '1':
+      return "010110010010111";
+    case '2':
+      return "111001111100111";
+    case '3':
+      return "111001111001111";
+    case '4':
+      return "101101111001001";
+    case '5':
+      return "111100111001111";
+    case '6':
+      return "111100111101111";
+    case '7':
+      return "111001001001001";
+    case '8':
+      return "111101111101111";
+    case '9':
+      return "111101111001111";
+    case '.':
+      return "000000000000010";
+    case '-':
+      return "000000111000000";
+    case 'm':
+      return "000000111111101";
+    case 'V':
+      return "101101101101010";
+    default:
+      return "000000000000000";
+  }
+}
+
+struct Canvas {
+  int rows, columns;
+  std::vector<unsigned char> rgb;
+  Canvas(int r, int c, unsigned char grey)
+      : rows(r), columns(c), rgb(static_cast<std::size_t>(r) * c * 3, grey) {}
+  void set(int r, int c, std::array<unsigned char, 3> colour) {
+    if (r < 0 || c < 0 || r >= rows || c >= columns) return;
+    std::memcpy(&rgb[(static_cast<std::size_t>(r) * columns + c) * 3], colour.data(), 3);
+  }
+  void text(int r, int c, const std::string& s, int scale) {
+    for (const char ch : s) {
+      const char* g = glyph(ch);
+      for (int y = 0; y < 5; ++y) {
+        for (int x = 0; x < 3; ++x) {
+          if (g[y * 3 + x] != '1') continue;
+          for (int dy = 0; dy < scale; ++dy) {
+            for (int dx = 0; dx < scale; ++dx)
+              set(r + y * scale + dy, c + x * scale + dx, {255, 255, 255});
+          }
+        }
+      }
+      c += 4 * scale;
+    }
+  }
+};
+
+}  // namespace
+
+Png16 encode_png16(const scan::Image& image) {
+  Png16 out;
+  const auto [lo, hi] = limits(image, 0.0);
+  // Stored 1 .. 65535 spans [lo, hi]; 0 is invalid.
+  out.scale = (hi - lo) / 65534.0;
+  out.offset = lo - out.scale;
+  std::vector<std::uint16_t> pixels(image.values.size(), 0);
+  for (std::size_t i = 0; i < pixels.size(); ++i) {
+    const float v = image.values[i];
+    if (!std::isfinite(v)) continue;
+    const double p = std::round((v - out.offset) / out.scale);
+    pixels[i] = static_cast<std::uint16_t>(std::clamp(p, 1.0, 65535.0));
+  }
+  out.png = encode_png(image.rows, image.columns, 16, SPNG_COLOR_TYPE_GRAYSCALE, pixels.data(),
+                       pixels.size() * sizeof(std::uint16_t));
+  return out;
+}
+
+std::string encode_png_rgb(int rows, int columns, const std::vector<unsigned char>& rgb) {
+  return encode_png(rows, columns, 8, SPNG_COLOR_TYPE_TRUECOLOR, rgb.data(), rgb.size());
+}
+
+std::string encode_npy(const scan::Image& image) {
+  std::string header = fmt::format(
+      "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", image.rows, image.columns);
+  // Magic (6) + version (2) + length (2) + header + '\n', padded to 64 bytes.
+  const std::size_t total = (10 + header.size() + 1 + 63) / 64 * 64;
+  header.append(total - 10 - header.size() - 1, ' ');
+  header.push_back('\n');
+  std::string out("\x93NUMPY\x01\x00", 8);
+  put(out, static_cast<std::uint16_t>(header.size()));
+  out += header;
+  for (const float v : image.values) put(out, v);
+  return out;
+}
+
+std::vector<CloudPoint> cloud_points(const scan::ScanResult& result) {
+  std::vector<CloudPoint> points;
+  for (const auto& b : result.beams) {
+    const double d = scan::reported_distance_m(b);
+    if (!b.raw.has_echo() || !std::isfinite(d)) continue;  // REP-117
+    const auto& o = b.beam.origin_m;
+    const auto& u = b.beam.direction;
+    points.push_back({o[0] + d * u[0], o[1] + d * u[1], o[2] + d * u[2],
+                      static_cast<float>(b.raw.amplitude), static_cast<float>(d),
+                      static_cast<float>(b.range.sigma_m), b.beam.row, b.beam.column, b.beam.time_s,
+                      b.raw.flags});
+  }
+  return points;
+}
+
+std::string encode_ply(const std::vector<CloudPoint>& points) {
+  std::string out = fmt::format(
+      "ply\nformat binary_little_endian 1.0\ncomment tofkit scan: world frame (REP-103), metres\n"
+      "element vertex {}\nproperty double x\nproperty double y\nproperty double z\n"
+      "property float intensity\nproperty float range\nproperty float sigma\nproperty int row\n"
+      "property int column\nproperty double time\nproperty int flags\nend_header\n",
+      points.size());
+  for (const auto& p : points) {
+    put(out, p.x), put(out, p.y), put(out, p.z);
+    put(out, p.intensity), put(out, p.range), put(out, p.sigma);
+    put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
+    put(out, p.time_s), put(out, static_cast<std::int32_t>(p.flags));
+  }
+  return out;
+}
+
+std::string encode_pcd(const std::vector<CloudPoint>& points) {
+  std::string out = fmt::format(
+      "# .PCD v0.7 - tofkit scan, world frame (REP-103), metres\nVERSION 0.7\n"
+      "FIELDS x y z intensity range sigma row column time flags\n"
+      "SIZE 4 4 4 4 4 4 4 4 8 4\nTYPE F F F F F F I I F U\nCOUNT 1 1 1 1 1 1 1 1 1 1\n"
+      "WIDTH {}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {}\nDATA binary\n",
+      points.size(), points.size());
+  for (const auto& p : points) {
+    put(out, static_cast<float>(p.x)), put(out, static_cast<float>(p.y)),
+        put(out, static_cast<float>(p.z));
+    put(out, p.intensity), put(out, p.range), put(out, p.sigma);
+    put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
+    put(out, p.time_s), put(out, p.flags);
+  }
+  return out;
+}
+
+std::string encode_las(const std::vector<CloudPoint>& points) {
+  // ASPRS LAS 1.2, public header block (227 bytes) + point data format 1 (28 bytes).
+  constexpr double kScale = 1e-4;
+  double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  if (!points.empty()) {
+    lo[0] = hi[0] = points[0].x, lo[1] = hi[1] = points[0].y, lo[2] = hi[2] = points[0].z;
+  }
+  for (const auto& p : points) {
+    const double c[3] = {p.x, p.y, p.z};
+    for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], c[k]), hi[k] = std::max(hi[k], c[k]);
+  }
+  double offset[3];
+  for (int k = 0; k < 3; ++k) offset[k] = std::floor(lo[k]);
+  std::string out;
+  out += "LASF";
+  put(out, std::uint16_t{0});          // file source ID
+  put(out, std::uint16_t{0});          // global encoding (GPS week time)
+  out.append(16, '\0');                // project ID (GUID)
+  out.push_back(1), out.push_back(2);  // version 1.2
+  std::string id(32, '\0'), software(32, '\0');
+  std::memcpy(id.data(), "tofkit scan (virtual)", 21);
+  std::memcpy(software.data(), "tofkit", 6);
+  out += id;
+  out += software;
+  put(out, std::uint16_t{1}), put(out, std::uint16_t{2026});  // creation day, year
+  put(out, std::uint16_t{227});                               // header size
+  put(out, std::uint32_t{227});                               // offset to point data
+  put(out, std::uint32_t{0});                                 // variable length records
+  out.push_back(1);                                           // point data format 1
+  put(out, std::uint16_t{28});                                // point record length
+  put(out, static_cast<std::uint32_t>(points.size()));
+  put(out, static_cast<std::uint32_t>(points.size()));  // points by return: all first returns
+  for (int k = 0; k < 4; ++k) put(out, std::uint32_t{0});
+  for (int k = 0; k < 3; ++k) put(out, kScale);
+  for (int k = 0; k < 3; ++k) put(out, offset[k]);
+  for (int k = 0; k < 3; ++k) put(out, hi[k]), put(out, lo[k]);  // max x, min x, max y, ...
+  for (const auto& p : points) {
+    const double c[3] = {p.x, p.y, p.z};
+    for (int k = 0; k < 3; ++k)
+      put(out, static_cast<std::int32_t>(std::lround((c[k] - offset[k]) / kScale)));
+    const double mv =
+        std::isfinite(p.intensity) ? std::clamp(1e3 * p.intensity, 0.0f * 1.0, 65535.0) : 0.0;
+    put(out, static_cast<std::uint16_t>(std::lround(mv)));
+    out.push_back(static_cast<char>(1 | (1 << 3)));  // return 1 of 1
+    out.push_back(0);                                // classification: never classified
+    out.push_back(0);                                // scan angle rank
+    out.push_back(0);                                // user data
+    put(out, std::uint16_t{0});                      // point source ID
+    put(out, p.time_s);                              // GPS time
+  }
+  return out;
+}
+
+std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
+  fmt::memory_buffer out;
+  fmt::format_to(std::back_inserter(out),
+                 "row,column,time_s,origin_x_m,origin_y_m,origin_z_m,dir_x,dir_y,dir_z,"
+                 "distance_true_m,reflectance,angle_deg,ambient_c,tof_ns,distance_raw_m,"
+                 "pulse_width_ns,amplitude,temperature_c,shots_valid,flags{}\n",
+                 result.has_model ? ",distance_m,sigma_m,correction_flags" : "");
+  auto num = [&](double v) {
+    out.push_back(',');
+    if (!std::isnan(v)) fmt::format_to(std::back_inserter(out), "{}", v);
+  };
+  for (const auto& b : result.beams) {
+    fmt::format_to(std::back_inserter(out), "{},{}", b.beam.row, b.beam.column);
+    num(b.beam.time_s);
+    for (const double v : b.beam.origin_m) num(v);
+    for (const double v : b.beam.direction) num(v);
+    num(b.true_range_m);
+    num(b.reflectance);
+    num(b.angle_deg);
+    num(ambient_c);
+    const auto& m = b.raw;
+    for (const double v :
+         {m.tof_ns, m.distance_raw_m, m.pulse_width_ns, m.amplitude, m.temperature_c})
+      num(v);
+    fmt::format_to(std::back_inserter(out), ",{},{}", m.shots_valid, m.flags);
+    if (result.has_model) {
+      num(b.range.distance_m);
+      num(b.range.sigma_m);
+      fmt::format_to(std::back_inserter(out), ",{}", b.range.correction_flags);
+    }
+    out.push_back('\n');
+  }
+  return fmt::to_string(out);
+}
+
+std::string encode_range_view(const scan::ScanImages& images) {
+  const auto& range = images.range;
+  const auto& intensity = images.intensity;
+  const int zoom = std::max(1, 384 / std::max(range.rows, range.columns));
+  const int h = range.rows * zoom, w = range.columns * zoom, gap = 16, bar = 14, label = 5 * 2 + 6;
+  Canvas canvas(h + 2 * gap + bar + label, 2 * w + 3 * gap, 32);
+  const auto [r_lo, r_hi] = limits(range, 0.01);
+  const auto [i_lo, i_hi] = limits(intensity, 0.01);
+  for (int r = 0; r < h; ++r) {
+    for (int c = 0; c < w; ++c) {
+      const float d = range.at(r / zoom, c / zoom), a = intensity.at(r / zoom, c / zoom);
+      canvas.set(gap + r, gap + c,
+                 std::isfinite(d) ? turbo((d - r_lo) / (r_hi - r_lo))
+                                  : std::array<unsigned char, 3>{0, 0, 0});
+      const auto g = static_cast<unsigned char>(
+          std::lround(255 * std::clamp((a - i_lo) / (i_hi - i_lo), 0.0, 1.0)));
+      canvas.set(gap + r, 2 * gap + w + c,
+                 std::isfinite(a) ? std::array<unsigned char, 3>{g, g, g}
+                                  : std::array<unsigned char, 3>{0, 0, 0});
+    }
+  }
+  // Scale bars under each panel, labelled at both ends.
+  const int bar_top = gap + h + gap / 2;
+  for (int c = 0; c < w; ++c) {
+    const double t = static_cast<double>(c) / std::max(1, w - 1);
+    const auto g = static_cast<unsigned char>(std::lround(255 * t));
+    for (int r = 0; r < bar; ++r) {
+      canvas.set(bar_top + r, gap + c, turbo(t));
+      canvas.set(bar_top + r, 2 * gap + w + c, {g, g, g});
+    }
+  }
+  const int text_top = bar_top + bar + 4;
+  const auto lo_text = fmt::format("{:.3f}m", r_lo), hi_text = fmt::format("{:.3f}m", r_hi);
+  canvas.text(text_top, gap, lo_text, 2);
+  canvas.text(text_top, gap + w - 8 * static_cast<int>(hi_text.size()), hi_text, 2);
+  const auto ilo = fmt::format("{:.3f}V", i_lo), ihi = fmt::format("{:.3f}V", i_hi);
+  canvas.text(text_top, 2 * gap + w, ilo, 2);
+  canvas.text(text_top, 2 * gap + 2 * w - 8 * static_cast<int>(ihi.size()), ihi, 2);
+  return encode_png_rgb(canvas.rows, canvas.columns, canvas.rgb);
+}
+
+void commit_files(const fs::path& dir, const std::vector<OutputFile>& files) {
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec))
+    throw std::runtime_error(dir.string() + ": output directory does not exist");
+  std::vector<fs::path> temps;
+  auto cleanup = [&] {
+    for (const auto& t : temps) fs::remove(t, ec);
+  };
+  for (const auto& f : files) {
+    const fs::path temp = dir / (f.name + ".tmp-tofkit");
+    temps.push_back(temp);
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out.write(f.bytes.data(), static_cast<std::streamsize>(f.bytes.size()));
+    out.close();
+    if (!out) {
+      cleanup();
+      throw std::runtime_error((dir / f.name).string() + ": cannot write");
+    }
+  }
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    fs::rename(temps[i], dir / files[i].name, ec);
+    if (ec) {
+      cleanup();
+      throw std::runtime_error((dir / files[i].name).string() + ": cannot write: " + ec.message());
+    }
+  }
+}
+
+}  // namespace tofkit::io

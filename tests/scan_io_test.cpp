@@ -1,0 +1,220 @@
+// Scan files read back by other code than the writers': Open3D (PLY, PCD),
+// Pillow + NumPy (PNG + sidecar against .npy), and a LAS 1.2 header reader
+// written here from the ASPRS specification. Also: bad scenes are refused with
+// file and key named and nothing written; the CLI's output does not depend on
+// the thread count.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tofkit/io/scene_file.hpp"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kScenes = fs::path(TOFKIT_REFERENCE_DIR).parent_path() / "examples" / "scenes";
+
+fs::path fresh_dir(const std::string& name) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("tofkit_scan_io_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+int run(const std::string& command) {
+  const int status = std::system((command + " 2>/dev/null").c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::string scan_command(const fs::path& out, int threads) {
+  return std::string(TOFKIT_BINARY) + " --threads " + std::to_string(threads) + " scan --scene " +
+         (kScenes / "blocks.toml").string() +
+         " --pattern spherical --azimuth=-20:20:1 --elevation=-12:40:1.3 --shots 20 --seed 5"
+         " --out " +
+         out.string();
+}
+
+fs::path write_scene(const fs::path& dir, const std::string& text) {
+  const fs::path p = dir / "scene.toml";
+  std::ofstream(p) << text;
+  return p;
+}
+
+std::string load_error(const fs::path& scene) {
+  try {
+    (void)tofkit::io::load_scene(scene);
+  } catch (const tofkit::io::SceneError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+template <typename T>
+T get(const std::string& bytes, std::size_t offset) {
+  T v;
+  std::memcpy(&v, bytes.data() + offset, sizeof v);
+  return v;
+}
+
+}  // namespace
+
+TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
+  const fs::path dir = fresh_dir("bad");
+  const std::string plane =
+      "[[surface]]\nkind = \"plane\"\ncenter_m = [1, 0, 0]\nnormal = [-1, 0, 0]\nsize_m = [1, 1]\n";
+  struct Case {
+    std::string text, expect;
+  } cases[] = {
+      {plane + "reflectance = 0.5\ncolour = 3\n", "scene.toml:7: unknown key surface[0].colour"},
+      {"[[surface]]\nkind = \"sphere\"\ncenter_m = [1, 0, 0]\nradius_m = 0\nreflectance = 0.5\n",
+       "scene.toml:1: surface[0]: radius_m must be positive"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
+       "scene.toml:3: surface[0].file: "},
+      {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
+      {plane + "pattern = \"stripes\"\ncell_m = 0.01\n", "surface[0].values is missing"},
+  };
+  for (const auto& c : cases) {
+    const fs::path scene = write_scene(dir, c.text);
+    const std::string message = load_error(scene);
+    EXPECT_NE(message.find(c.expect), std::string::npos) << message;
+    const fs::path out = dir / "out";
+    fs::remove_all(out);
+    fs::create_directories(out);
+    EXPECT_EQ(run(std::string(TOFKIT_BINARY) + " scan --scene " + scene.string() +
+                  " --pattern spherical --azimuth=0 --elevation=0 --out " + out.string()),
+              1);
+    EXPECT_TRUE(fs::is_empty(out)) << c.expect;
+  }
+  fs::remove_all(dir);
+}
+
+TEST(ScanIo, ExampleScenesLoad) {
+  for (const char* name : {"blocks.toml", "grey_stripes.toml", "random_checker.toml"}) {
+    EXPECT_NO_THROW((void)tofkit::io::load_scene(kScenes / name)) << name;
+  }
+  const auto blocks = tofkit::io::load_scene(kScenes / "blocks.toml");
+  bool mesh = false;
+  for (const auto& p : blocks.primitives) {
+    if (p.kind == tofkit::scan::PrimitiveKind::kMesh) {
+      mesh = true;
+      EXPECT_EQ(p.triangles.size(), 5u);  // two quads fanned into two triangles each + a cap
+    }
+  }
+  EXPECT_TRUE(mesh);
+}
+
+TEST(ScanIo, SameBytesOnOneAndTwoThreads) {
+  const fs::path a = fresh_dir("t1"), b = fresh_dir("t2");
+  ASSERT_EQ(run(scan_command(a, 1)), 0);
+  ASSERT_EQ(run(scan_command(b, 2)), 0);
+  std::size_t files = 0;
+  for (const auto& entry : fs::directory_iterator(a)) {
+    ++files;
+    EXPECT_EQ(slurp(entry.path()), slurp(b / entry.path().filename())) << entry.path().filename();
+  }
+  EXPECT_EQ(files, 11u);  // csv, 2 x (png, json, npy), ply, pcd, las, view
+  fs::remove_all(a);
+  fs::remove_all(b);
+}
+
+TEST(ScanIo, CloudsOpenInOpen3dAndPngMatchesNpyAndLasHeaderChecks) {
+  const fs::path dir = fresh_dir("readers");
+  ASSERT_EQ(run(scan_command(dir, 2)), 0);
+
+  // Points: one per beam with an echo = finite pixels of range.npy (a 1:1
+  // pattern); the scan looks above the wall, so some beams miss (REP-117).
+  const std::string script = R"PY(
+import sys, json, numpy as np, open3d as o3d
+from PIL import Image
+d = sys.argv[1]
+rng = np.load(d + '/range.npy')
+valid = np.isfinite(rng)
+assert 0 < valid.sum() < rng.size, (valid.sum(), rng.size)
+n = int(valid.sum())
+for name in ('points.ply', 'points.pcd'):
+    pc = o3d.t.io.read_point_cloud(d + '/' + name)
+    for field in ('intensity', 'range', 'sigma', 'row', 'column', 'time', 'flags'):
+        assert field in pc.point, (name, field)
+    pos = pc.point.positions.numpy().astype(np.float64)
+    assert len(pos) == n, (name, len(pos), n)
+    r = pc.point.range.numpy()[:, 0]
+    # Sensor at the origin: |point| is the range; rows/columns index range.npy.
+    assert np.allclose(np.linalg.norm(pos, axis=1), r, atol=2e-6 * r.max()), name
+    rows = pc.point.row.numpy()[:, 0]; cols = pc.point.column.numpy()[:, 0]
+    assert np.allclose(rng[rows, cols], r, rtol=1e-6), name
+    assert len(o3d.io.read_point_cloud(d + '/' + name).points) == n, name
+for q in ('range', 'intensity'):
+    side = json.load(open(d + '/' + q + '.json'))
+    png = np.array(Image.open(d + '/' + q + '.png')).astype(np.float64)
+    ref = np.load(d + '/' + q + '.npy')
+    assert png.shape == ref.shape and side['invalid_value'] == 0
+    assert ((png == 0) == ~np.isfinite(ref)).all(), q
+    dec = side['offset'] + side['scale'] * png
+    ok = np.isfinite(ref)
+    err = np.abs(dec[ok] - ref[ok]).max()
+    assert err <= side['scale'], (q, err, side['scale'])
+print(n)
+)PY";
+  std::ofstream(dir / "check.py") << script;
+  const std::string cmd = "/usr/bin/python3 " + (dir / "check.py").string() + " " + dir.string() +
+                          " > " + (dir / "count.txt").string();
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << "Open3D / Pillow check failed";
+  const long n = std::stol(slurp(dir / "count.txt"));
+
+  // LAS 1.2 public header block, read at the specification's byte offsets.
+  const std::string las = slurp(dir / "points.las");
+  ASSERT_GE(las.size(), 227u);
+  EXPECT_EQ(las.substr(0, 4), "LASF");
+  EXPECT_EQ(las[24], 1);
+  EXPECT_EQ(las[25], 2);
+  EXPECT_EQ(get<std::uint16_t>(las, 94), 227);  // header size
+  const auto data_offset = get<std::uint32_t>(las, 96);
+  EXPECT_EQ(get<std::uint8_t>(las, 104), 1);  // point data format 1
+  const auto record = get<std::uint16_t>(las, 105);
+  EXPECT_EQ(record, 28);
+  const auto count = get<std::uint32_t>(las, 107);
+  EXPECT_EQ(static_cast<long>(count), n);
+  EXPECT_EQ(las.size(), data_offset + static_cast<std::size_t>(count) * record);
+  double scale[3], offset[3], max[3], min[3];
+  for (int k = 0; k < 3; ++k) {
+    scale[k] = get<double>(las, 131 + 8 * k);
+    offset[k] = get<double>(las, 155 + 8 * k);
+    max[k] = get<double>(las, 179 + 16 * k);
+    min[k] = get<double>(las, 187 + 16 * k);
+    EXPECT_EQ(scale[k], 1e-4);
+  }
+  // Every record lies in the header's bounds; the extremes reach them.
+  double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const std::size_t at = data_offset + static_cast<std::size_t>(i) * record;
+    for (int k = 0; k < 3; ++k) {
+      const double v = get<std::int32_t>(las, at + 4 * k) * scale[k] + offset[k];
+      lo[k] = std::min(lo[k], v);
+      hi[k] = std::max(hi[k], v);
+    }
+    const double gps_time = get<double>(las, at + 20);
+    EXPECT_GE(gps_time, 0.0);
+  }
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_NEAR(lo[k], min[k], scale[k]);
+    EXPECT_NEAR(hi[k], max[k], scale[k]);
+    EXPECT_LT(min[k], max[k]);
+  }
+  fs::remove_all(dir);
+}
