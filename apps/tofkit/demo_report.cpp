@@ -273,7 +273,7 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
 
 void write_demo_report(const std::filesystem::path& dir, const experiments::PaperStudyResult& r,
                        const nlohmann::json& summary, const std::vector<Figure>& figures,
-                       const std::string& thesis_summary) {
+                       const std::string& thesis_summary, const std::string& extra_html) {
   namespace paper = experiments::paper;
   std::ostringstream h;
   h << "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -314,6 +314,7 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
   h << "</table>\n<h2>Fitted chain</h2><pre>" << html_escape(r.fit.summary()) << "</pre>\n";
   h << "<h2>The thesis's protocol (AccuRange-like preset)</h2><pre>" << html_escape(thesis_summary)
     << "</pre>\n";
+  h << extra_html;
   h << "<h2>Figures</h2>\n";
   for (const auto& f : figures) {
     if (f.file.ends_with(".png"))
