@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <vector>
@@ -119,6 +120,17 @@ TEST(ThesisScanMemory, BadSequencesAreRefused) {
                std::invalid_argument);
 }
 
+TEST(ThesisScanMemory, MemoryKeysAreValidated) {
+  auto c = device::accurange_preset();
+  EXPECT_TRUE(device::validate(c).empty());
+  c.memory.time_constant_ms = -1;
+  c.memory.distance_gain = 2;
+  const auto messages = device::validate(c);
+  ASSERT_EQ(messages.size(), 2u);
+  EXPECT_NE(messages[0].find("memory.time_constant_ms"), std::string::npos);
+  EXPECT_NE(messages[1].find("memory.distance_gain"), std::string::npos);
+}
+
 TEST(ThesisScanMemory, FitRecoversTimeConstantAndGain) {
   // Other devices than the preset: a slower receiver and a stronger memory.
   const double tau_ms = 0.3, gain_mm = 9.0;
@@ -166,16 +178,14 @@ const experiments::MemoryScanResult& memory_result() {
   return r;
 }
 
-TEST(ThesisScanFigures, LineRawRowWithin25PercentOfFig423) {
-  const auto& raw = line_result().line.row("raw");
-  EXPECT_NEAR(m_to_inches(raw.test.rms_m), 0.949, 0.25 * 0.949);  // Fig. 4.23 raw RMS
-  // Samples per line vary (thesis Section 4.7: 1235-1255).
-  const auto& s = line_result().samples_per_line;
-  EXPECT_GT(*std::max_element(s.begin(), s.end()), 1000);
-}
-
-TEST(ThesisScanFigures, BestModelBeatsTheThesisBestPolynomial) {
+// One test per experiment (each runs its scans once, about a minute on 2 cores).
+TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
   const auto& r = line_result();
+  // Fig. 4.23: the raw row within 25 % of the thesis's 0.949 in.
+  EXPECT_NEAR(m_to_inches(r.line.row("raw").test.rms_m), 0.949, 0.25 * 0.949);
+  // Samples per line vary and exceed the wanted columns (thesis 4.7: 1235-1255).
+  EXPECT_GT(*std::max_element(r.samples_per_line.begin(), r.samples_per_line.end()), 1000);
+  // The best model beats the thesis's best polynomial on both tables.
   EXPECT_GT(r.line.best().rms_improvement_pct, 67.72);     // Fig. 4.23, order 5
   EXPECT_GT(r.checker.best().rms_improvement_pct, 59.74);  // Fig. 4.27, order 5
   // No model beats the noise limit (what a perfect systematic correction leaves).
@@ -183,24 +193,19 @@ TEST(ThesisScanFigures, BestModelBeatsTheThesisBestPolynomial) {
     EXPECT_GT(t->noise_limit_m, 0);
     for (const auto& row : t->rows) EXPECT_GT(row.test.rms_m, 0.9 * t->noise_limit_m);
   }
-}
-
-TEST(ThesisScanFigures, DarkGreysReadLongestAndImproveMost) {
-  const auto& g = line_result().per_grey;  // Fig. 4.24
-  ASSERT_EQ(g.size(), 6u);
-  EXPECT_GT(g.front().raw_rms_m, g[3].raw_rms_m);
-  for (const auto& row : g) EXPECT_LT(row.best_rms_m, row.raw_rms_m);
-}
-
-TEST(ThesisScanFigures, ConfidenceImagesCoverTwoSigmaBetween90And98Percent) {
-  for (const auto* im : {&line_result().stripe_images, &line_result().checker_images}) {
+  // Fig. 4.24: the darkest grey has the largest raw error; every grey improves.
+  ASSERT_EQ(r.per_grey.size(), 6u);
+  EXPECT_GT(r.per_grey.front().raw_rms_m, r.per_grey[3].raw_rms_m);
+  for (const auto& row : r.per_grey) EXPECT_LT(row.best_rms_m, row.raw_rms_m);
+  // Figs. 4.32-4.33: +-2 sigma coverage of each confidence image in 90-98 %.
+  for (const auto* im : {&r.stripe_images, &r.checker_images}) {
     EXPECT_GE(im->within_2_sigma.share, 0.90);
     EXPECT_LE(im->within_2_sigma.share, 0.98);
     EXPECT_LT(im->within_1_sigma.share, im->within_2_sigma.share);
   }
 }
 
-TEST(ThesisScanFigures, MirrorEdgeSpikesHaveTheThesisSignsAndAreCut80Percent) {
+TEST(ThesisScanFigures, MirrorEdgeSpikesAndColourTransitionAreCorrected) {
   const auto& m = memory_result();
   // The fit finds the preset's time constant (1 ms) from the step-edge scan.
   EXPECT_NEAR(m.fit.correction.time_constant_s, 1e-3, 0.15e-3);
@@ -216,13 +221,11 @@ TEST(ThesisScanFigures, MirrorEdgeSpikesHaveTheThesisSignsAndAreCut80Percent) {
   }
   EXPECT_LE(m.mirror_edges.spike_after_m, 0.2 * m.mirror_edges.spike_before_m);
   EXPECT_LT(m.mirror_edges.rms_near_edges_after_m, m.mirror_edges.rms_near_edges_before_m);
-}
-
-TEST(ThesisScanFigures, ColourTransitionSwingsLongThenTheCorrectionTamesIt) {
-  const auto& t = memory_result().color_transition;  // Fig. 4.28
+  // Fig. 4.28: mid grey into black reads long, the correction tames the swing.
+  const auto& t = m.color_transition;
   ASSERT_EQ(t.edges.size(), 1u);
   EXPECT_FALSE(t.edges[0].rising);
-  EXPECT_LT(t.edges[0].spike_before_m, -5e-3);  // mid grey -> black reads long
+  EXPECT_LT(t.edges[0].spike_before_m, -5e-3);
   EXPECT_LT(std::abs(t.edges[0].spike_after_m), 0.5 * std::abs(t.edges[0].spike_before_m));
 }
 
