@@ -47,18 +47,24 @@ const bool registered_line = register_characterization(
     "line-scan", [](const device::VirtualRangefinder& d, std::uint64_t seed) {
       const auto r = experiments::run_line_scan(d, {}, seed);
       auto o = part_of(r, "", {"line_models", "per_grey", "coverage"});
+      o.records.assign(r.records.begin(),
+                       r.records.begin() + static_cast<std::ptrdiff_t>(r.line_test_records));
       std::erase_if(o.findings, [](const auto& f) { return f.name.rfind("checker", 0) == 0; });
       return o;
     });
 const bool registered_checker = register_characterization(
     "checkerboard", [](const device::VirtualRangefinder& d, std::uint64_t seed) {
       const auto r = experiments::run_line_scan(d, {}, seed);
-      return part_of(r, "checker", {"checker_models", "coverage"});
+      auto o = part_of(r, "checker", {"checker_models", "coverage"});
+      o.records.assign(r.records.begin() + static_cast<std::ptrdiff_t>(r.line_test_records),
+                       r.records.end());
+      return o;
     });
 const bool registered_edges = register_characterization(
     "mirror-edges", [](const device::VirtualRangefinder& d, std::uint64_t seed) {
       const auto r = experiments::run_memory_scans(d, {}, seed);
       auto o = part_of(r, "", {"edges", "mirror_profile"});
+      o.records = r.mirror_records;
       std::erase_if(o.findings, [](const auto& f) {
         return f.name.rfind("color", 0) == 0 || f.name.rfind("transition", 0) == 0;
       });
@@ -68,6 +74,7 @@ const bool registered_transition = register_characterization(
     "color-transition", [](const device::VirtualRangefinder& d, std::uint64_t seed) {
       const auto r = experiments::run_memory_scans(d, {}, seed);
       auto o = part_of(r, "", {"edges", "transition_profile"});
+      o.records = r.transition_records;
       std::erase_if(o.findings, [](const auto& f) { return f.name.rfind("mirror", 0) == 0; });
       return o;
     });

@@ -67,6 +67,13 @@ MirrorScan mirror_scan(const device::VirtualRangefinder& device, const MemorySca
   return out;
 }
 
+std::vector<ranging::Record> records_of(const MirrorScan& s, double ambient_c) {
+  std::vector<ranging::Record> out;
+  for (const auto& b : s.result.beams)
+    out.push_back({{b.true_range_m, ranging::kNaN, 0.0, ambient_c}, b.raw});
+  return out;
+}
+
 void correct(MirrorScan& s, const ranging::MemoryCorrection& c) {
   std::vector<ranging::RawMeasurement> raw;
   for (const auto& b : s.result.beams) raw.push_back(b.raw);
@@ -92,8 +99,7 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
   const int cols = s.result.pattern.columns;
   const int revs = s.result.pattern.rows;
   const auto at = [&](int rev, int k) { return static_cast<std::size_t>(rev * cols + k); };
-  std::vector<double> time_s(static_cast<std::size_t>(cols)),
-      noise_m(static_cast<std::size_t>(cols));
+  std::vector<double> time_s(static_cast<std::size_t>(cols));
   std::vector<int> surfaces(static_cast<std::size_t>(cols));
   std::vector<double> strength(static_cast<std::size_t>(cols));
   for (int k = 0; k < cols; ++k) {
@@ -114,13 +120,6 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
                                                   : ranging::kNaN);
     p.single_after_m.push_back(b0.raw.has_echo() ? b0.true_range_m - s.corrected_m[at(0, k)]
                                                  : ranging::kNaN);
-    const auto n = before.size();
-    double var = 0;
-    for (const double x : before)
-      var += (x - p.error_before_m.back()) * (x - p.error_before_m.back());
-    noise_m[static_cast<std::size_t>(k)] =
-        n > 1 ? std::sqrt(var / static_cast<double>(n - 1) / static_cast<double>(n))
-              : ranging::kNaN;
     time_s[static_cast<std::size_t>(k)] = b0.beam.time_s;
     surfaces[static_cast<std::size_t>(k)] = b0.surfaces;
     strength[static_cast<std::size_t>(k)] = s.memory[at(0, k)].strength_neper;
@@ -199,7 +198,6 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
     abs_before += std::abs(best_b);
     abs_after += std::abs(best_a);
     p.edges.push_back(edge);
-    int last_out_b = k0, last_out_a = k0;
     for (int k = k0; k < k_end; ++k) {
       if (surfaces[static_cast<std::size_t>(k)] != 1) continue;
       const double db = p.error_before_m[static_cast<std::size_t>(k)] - settled_at(k, false);
@@ -208,13 +206,6 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
         near_before.push_back(db);
         near_after.push_back(da);
       }
-      const double tol = 3.0 * noise_m[static_cast<std::size_t>(k)];
-      if (std::abs(db) > tol) last_out_b = k;
-      if (std::abs(da) > tol) last_out_a = k;
-    }
-    if (ei == 0 || !std::isfinite(p.settle_time_before_ms)) {
-      p.settle_time_before_ms = 1e3 * (time_s[static_cast<std::size_t>(last_out_b)] - t0);
-      p.settle_time_after_ms = 1e3 * (time_s[static_cast<std::size_t>(last_out_a)] - t0);
     }
   }
   if (!p.edges.empty()) {
@@ -288,6 +279,7 @@ MemoryScanResult run_memory_scans(const device::VirtualRangefinder& device,
   auto edge_scan = mirror_scan(device, options, edges, derive_seed(seed, kEdgesSalt));
   correct(edge_scan, result.fit.correction);
   result.mirror_edges = profile_of("mirror_edges", edge_scan, options, tau);
+  result.mirror_records = records_of(edge_scan, options.ambient_c);
 
   scan::Scene transition;
   transition.primitives.push_back(wall(options.transition_distance_m, z_lo, 0.0,
@@ -297,6 +289,7 @@ MemoryScanResult run_memory_scans(const device::VirtualRangefinder& device,
   auto tr = mirror_scan(device, options, transition, derive_seed(seed, kTransitionSalt));
   correct(tr, result.fit.correction);
   result.color_transition = profile_of("color_transition", tr, options, tau);
+  result.transition_records = records_of(tr, options.ambient_c);
   return result;
 }
 
@@ -310,8 +303,6 @@ std::vector<Finding> MemoryScanResult::findings() const {
     f.push_back({p->name + "_rms_near_edges_mm_before", 1e3 * p->rms_near_edges_before_m, "mm"});
     f.push_back({p->name + "_rms_near_edges_mm_after", 1e3 * p->rms_near_edges_after_m, "mm"});
   }
-  f.push_back({"transition_settle_ms_before", color_transition.settle_time_before_ms, "ms"});
-  f.push_back({"transition_settle_ms_after", color_transition.settle_time_after_ms, "ms"});
   return f;
 }
 
@@ -363,9 +354,7 @@ std::string MemoryScanResult::summary() const {
       out += line;
     }
   }
-  std::snprintf(line, sizeof line, "  colour transition settles in %.2f ms -> %.2f ms\n",
-                color_transition.settle_time_before_ms, color_transition.settle_time_after_ms);
-  return out + line;
+  return out;
 }
 
 }  // namespace tofkit::experiments

@@ -107,7 +107,18 @@ Chart checker_chart(const LineScanOptions& o) {
 struct ChartScan {
   scan::ScanImages images;
   std::vector<int> samples_per_line;
+  std::vector<ranging::Record> records;
 };
+
+/// A scan's outputs as raw records with the true range of each beam axis.
+std::vector<ranging::Record> records_of(const scan::ScanResult& result, double ambient_c) {
+  std::vector<ranging::Record> out;
+  out.reserve(result.beams.size());
+  for (const auto& b : result.beams) {
+    out.push_back({{b.true_range_m, ranging::kNaN, 0.0, ambient_c}, b.raw});
+  }
+  return out;
+}
 
 ChartScan scan_chart(const device::VirtualRangefinder& device, const LineScanOptions& o,
                      const Chart& chart, std::uint64_t seed) {
@@ -128,6 +139,7 @@ ChartScan scan_chart(const device::VirtualRangefinder& device, const LineScanOpt
   const auto s = run_sequence_scan(caster, footprint, device, pattern, so);
   ChartScan out;
   out.images = scan::make_images(s.result);
+  out.records = records_of(s.result, o.ambient_c);
   out.samples_per_line.assign(static_cast<std::size_t>(pattern.rows), 0);
   for (const auto& b : pattern.beams) ++out.samples_per_line[static_cast<std::size_t>(b.row)];
   return out;
@@ -315,12 +327,16 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
       scan_chart(device, options, test_chart, derive_seed(seed, kTestRepeatSalt));
   test.append(test_scan.images, test_chart.pixel_grey);
   result.samples_per_line = test_scan.samples_per_line;
+  result.records = test_scan.records;
+  result.line_test_records = result.records.size();
   const auto checker_board = checker_chart(options);
   const auto checker_scan =
       scan_chart(device, options, checker_board, derive_seed(seed, kCheckerSalt));
   const auto checker_repeat =
       scan_chart(device, options, checker_board, derive_seed(seed, kCheckerRepeatSalt));
   checker.append(checker_scan.images, checker_board.pixel_grey);
+  result.records.insert(result.records.end(), checker_scan.records.begin(),
+                        checker_scan.records.end());
   if (train.index.size() < 50 || conf.index.size() < 30 || test.index.size() < 30 ||
       checker.index.size() < 30) {
     throw std::runtime_error("line scan: too few pixels with an echo (training " +

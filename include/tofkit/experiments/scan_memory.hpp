@@ -69,15 +69,15 @@ struct Profile {
   double spike_after_m = ranging::kNaN;
   double rms_near_edges_before_m = ranging::kNaN;  ///< of error - settled, within 5 tau after edges
   double rms_near_edges_after_m = ranging::kNaN;
-  /// Colour transition: time for the swing to fall below twice the noise, before / after.
-  double settle_time_before_ms = ranging::kNaN;
-  double settle_time_after_ms = ranging::kNaN;
 };
 
 struct MemoryScanResult {
   MemoryScanOptions options;
   calib::MemoryFitResult fit;  ///< from the step-edge calibration scan
   Profile mirror_edges, color_transition;
+  /// Every output of the mirror-edge scan, then of the colour-transition scan,
+  /// with the true range of its beam axis (raw, before the memory correction).
+  std::vector<ranging::Record> mirror_records, transition_records;
   [[nodiscard]] std::vector<Finding> findings() const;
   /// "edges", "mirror_profile", "transition_profile".
   [[nodiscard]] std::vector<ResultTable> tables() const;

@@ -100,6 +100,10 @@ struct LineScanResult {
   std::vector<LineGreyRow> per_grey;  ///< Fig. 4.24
   ChartImages stripe_images, checker_images;  ///< the test images with the best model
   std::vector<int> samples_per_line;          ///< test scan (they vary, thesis 4.7)
+  /// Every output of the stripe test scan, then of the checkerboard scan, with
+  /// the true range of its beam axis (before resampling).
+  std::vector<ranging::Record> records;
+  std::size_t line_test_records = 0;  ///< the first this many are the stripe test scan
   std::string best_model;
   std::shared_ptr<const calib::CorrectionSurface> best_surface;
   std::shared_ptr<const calib::ConfidenceModel> confidence;
