@@ -160,6 +160,25 @@ TEST(ThesisScanMemory, FitRecoversTimeConstantAndGain) {
   EXPECT_NEAR(fit.correction.gain_m_per_neper, gain_mm * 1e-3 * share, 0.15 * gain_mm * 1e-3);
 }
 
+TEST(ThesisScanMemory, MirrorScansAreTheSameOnOneAndTwoThreads) {
+  const device::VirtualRangefinder dev(device::accurange_preset());
+  experiments::MemoryScanOptions o;
+  o.revolutions = 2;
+  o.elevation_step_deg = 0.5;
+  auto run = [&](int threads) {
+    tbb::global_control c(tbb::global_control::max_allowed_parallelism, threads);
+    return experiments::run_memory_scans(dev, o, 9);
+  };
+  const auto one = run(1), two = run(2);
+  ASSERT_EQ(one.mirror_records.size(), two.mirror_records.size());
+  for (std::size_t i = 0; i < one.mirror_records.size(); ++i) {
+    EXPECT_EQ(0, std::memcmp(&one.mirror_records[i].raw, &two.mirror_records[i].raw,
+                             sizeof(ranging::RawMeasurement)))
+        << i;
+  }
+  EXPECT_EQ(one.fit.correction.gain_m_per_neper, two.fit.correction.gain_m_per_neper);
+}
+
 // --------------------------------------------- the thesis's figures (accurange)
 
 const experiments::LineScanResult& line_result() {
