@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "app.hpp"
+#include "characterize_registry.hpp"
 #include "tofkit/device/accurange_preset.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/characterization.hpp"
@@ -34,13 +35,7 @@ struct CharacterizeOptions {
   bool json = false;
 };
 
-/// What every protocol hands back, whatever its result type.
-struct Outcome {
-  std::vector<ranging::Record> records;
-  std::vector<experiments::Finding> findings;
-  std::vector<experiments::ResultTable> tables;
-  std::string summary;
-};
+using Outcome = CharacterizeOutcome;  // what every protocol hands back
 
 template <typename Result>
 Outcome outcome_of(Result&& r) {
@@ -70,6 +65,16 @@ const std::map<std::string, Runner>& runners() {
   return map;
 }
 
+/// The built-in protocols and those registered from other files.
+const std::map<std::string, Runner>& all_runners() {
+  static const std::map<std::string, Runner> map = [] {
+    auto m = runners();
+    m.insert(registered_characterizations().begin(), registered_characterizations().end());
+    return m;
+  }();
+  return map;
+}
+
 /// The device: the user's (--preset / --config), else the accurange preset
 /// (the thesis's unit) with any --set overrides applied.
 device::DeviceConfig device_config(const AppContext& ctx) {
@@ -91,7 +96,7 @@ nlohmann::json findings_json(const Outcome& o) {
 }
 
 void run_characterize(const CharacterizeOptions& o, const AppContext& ctx) {
-  const auto& table = runners();
+  const auto& table = all_runners();
   const auto it = table.find(o.name);
   if (it == table.end()) throw std::invalid_argument("unknown experiment '" + o.name + "'");
   const std::filesystem::path dir(o.out);
@@ -144,7 +149,7 @@ const bool registered = register_command("characterize", [](CLI::App& sub, AppCo
       "(default device: accurange) and write <name>.csv and <name>.json");
   auto o = std::make_shared<CharacterizeOptions>();
   std::vector<std::string> names;
-  for (const auto& [name, runner] : runners()) names.push_back(name);
+  for (const auto& [name, runner] : all_runners()) names.push_back(name);
   sub.add_option("name", o->name, "experiment: " + fmt::format("{}", fmt::join(names, ", ")))
       ->required()
       ->check(CLI::IsMember(names));

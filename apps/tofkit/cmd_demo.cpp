@@ -15,6 +15,7 @@
 #include "app.hpp"
 #include "demo_report.hpp"
 #include "demo_thesis.hpp"
+#include "demo_thesis_scan.hpp"
 #include "tofkit/device/accurange_preset.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/paper_reference.hpp"
@@ -150,6 +151,9 @@ void run_demo(const DemoOptions& options, const AppContext& ctx) {
   const device::VirtualRangefinder accurange(device::accurange_preset());
   const auto thesis = experiments::run_thesis_protocol(accurange, {}, options.seed);
 
+  progress("thesis scanning", 0.8);
+  const auto thesis_scan = run_thesis_scan_demo(options.seed);
+
   progress("writing results", 0.92);
   const auto& out = options.out;
   io::write_raw_csv(out / "calibration.csv", result.calibration);
@@ -165,6 +169,7 @@ void run_demo(const DemoOptions& options, const AppContext& ctx) {
   io::write_raw_csv(out / "thesis.csv", thesis.all_records());
   auto summary = summary_json(result);
   summary["thesis"] = thesis_summary_json(thesis);
+  add_thesis_scan_summary(summary, thesis_scan);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   summary["seconds"] = seconds;
@@ -173,12 +178,15 @@ void run_demo(const DemoOptions& options, const AppContext& ctx) {
   auto figures = write_demo_plots(out, result, options.plots);
   const auto thesis_figures = write_thesis_plots(out, thesis, options.plots);
   figures.insert(figures.end(), thesis_figures.begin(), thesis_figures.end());
-  write_demo_report(out, result, summary, figures, thesis.summary());
+  write_demo_report(out, result, summary, figures, thesis.summary(),
+                    write_thesis_scan_section(out, thesis_scan, options.plots));
   io::write_file_atomically(out / "summary.json", summary.dump(2) + "\n");
   progress("done", 1.0);
   print_table(result);
   fmt::print("\nthe thesis's protocol (AccuRange-like preset, grey chart, test at 19 in):\n{}",
              thesis.summary());
+  fmt::print("\nthe thesis's scanning results (AccuRange-like preset):\n{}{}",
+             thesis_scan.line.summary(), thesis_scan.memory.summary());
   fmt::print(
       "\nwrote {} (summary.json, CSVs, model.json, firmware/, {} plots, report.html) in "
       "{:.1f} s\n",

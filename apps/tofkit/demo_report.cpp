@@ -47,6 +47,36 @@ std::string html_escape(const std::string& s) {
   return out;
 }
 
+/// The thesis protocol's Fig. 4.18 table and confidence coverage, from
+/// summary.json's "thesis" entry, as HTML tables (inches, like the thesis).
+std::string thesis_tables_html(const nlohmann::json& summary) {
+  if (!summary.contains("thesis")) return {};
+  const auto& t = summary["thesis"];
+  const auto num = [](const nlohmann::json& v, double scale, int digits) -> std::string {
+    return v.is_number() ? fmt::format("{:.{}f}", v.get<double>() * scale, digits) : "";
+  };
+  const double in = 1.0 / 25.4, in2 = in * in;
+  std::string h =
+      "<table><tr><th>model</th><th>bias (in)</th><th>variance (in&sup2;)</th><th>RMS "
+      "(in)</th><th>RMS impr. (%)</th><th>rows out of domain</th></tr>\n";
+  for (const auto& r : t.value("rows", nlohmann::json::array())) {
+    h +=
+        fmt::format("<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>\n",
+                    html_escape(r.value("model", "")), num(r["bias_mm"], in, 4),
+                    num(r["variance_mm2"], in2, 5), num(r["rms_mm"], in, 4),
+                    num(r["rms_improvement_pct"], 1, 1), num(r["test_rows_out_of_domain"], 1, 0));
+  }
+  h += "</table>\n<table><tr><th>confidence model</th><th>within 1 sigma</th><th>within 2 "
+       "sigma</th><th>mean sigma (in)</th></tr>\n";
+  const auto confidence = t.value("confidence", nlohmann::json::object());
+  for (const auto& [name, c] : confidence.items()) {
+    h += fmt::format("<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>\n", html_escape(name),
+                     num(c["within_1_sigma"], 100, 1), num(c["within_2_sigma"], 100, 1),
+                     num(c["mean_sigma_mm"], in, 4));
+  }
+  return h + "</table>\n";
+}
+
 }  // namespace
 
 std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
@@ -273,7 +303,7 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
 
 void write_demo_report(const std::filesystem::path& dir, const experiments::PaperStudyResult& r,
                        const nlohmann::json& summary, const std::vector<Figure>& figures,
-                       const std::string& thesis_summary) {
+                       const std::string& thesis_summary, const std::string& extra_html) {
   namespace paper = experiments::paper;
   std::ostringstream h;
   h << "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -312,8 +342,10 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
         "<tr><td>{:.3f}</td><td>{:.3f}</td><td>{:.1f}</td><td>{:.4f}</td><td>{:.2f}</td></tr>\n",
         v.actual_m, v.paper_measured_m, v.paper_deviation_mm, v.measured_m, v.deviation_mm);
   h << "</table>\n<h2>Fitted chain</h2><pre>" << html_escape(r.fit.summary()) << "</pre>\n";
-  h << "<h2>The thesis's protocol (AccuRange-like preset)</h2><pre>" << html_escape(thesis_summary)
-    << "</pre>\n";
+  h << "<h2>The thesis's protocol (AccuRange-like preset)</h2>\n"
+    << thesis_tables_html(summary) << "<details><summary>full text</summary><pre>"
+    << html_escape(thesis_summary) << "</pre></details>\n";
+  h << extra_html;
   h << "<h2>Figures</h2>\n";
   for (const auto& f : figures) {
     if (f.file.ends_with(".png"))

@@ -26,9 +26,11 @@ void write_demo_model(const std::filesystem::path& dir,
                                                    const experiments::PaperStudyResult& result,
                                                    bool render);
 
-/// report.html: the tables and the figures, readable offline.
+/// report.html: the tables and the figures, readable offline; `extra_html`
+/// (sections of other parts of the demo) goes before the figures.
 void write_demo_report(const std::filesystem::path& dir,
                        const experiments::PaperStudyResult& result, const nlohmann::json& summary,
-                       const std::vector<Figure>& figures, const std::string& thesis_summary);
+                       const std::vector<Figure>& figures, const std::string& thesis_summary,
+                       const std::string& extra_html = {});
 
 }  // namespace tofkit::app

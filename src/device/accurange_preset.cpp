@@ -112,6 +112,16 @@ DeviceConfig accurange_preset() {
   c.measurement.window_ns = 30.0;
   c.measurement.sample_period_ps = 50.0;  // waveform mode: 20 samples per ns (fast edge)
   c.measurement.reference_temperature_c = 20.0;
+
+  // --------------------------------------------------------------- memory
+  // Thesis Figs. 3.4-3.5 and 4.28: spikes at every edge swept by the mirror and
+  // swings after a mid-grey-to-black transition, decaying exponentially.
+  // Assumption: an AC-coupled receiver whose baseline (and AGC) recovers with a
+  // 1 ms time constant (a ~160 Hz coupling corner), and 6 mm of walk per neper of
+  // unrecovered echo-strength step. No distance memory (the pulsed timing has none).
+  c.memory.time_constant_ms = 1.0;
+  c.memory.strength_gain_mm_per_neper = 6.0;
+  c.memory.distance_gain = 0.0;
   return c;
 }
 

@@ -202,6 +202,14 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       // scan: beam footprint sampling for ray casting (scan/)
       field("scan.rays_per_beam", &config.scan.rays_per_beam, 1, 4096,
             "sub-rays sampling the beam footprint, equal-area over the disk (1: axis only)"),
+
+      // memory: receiver recovery in a scan sequence (device/echo_memory.hpp)
+      field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6, kClosed,
+            "recovery time constant of the AC-coupled receiver / AGC after an echo step (0: none)"),
+      field("memory.strength_gain_mm_per_neper", &config.memory.strength_gain_mm_per_neper, -1e4,
+            1e4, kClosed, "range error per neper of echo-strength step not yet recovered"),
+      field("memory.distance_gain", &config.memory.distance_gain, 0, 1, kClosed,
+            "share of a distance step the timing loop still lags by, decaying likewise"),
   };
 }
 

@@ -89,6 +89,15 @@ struct ScanConfig {
   int rays_per_beam = 1;  ///< sub-rays sampling the beam footprint (1: the beam axis only)
 };
 
+/// Receiver memory in a time-ordered sequence of measurements (a scan), see
+/// device/echo_memory.hpp. All zero: no memory (the paper device).
+struct MemoryConfig {
+  double time_constant_ms = 0.0;  ///< recovery of the receiver's operating point (0: none)
+  double strength_gain_mm_per_neper = 0.0;  ///< range error per neper of unrecovered
+                                            ///< echo-strength step (+: a rise reads short)
+  double distance_gain = 0.0;  ///< share of an unrecovered distance step the timing lags by
+};
+
 /// A complete device.
 struct DeviceConfig {
   std::string name = "paper";  ///< preset this config started from
@@ -98,6 +107,7 @@ struct DeviceConfig {
   ThermalConfig thermal;
   MeasurementConfig measurement;
   ScanConfig scan;
+  MemoryConfig memory;
 };
 
 /// One configuration key: a dotted name bound to a field, with its valid range.

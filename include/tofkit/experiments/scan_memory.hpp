@@ -1,0 +1,93 @@
+#pragma once
+/// \file The thesis's uncorrected scanning errors and their correction
+/// (reference/characterization_thesis.md; thesis Figs. 3.4-3.5 and 4.28):
+///  - mirror edges: a profile swept by the rotating 45-degree mirror across
+///    blocks in front of a wall: a negative spike where the beam steps onto a
+///    (brighter, nearer) block, a positive one where it steps off, each decaying
+///    exponentially;
+///  - colour transition: a profile from mid grey into black swings long, then settles;
+///  - beyond the thesis, the memory correction: a causal filter
+///    (ranging/memory_correction.hpp) whose time constant and gain are fitted
+///    on a separate step-edge scan (one block), then applied to both profiles;
+///    spike amplitude and RMS near edges before and after.
+/// Profiles are averaged over revolutions (the mirror sweeps the same profile
+/// each turn), so the spikes stand out of the noise; one revolution is kept too.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "tofkit/calib/memory_fit.hpp"
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/characterization_common.hpp"
+#include "tofkit/ranging/memory_correction.hpp"
+
+namespace tofkit::experiments {
+
+struct MemoryScanOptions {
+  double wall_distance_m = 0.60;    ///< background wall
+  double wall_reflectance = 0.15;   ///< Assumption: a darker wall
+  double block_front_m = 0.45;      ///< blocks' front faces
+  double block_reflectance = 0.60;  ///< Assumption: light-grey blocks
+  /// Vertical extents of the blocks of the mirror-edge scene (z, m).
+  std::vector<double> block_bottom_m{-0.15, 0.03}, block_top_m{-0.06, 0.13};
+  /// The step-edge calibration scene: one block from this height up.
+  double calibration_edge_m = -0.02;
+  double transition_distance_m = 0.4826;  ///< 19 in
+  int transition_from_grey = 128;         ///< mid grey (below)
+  int transition_to_grey = 0;             ///< black (above the horizon)
+  double elevation_min_deg = -20, elevation_max_deg = 20, elevation_step_deg = 0.25;
+  double revolutions_per_s = 5;  ///< 139 us per 0.25 deg column
+  int revolutions = 40;
+  int shots = 0;  ///< per output (0: measurement.shots)
+  double ambient_c = 20.0;
+  /// A step between neighbouring outputs of more than this many nepers of echo
+  /// strength is an edge.
+  double edge_step_neper = 0.3;
+  int spike_columns = 3;  ///< columns after an edge searched for the spike's extreme
+  calib::MemoryFitOptions fit{};
+  void validate() const;
+};
+
+/// One edge of a profile.
+struct EdgeSpike {
+  double elevation_deg = 0;
+  bool rising = false;  ///< echo strength steps up (onto a block / a lighter grey)
+  double spike_before_m = ranging::kNaN;  ///< signed extreme of error - settled error
+  double spike_after_m = ranging::kNaN;   ///< the same after the memory correction
+};
+
+/// A profile: per column (elevation), mean over revolutions; error = true - measured.
+struct Profile {
+  std::string name;
+  std::vector<double> elevation_deg, truth_m;
+  std::vector<double> error_before_m, error_after_m;    ///< mean over revolutions
+  std::vector<double> single_before_m, single_after_m;  ///< first revolution
+  std::vector<EdgeSpike> edges;
+  double spike_before_m = ranging::kNaN;  ///< mean |spike| over edges
+  double spike_after_m = ranging::kNaN;
+  double rms_near_edges_before_m = ranging::kNaN;  ///< of error - settled, within 5 tau after edges
+  double rms_near_edges_after_m = ranging::kNaN;
+};
+
+struct MemoryScanResult {
+  MemoryScanOptions options;
+  calib::MemoryFitResult fit;  ///< from the step-edge calibration scan
+  Profile mirror_edges, color_transition;
+  /// Every output of the mirror-edge scan, then of the colour-transition scan,
+  /// with the true range of its beam axis (raw, before the memory correction).
+  std::vector<ranging::Record> mirror_records, transition_records;
+  [[nodiscard]] std::vector<Finding> findings() const;
+  /// "edges", "mirror_profile", "transition_profile".
+  [[nodiscard]] std::vector<ResultTable> tables() const;
+  [[nodiscard]] std::string summary() const;
+};
+
+/// Runs the calibration scan, the fit, and both profiles. Throws
+/// std::invalid_argument on bad options.
+[[nodiscard]] MemoryScanResult run_memory_scans(const device::VirtualRangefinder& device,
+                                                const MemoryScanOptions& options,
+                                                std::uint64_t seed);
+
+}  // namespace tofkit::experiments

@@ -1,0 +1,216 @@
+#include "tofkit/device/echo_memory.hpp"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace tofkit::device {
+namespace {
+
+// Streams of a moving window's sub-measurements: item i, path element k. The
+// top bit keeps them apart from the streams of still beams (stream i).
+constexpr std::uint64_t kPathStreamBit = 1ull << 63;
+constexpr int kMaxPathElements = 256;
+
+/// The share of a lag present at a window's start that remains on average over
+/// the window: (1/T) integral_0^T exp(-t / tau) dt.
+double mean_remaining(double window_s, double tau_s) {
+  if (!(tau_s > 0)) return 0.0;
+  const double x = window_s / tau_s;
+  if (x < 1e-9) return 1.0;
+  return (1.0 - std::exp(-x)) / x;
+}
+
+/// Fraction-weighted distance of a target's surfaces (NaN for a miss).
+double mean_distance_m(const Target& target) {
+  double sum = 0, weight = 0;
+  for (const auto& s : target.surfaces) {
+    sum += s.fraction * s.distance_m;
+    weight += s.fraction;
+  }
+  return weight > 0 ? sum / weight : ranging::kNaN;
+}
+
+/// Valid-shot weighted average of the sub-measurements of a moving window.
+ranging::RawMeasurement combine(std::span<const ranging::RawMeasurement> parts) {
+  ranging::RawMeasurement out;
+  double w_sum = 0, tof = 0, dist = 0, width = 0, amp = 0, temp = 0;
+  std::uint32_t flags = 0, valid = 0;
+  int temp_n = 0;
+  bool partial = false;
+  for (const auto& p : parts) {
+    if (std::isfinite(p.temperature_c)) {
+      temp += p.temperature_c;
+      ++temp_n;
+    }
+    if (!p.has_echo()) {
+      partial = true;
+      continue;
+    }
+    const double w = p.shots_valid;
+    w_sum += w;
+    tof += w * p.tof_ns;
+    dist += w * p.distance_raw_m;
+    width += w * p.pulse_width_ns;
+    amp += w * p.amplitude;
+    valid += p.shots_valid;
+    flags |= p.flags;
+  }
+  out.temperature_c = temp_n > 0 ? temp / temp_n : ranging::kNaN;
+  if (valid == 0) {
+    for (const auto& p : parts) out.flags |= p.flags;
+    out.flags |= ranging::kRawNoEcho;
+    return out;
+  }
+  out.tof_ns = tof / w_sum;
+  out.distance_raw_m = dist / w_sum;
+  out.pulse_width_ns = width / w_sum;
+  out.amplitude = amp / w_sum;
+  out.shots_valid = valid;
+  out.flags = flags & ~static_cast<std::uint32_t>(ranging::kRawNoEcho);
+  if (partial) out.flags |= ranging::kRawPartialEchoes;
+  return out;
+}
+
+}  // namespace
+
+EchoMemory::EchoMemory(const VirtualRangefinder& device) : device_(&device) {}
+
+double EchoMemory::window_s(int shots) const {
+  const auto& c = device_->config();
+  const int n = shots > 0 ? shots : c.measurement.shots;
+  return n / c.link.laser.repetition_hz;
+}
+
+double EchoMemory::echo_strength(const Target& target, const Conditions& conditions) const {
+  const auto& c = device_->config();
+  // Floor: an echo just at the threshold lasting one receiver rise time (0.35 / B);
+  // the receiver's operating point cannot move further than a no-echo state.
+  const double rise_ns = 0.35 / c.link.receiver.bandwidth_mhz * 1e3;
+  const double floor_charge = c.discriminator.threshold_v * rise_ns;
+  if (target.surfaces.empty()) return std::log(floor_charge);
+  const EchoShape e = device_->echo(target, conditions);
+  if (!e.detected) return std::log(floor_charge);
+  // The amplifier clips at saturation_v and stays clipped longer (charge storage):
+  // what passes the coupling grows with the width, not the linear peak.
+  const double peak = std::min(e.peak_v, c.link.receiver.saturation_v);
+  const double width = std::max(e.fall_crossing_ns - e.rise_crossing_ns, rise_ns);
+  return std::log(std::max(peak * width, floor_charge));
+}
+
+std::vector<std::size_t> EchoMemory::segments(std::span<const SequenceItem> items) const {
+  std::vector<std::size_t> starts;
+  if (items.empty()) return starts;
+  starts.push_back(0);
+  const double tau_s = device_->config().memory.time_constant_ms * 1e-3;
+  for (std::size_t i = 1; i < items.size(); ++i) {
+    const double gap = items[i].time_s - items[i - 1].time_s;
+    if (!(tau_s > 0) || gap > kDecayedTimeConstants * tau_s) starts.push_back(i);
+  }
+  return starts;
+}
+
+void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint64_t seed,
+                                  std::span<ranging::RawMeasurement> out,
+                                  std::span<MemoryTrace> trace) const {
+  if (out.size() != items.size())
+    throw std::invalid_argument("measure_sequence: output span size differs from the item count");
+  if (!trace.empty() && trace.size() != items.size())
+    throw std::invalid_argument("measure_sequence: trace span size differs from the item count");
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    if (items[i].path.empty() || items[i].path.size() > kMaxPathElements)
+      throw std::invalid_argument("measure_sequence: item " + std::to_string(i) + " needs 1.." +
+                                  std::to_string(kMaxPathElements) + " path targets");
+    if (!std::isfinite(items[i].time_s) || (i > 0 && items[i].time_s < items[i - 1].time_s))
+      throw std::invalid_argument("measure_sequence: item " + std::to_string(i) +
+                                  " has a time before the previous item's");
+  }
+  const auto& cfg = device_->config();
+  const double tau_s = cfg.memory.time_constant_ms * 1e-3;
+  const double strength_gain_m = cfg.memory.strength_gain_mm_per_neper * 1e-3;
+  const double distance_gain = cfg.memory.distance_gain;
+  const bool memory_on = tau_s > 0 && (strength_gain_m != 0 || distance_gain != 0);
+  const double ns_per_m = 1.0 / (device_->tof_to_distance_m(1.0) - device_->tof_to_distance_m(0.0));
+  const auto starts = segments(items);
+
+  auto run_segment = [&](std::size_t begin, std::size_t end) {
+    double strength_state = 0, distance_state = ranging::kNaN;
+    std::vector<ranging::RawMeasurement> parts;
+    for (std::size_t i = begin; i < end; ++i) {
+      const SequenceItem& item = items[i];
+      const int shots = item.shots > 0 ? item.shots : cfg.measurement.shots;
+      const auto k_count = static_cast<int>(item.path.size());
+      const double sub_window = window_s(shots) / k_count;
+      parts.assign(item.path.size(), {});
+      double lag_sum = 0, strength_sum = 0, error_sum = 0, error_weight = 0;
+      for (int k = 0; k < k_count; ++k) {
+        const Target& target = item.path[static_cast<std::size_t>(k)];
+        // Shots shared among the swept targets, the remainder to the first ones.
+        const int sub_shots = std::max(1, shots / k_count + (k < shots % k_count ? 1 : 0));
+        const std::uint64_t stream =
+            k_count == 1 ? i : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) | k);
+        auto& m = parts[static_cast<std::size_t>(k)];
+        m = device_->measure(target, item.conditions, seed, stream, sub_shots);
+        if (!memory_on) continue;
+        const double x = echo_strength(target, item.conditions);
+        const double d = mean_distance_m(target);
+        if (i == begin && k == 0) {  // a fresh segment: the memory has decayed
+          strength_state = x;
+          distance_state = d;
+        }
+        if (std::isnan(distance_state)) distance_state = d;
+        const double remaining = mean_remaining(sub_window, tau_s);
+        const double lag = (x - strength_state) * remaining;
+        double error_m = -strength_gain_m * lag;
+        if (!std::isnan(d)) error_m += -distance_gain * (d - distance_state) * remaining;
+        if (m.has_echo()) {
+          m.distance_raw_m += error_m;
+          m.tof_ns += error_m * ns_per_m;
+          error_sum += m.shots_valid * error_m;
+          error_weight += m.shots_valid;
+        }
+        lag_sum += lag;
+        strength_sum += x;
+        // The operating point relaxes towards this target's strength over the sub-window.
+        const double decay = std::exp(-sub_window / tau_s);
+        strength_state = x + (strength_state - x) * decay;
+        if (!std::isnan(d)) distance_state = d + (distance_state - d) * decay;
+      }
+      out[i] = k_count == 1 ? parts.front() : combine(parts);
+      if (memory_on) {
+        // Between windows the beam stays on the last target until the next output.
+        if (i + 1 < end) {
+          const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
+          if (idle > 0) {
+            const double decay = std::exp(-idle / tau_s);
+            const Target& last = item.path.back();
+            const double x = echo_strength(last, item.conditions);
+            strength_state = x + (strength_state - x) * decay;
+            const double d = mean_distance_m(last);
+            if (!std::isnan(d) && !std::isnan(distance_state))
+              distance_state = d + (distance_state - d) * decay;
+          }
+        }
+      }
+      if (!trace.empty()) {
+        auto& t = trace[i];
+        t.strength_neper = strength_sum / k_count;
+        t.lag_neper = lag_sum / k_count;
+        t.error_m = error_weight > 0 ? error_sum / error_weight : 0.0;
+      }
+    }
+  };
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, starts.size(), 1),
+                    [&](const tbb::blocked_range<std::size_t>& range) {
+                      for (std::size_t s = range.begin(); s != range.end(); ++s) {
+                        const std::size_t end =
+                            s + 1 < starts.size() ? starts[s + 1] : items.size();
+                        run_segment(starts[s], end);
+                      }
+                    });
+}
+
+}  // namespace tofkit::device
