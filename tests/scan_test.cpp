@@ -298,6 +298,7 @@ TEST(ScanImages, LineResamplingAveragesByOverlapAndStripeChartOrdersIntensity) {
   // Stripe k covers columns 10k .. 10k + 9 from the left (+y): u grows towards
   // -y... stripe index from the plane's u axis; compare inner columns only.
   std::vector<double> mean(6, 0);
+  std::vector<int> count(6, 0);
   Vec3 u, v;
   plane_axes(chart.normal, u, v);
   for (int c = 0; c < 60; ++c) {
@@ -307,10 +308,23 @@ TEST(ScanImages, LineResamplingAveragesByOverlapAndStripeChartOrdersIntensity) {
     const double inside = uu / 0.01 - stripe;
     if (inside < 0.2 || inside > 0.8) continue;
     mean[static_cast<std::size_t>(stripe)] += images.intensity.at(0, c);
+    ++count[static_cast<std::size_t>(stripe)];
   }
+  for (std::size_t k = 0; k < 6; ++k) {
+    ASSERT_GT(count[k], 0) << k;
+    mean[k] /= count[k];
+  }
+  // The amplitude reading saturates at the peak detector's clip level: stripes
+  // bright enough to clip read alike, so the order is strict only below it.
+  const double clip = config.link.receiver.amplitude_clip_v;
   for (std::size_t a = 0; a < 6; ++a) {
     for (std::size_t b = 0; b < 6; ++b) {
-      if (levels[a] < levels[b]) EXPECT_LT(mean[a], mean[b]) << a << " " << b;
+      if (levels[a] >= levels[b]) continue;
+      if (mean[a] < 0.99 * clip) {
+        EXPECT_LT(mean[a], mean[b]) << a << " " << b;
+      } else {
+        EXPECT_NEAR(mean[b], clip, 1e-2 * clip) << a << " " << b;
+      }
     }
   }
 }
