@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "app.hpp"
+#include "plate_grid.hpp"
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/input_file.hpp"
@@ -55,31 +56,12 @@ int parse_count(const std::string& text) {
   return static_cast<int>(v);
 }
 
-void check_all(const std::vector<double>& values, const char* option, double min, double max) {
-  for (const double v : values) {
-    if (!(v >= min && v <= max)) {
-      throw std::invalid_argument(fmt::format("{}: {} is outside [{}, {}]", option, v, min, max));
-    }
-  }
-}
-
 void run_measure(const MeasureOptions& o, const AppContext& ctx) {
-  const auto distances = io::parse_value_list(o.distances, "--distance");
-  const auto reflectances = io::parse_value_list(o.reflectances, "--reflectance");
-  const auto angles = io::parse_value_list(o.angles, "--angle");
-  const auto temperatures = io::parse_value_list(o.temperatures, "--temperature");
-  check_all(distances, "--distance", 1e-3, 1e5);
-  check_all(reflectances, "--reflectance", 0.0, 1.0);
-  check_all(angles, "--angle", 0.0, 89.9);
-  check_all(temperatures, "--temperature", -60.0, 150.0);
-
+  const PlateGrid grid = parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures);
   const device::DeviceConfig config = ctx.load_config();
   require_output_directory(o.out, "--out");
 
-  double rows = static_cast<double>(o.count);
-  for (const auto* list : {&distances, &reflectances, &angles, &temperatures}) {
-    rows *= static_cast<double>(list->size());
-  }
+  const double rows = static_cast<double>(o.count) * grid.size();
   const auto max_rows = static_cast<double>(io::resource_limits().max_rows);
   if (rows > max_rows) {
     throw std::invalid_argument(fmt::format(
@@ -90,8 +72,8 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   // The echo of every plate, and in waveform mode the record, within the
   // documented limits (device/config_limits.hpp), before any work.
   double widest_spread_ns = 0;
-  for (const double d : distances) {
-    for (const double angle : angles) {
+  for (const double d : grid.distances_m) {
+    for (const double angle : grid.angles_deg) {
       const std::string problem = device::check_plate_echo(config, d, angle);
       if (!problem.empty()) throw std::invalid_argument("--distance/--angle: " + problem);
       widest_spread_ns = std::max(widest_spread_ns, device::plate_echo_spread_ns(config, d, angle));
@@ -113,21 +95,15 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   std::vector<ranging::Record> records;
   requests.reserve(static_cast<std::size_t>(rows));
   records.reserve(static_cast<std::size_t>(rows));
-  for (const double d : distances) {
-    for (const double rho : reflectances) {
-      for (const double angle : angles) {
-        for (const double t : temperatures) {
-          device::Conditions conditions;
-          conditions.ambient_c = t;
-          for (int k = 0; k < o.count; ++k) {
-            requests.push_back(
-                device::MeasureRequest{device::Target::plate(d, rho, angle), conditions, o.shots});
-            ranging::Record record;
-            record.truth = ranging::GroundTruth{d, rho, angle, t};
-            records.push_back(record);
-          }
-        }
-      }
+  for (const PlatePoint& p : grid.points()) {
+    device::Conditions conditions;
+    conditions.ambient_c = p.ambient_c;
+    for (int k = 0; k < o.count; ++k) {
+      requests.push_back(device::MeasureRequest{
+          device::Target::plate(p.distance_m, p.reflectance, p.angle_deg), conditions, o.shots});
+      ranging::Record record;
+      record.truth = ranging::GroundTruth{p.distance_m, p.reflectance, p.angle_deg, p.ambient_c};
+      records.push_back(record);
     }
   }
 

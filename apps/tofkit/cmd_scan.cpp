@@ -16,26 +16,22 @@
 #include <vector>
 
 #include "app.hpp"
+#include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scene_file.hpp"
-#include "tofkit/io/value_list.hpp"
 #include "tofkit/scan/scanner.hpp"
 
 namespace tofkit::app {
 namespace {
 
 struct ScanCliOptions {
-  std::string scene, pattern, model, mode = "analytic", write = "all", out;
-  std::string y, z, azimuth, elevation;
-  int shots = 0, samples = 1, revolutions = 1;
-  double speed_m_per_s = 0.05, turnaround_s = 0.5, rate_hz = 10, azimuth_step_deg = 0.2;
-  double ambient_c = device::Conditions{}.ambient_c;
+  SceneScanOptions scan;
+  std::string model, mode = "analytic", write = "all", out;
+  int shots = 0;
   std::uint64_t seed = 1;
 };
-
-constexpr double kMaxBeams = 1e8;
 
 const std::vector<std::string>& all_outputs() {
   static const std::vector<std::string> names = {"csv", "png", "npy", "ply", "pcd", "las", "view"};
@@ -59,30 +55,6 @@ std::set<std::string> parse_write(const std::string& text) {
   }
   if (picked.empty()) throw std::invalid_argument("--write: nothing to write");
   return picked;
-}
-
-std::vector<double> list(const std::string& text, const char* option, const std::string& pattern) {
-  if (text.empty())
-    throw std::invalid_argument(fmt::format("--pattern {} needs {}", pattern, option));
-  return io::parse_value_list(text, option);
-}
-
-scan::BeamPattern make_pattern(const ScanCliOptions& o, double period_s) {
-  const auto& p = o.pattern;
-  if (p == "raster")
-    return scan::raster_pattern(
-        {list(o.y, "--y", p), list(o.z, "--z", p), o.samples, o.speed_m_per_s}, period_s);
-  if (p == "line")
-    return scan::line_pattern(
-        {list(o.y, "--y", p), list(o.z, "--z", p), o.speed_m_per_s, o.turnaround_s}, period_s);
-  if (p == "mirror")
-    return scan::mirror_pattern(
-        {list(o.elevation, "--elevation", p), o.revolutions, o.rate_hz, o.speed_m_per_s});
-  if (p == "spherical")
-    return scan::spherical_pattern(
-        {list(o.azimuth, "--azimuth", p), list(o.elevation, "--elevation", p), o.rate_hz});
-  return scan::spinning_pattern(
-      {list(o.elevation, "--elevation", p), o.azimuth_step_deg, o.rate_hz, o.revolutions});
 }
 
 // A one-line progress indicator on a terminal; silent when stderr is a file.
@@ -109,8 +81,8 @@ nlohmann::json sidecar(const std::string& file, const char* quantity, const char
   j["rows"] = r.pattern.rows;
   j["columns"] = r.pattern.columns;
   j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
-  j["scan"] = {{"scene", o.scene},       {"pattern", o.pattern}, {"mode", o.mode},
-               {"seed", o.seed},         {"shots", o.shots},     {"model", o.model},
+  j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
+               {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
                {"beams", r.beams.size()}};
   return j;
 }
@@ -118,33 +90,21 @@ nlohmann::json sidecar(const std::string& file, const char* quantity, const char
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
-  const scan::Scene scene = io::load_scene(o.scene);
+  const scan::Scene scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
   std::error_code ec;
   if (!std::filesystem::is_directory(o.out, ec)) {
     throw std::runtime_error("--out: directory '" + o.out + "' does not exist");
   }
-  const int shots = o.shots > 0 ? o.shots : config.measurement.shots;
-  const double period_s = shots / config.link.laser.repetition_hz;
-  const scan::BeamPattern pattern = make_pattern(o, period_s);
-  if (static_cast<double>(pattern.beams.size()) > kMaxBeams) {
-    throw std::invalid_argument(
-        fmt::format("the pattern has {} beams, more than {:g}", pattern.beams.size(), kMaxBeams));
-  }
+  const int shots = scan_shots(config, o.shots);
+  const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
 
   const auto start = std::chrono::steady_clock::now();
   const auto mode =
       o.mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
-  const device::VirtualRangefinder rangefinder(config, mode);
-  const scan::RayCaster caster(scene);
-  scan::ScanOptions options;
-  options.seed = o.seed;
-  options.shots = shots;
-  options.conditions.ambient_c = o.ambient_c;
-  options.progress = Progress{};
   scan::ScanResult result =
-      scan::run_scan(caster, scan::Footprint(config), rangefinder, pattern, options);
+      run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
   if (pipeline) {
     std::vector<ranging::RawMeasurement> raw;
     raw.reserve(result.beams.size());
@@ -161,7 +121,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::ScanImages images = scan::make_images(result);
   std::vector<io::OutputFile> files;
   if (outputs.count("csv") != 0)
-    files.push_back({"scan.csv", io::encode_scan_csv(result, o.ambient_c)});
+    files.push_back({"scan.csv", io::encode_scan_csv(result, o.scan.ambient_c)});
   const struct {
     const char* name;
     const char* quantity;
@@ -198,7 +158,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
              "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
-             result.beams.size(), pattern.rows, pattern.columns, o.pattern,
+             result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, shots * pattern.shots_multiplier, o.mode, o.seed,
              points.size(), mixed, result.beams.size() - points.size(), seconds, threads, o.out);
 }
@@ -206,35 +166,9 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {
   sub.description("scan a scene (TOML) with a pattern: range/intensity images and point clouds");
   auto o = std::make_shared<ScanCliOptions>();
-  sub.add_option("--scene", o->scene, "scene file (TOML)")->required();
-  sub.add_option("--pattern", o->pattern, "raster | line | mirror | spherical | spinning")
-      ->required()
-      ->check(CLI::IsMember({"raster", "line", "mirror", "spherical", "spinning"}));
-  sub.add_option("--y", o->y, "raster/line: stage positions along y, m: LIST");
-  sub.add_option("--z", o->z, "raster/line: stage positions along z (lines), m: LIST");
-  sub.add_option("--azimuth", o->azimuth, "spherical: azimuths, degrees: LIST");
-  sub.add_option("--elevation", o->elevation,
-                 "mirror/spherical/spinning: elevations, degrees: LIST");
-  sub.add_option("--samples", o->samples, "raster: measurements averaged per point")
-      ->check(CLI::Range(1, 100000))
-      ->capture_default_str();
-  sub.add_option("--speed", o->speed_m_per_s, "raster/line/mirror: stage speed, m/s")
-      ->check(CLI::Range(0.0, 100.0))
-      ->capture_default_str();
-  sub.add_option("--turnaround", o->turnaround_s, "line: time between lines, s")
-      ->check(CLI::Range(0.0, 1e4))
-      ->capture_default_str();
-  sub.add_option("--rate", o->rate_hz,
-                 "mirror/spherical: mirror revolutions per s; spinning: rotation Hz")
-      ->check(CLI::Range(1e-6, 1e5))
-      ->capture_default_str();
-  sub.add_option("--revolutions", o->revolutions, "mirror/spinning: revolutions")
-      ->check(CLI::Range(1, 1000000))
-      ->capture_default_str();
-  sub.add_option("--azimuth-step", o->azimuth_step_deg,
-                 "spinning: azimuth between firings, degrees")
-      ->check(CLI::Range(1e-4, 360.0))
-      ->capture_default_str();
+  const SceneScanOptionHandles h = add_scene_scan_options(sub, o->scan);
+  h.scene->required();
+  h.pattern->required();
   sub.add_option("--model", o->model,
                  "correction model (JSON, from tofkit fit): adds range, sigma");
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
@@ -243,9 +177,6 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   sub.add_option("--shots", o->shots, "shots averaged per beam (default: config's)")
       ->check(CLI::Range(1, 10'000'000));
   sub.add_option("--seed", o->seed, "random seed (the output depends on it only)")
-      ->capture_default_str();
-  sub.add_option("--ambient", o->ambient_c, "ambient temperature, C")
-      ->check(CLI::Range(-60.0, 150.0))
       ->capture_default_str();
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();

@@ -1,0 +1,109 @@
+#include "scene_scan.hpp"
+
+#include <fmt/format.h>
+
+#include <stdexcept>
+#include <utility>
+#include <vector>
+
+#include "tofkit/io/value_list.hpp"
+#include "tofkit/scan/ray_caster.hpp"
+
+namespace tofkit::app {
+namespace {
+
+std::vector<double> list(const std::string& text, const char* option, const std::string& pattern) {
+  if (text.empty())
+    throw std::invalid_argument(fmt::format("--pattern {} needs {}", pattern, option));
+  return io::parse_value_list(text, option);
+}
+
+}  // namespace
+
+SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o,
+                                              const std::string& rate_option) {
+  SceneScanOptionHandles h;
+  h.scene = sub.add_option("--scene", o.scene, "scene file (TOML)");
+  h.pattern =
+      sub.add_option("--pattern", o.pattern, "raster | line | mirror | spherical | spinning")
+          ->check(CLI::IsMember({"raster", "line", "mirror", "spherical", "spinning"}));
+  h.others = {
+      sub.add_option("--y", o.y, "raster/line: stage positions along y, m: LIST"),
+      sub.add_option("--z", o.z, "raster/line: stage positions along z (lines), m: LIST"),
+      sub.add_option("--azimuth", o.azimuth, "spherical: azimuths, degrees: LIST"),
+      sub.add_option("--elevation", o.elevation,
+                     "mirror/spherical/spinning: elevations, degrees: LIST"),
+      sub.add_option("--samples", o.samples, "raster: measurements averaged per point")
+          ->check(CLI::Range(1, 100000))
+          ->capture_default_str(),
+      sub.add_option("--speed", o.speed_m_per_s, "raster/line/mirror: stage speed, m/s")
+          ->check(CLI::Range(0.0, 100.0))
+          ->capture_default_str(),
+      sub.add_option("--turnaround", o.turnaround_s, "line: time between lines, s")
+          ->check(CLI::Range(0.0, 1e4))
+          ->capture_default_str(),
+      sub.add_option(rate_option, o.rate_hz,
+                     "mirror/spherical: mirror revolutions per s; spinning: rotation Hz")
+          ->check(CLI::Range(1e-6, 1e5))
+          ->capture_default_str(),
+      sub.add_option("--revolutions", o.revolutions, "mirror/spinning: revolutions")
+          ->check(CLI::Range(1, 1000000))
+          ->capture_default_str(),
+      sub.add_option("--azimuth-step", o.azimuth_step_deg,
+                     "spinning: azimuth between firings, degrees")
+          ->check(CLI::Range(1e-4, 360.0))
+          ->capture_default_str(),
+      sub.add_option("--ambient", o.ambient_c, "ambient temperature, C")
+          ->check(CLI::Range(-60.0, 150.0))
+          ->capture_default_str(),
+  };
+  return h;
+}
+
+scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::DeviceConfig& config,
+                                    int shots) {
+  const double period_s = shots / config.link.laser.repetition_hz;
+  const auto& p = o.pattern;
+  scan::BeamPattern pattern;
+  if (p == "raster")
+    pattern = scan::raster_pattern(
+        {list(o.y, "--y", p), list(o.z, "--z", p), o.samples, o.speed_m_per_s}, period_s);
+  else if (p == "line")
+    pattern = scan::line_pattern(
+        {list(o.y, "--y", p), list(o.z, "--z", p), o.speed_m_per_s, o.turnaround_s}, period_s);
+  else if (p == "mirror")
+    pattern = scan::mirror_pattern(
+        {list(o.elevation, "--elevation", p), o.revolutions, o.rate_hz, o.speed_m_per_s});
+  else if (p == "spherical")
+    pattern = scan::spherical_pattern(
+        {list(o.azimuth, "--azimuth", p), list(o.elevation, "--elevation", p), o.rate_hz});
+  else
+    pattern = scan::spinning_pattern(
+        {list(o.elevation, "--elevation", p), o.azimuth_step_deg, o.rate_hz, o.revolutions});
+  if (static_cast<double>(pattern.beams.size()) > kMaxScanBeams) {
+    throw std::invalid_argument(fmt::format("the pattern has {} beams, more than {:g}",
+                                            pattern.beams.size(), kMaxScanBeams));
+  }
+  return pattern;
+}
+
+int scan_shots(const device::DeviceConfig& config, int shots) {
+  return shots > 0 ? shots : config.measurement.shots;
+}
+
+scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& scene,
+                                const scan::BeamPattern& pattern,
+                                const device::DeviceConfig& config, device::SimulationMode mode,
+                                int shots, std::uint64_t seed,
+                                std::function<void(std::size_t, std::size_t)> progress) {
+  const device::VirtualRangefinder rangefinder(config, mode);
+  const scan::RayCaster caster(scene);
+  scan::ScanOptions options;
+  options.seed = seed;
+  options.shots = shots;
+  options.conditions.ambient_c = o.ambient_c;
+  options.progress = std::move(progress);
+  return scan::run_scan(caster, scan::Footprint(config), rangefinder, pattern, options);
+}
+
+}  // namespace tofkit::app

@@ -1,0 +1,69 @@
+#pragma once
+/// \file The scene-scan options of `tofkit scan`, shared by every command that
+/// scans a scene (`scan`, `emulate --scene`): one place registers them with
+/// CLI11, builds the pattern and runs the scan, so the same options mean the
+/// same beams, and the same seed the same values, in every command.
+
+#include <CLI/CLI.hpp>
+#include <cstdint>
+#include <functional>
+#include <string>
+
+#include "tofkit/device/device_config.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/scan/pattern.hpp"
+#include "tofkit/scan/scanner.hpp"
+
+namespace tofkit::app {
+
+/// A scene and a pattern over it; units in the names, defaults as `tofkit scan`.
+struct SceneScanOptions {
+  std::string scene;    ///< --scene: scene file (TOML)
+  std::string pattern;  ///< --pattern: raster | line | mirror | spherical | spinning
+  std::string y, z, azimuth, elevation;  ///< LISTs, as the pattern needs them
+  int samples = 1;                       ///< raster: measurements averaged per point
+  int revolutions = 1;                   ///< mirror/spinning
+  double speed_m_per_s = 0.05;           ///< raster/line/mirror stage speed
+  double turnaround_s = 0.5;             ///< line: time between lines
+  double rate_hz = 10;            ///< mirror/spherical: revolutions per s; spinning: rotation
+  double azimuth_step_deg = 0.2;  ///< spinning: azimuth between firings
+  double ambient_c = device::Conditions{}.ambient_c;  ///< --ambient
+};
+
+/// The options as registered, so a command can mark them required or tie
+/// them to others (CLI11 needs/excludes).
+struct SceneScanOptionHandles {
+  CLI::Option* scene = nullptr;
+  CLI::Option* pattern = nullptr;
+  std::vector<CLI::Option*> others;  ///< every pattern option and --ambient
+};
+
+/// Registers --scene, --pattern, --y, --z, --azimuth, --elevation, --samples,
+/// --speed, --turnaround, the pattern rate (`rate_option`: `scan` calls it
+/// --rate; `emulate`, whose --rate is its frame rate, --scan-rate),
+/// --revolutions, --azimuth-step and --ambient, none of them required.
+SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o,
+                                              const std::string& rate_option = "--rate");
+
+/// Largest number of beams a pattern may have.
+inline constexpr double kMaxScanBeams = 1e8;
+
+/// The pattern the options describe for a device averaging `shots` shots per
+/// measurement (its output period: shots / laser repetition rate). Throws
+/// std::invalid_argument naming the option a pattern lacks, and when the
+/// pattern has more than kMaxScanBeams beams.
+[[nodiscard]] scan::BeamPattern make_scan_pattern(const SceneScanOptions& o,
+                                                  const device::DeviceConfig& config, int shots);
+
+/// Shots per beam before the pattern's multiplier: `shots`, or the config's.
+[[nodiscard]] int scan_shots(const device::DeviceConfig& config, int shots);
+
+/// The scan `tofkit scan` makes: `pattern` over `scene` (loaded from the
+/// options' file by the caller, io::load_scene) through the virtual
+/// rangefinder, beam i on random stream i of `seed`.
+[[nodiscard]] scan::ScanResult run_scene_scan(
+    const SceneScanOptions& o, const scan::Scene& scene, const scan::BeamPattern& pattern,
+    const device::DeviceConfig& config, device::SimulationMode mode, int shots, std::uint64_t seed,
+    std::function<void(std::size_t, std::size_t)> progress = {});
+
+}  // namespace tofkit::app
