@@ -2,20 +2,17 @@
 // synthetic calibration CSV generated here from a known hinge chain + noise.
 
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <cmath>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <random>
-#include <sstream>
 #include <string>
 #include <vector>
 
+#include "cli_runner.hpp"
 #include "tofkit/calib/statistics.hpp"
 #include "tofkit/io/firmware_export.hpp"
 #include "tofkit/io/model_json.hpp"
@@ -68,51 +65,18 @@ std::vector<ranging::Record> synthetic_records(int count, unsigned seed) {
   return out;
 }
 
-struct RunResult {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-class ChainCli : public ::testing::Test {
+class ChainCli : public test::CliFixture {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("tofkit_chain_cli_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-
-  RunResult run(const std::string& args) const {
-    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
-    const std::string cmd = std::string("\"") + TOFKIT_BINARY + "\" " + args + " > \"" +
-                            out.string() + "\" 2> \"" + err.string() + "\"";
-    const int status = std::system(cmd.c_str());
-    RunResult r;
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    const auto slurp = [](const fs::path& p) {
-      std::ifstream in(p);
-      std::stringstream ss;
-      ss << in.rdbuf();
-      return ss.str();
-    };
-    r.out = slurp(out);
-    r.err = slurp(err);
-    return r;
-  }
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-
-  fs::path dir_;
+  ChainCli() : CliFixture("tofkit_chain_cli_") {}
 };
 
 TEST_F(ChainCli, FitCorrectEvaluateRoundTrip) {
   io::write_raw_csv(path("calib.csv"), synthetic_records(3, 1));
   io::write_raw_csv(path("test.csv"), synthetic_records(1, 2));
 
-  const RunResult fit = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
-                            " --chain offset,grayvalue,temperature");
-  ASSERT_EQ(fit.exit_code, 0) << fit.err;
+  const test::CliResult fit = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+                                  " --chain offset,grayvalue,temperature");
+  ASSERT_EQ(fit.status, 0) << fit.err;
   const ranging::Pipeline model = io::load_pipeline(path("model.json"));
   ASSERT_EQ(model.steps().size(), 3u);
   const auto& g = model.steps()[1].function;
@@ -125,9 +89,9 @@ TEST_F(ChainCli, FitCorrectEvaluateRoundTrip) {
   EXPECT_NEAR(g.segment_slopes()[1], 0.070, 1e-3);
   EXPECT_NEAR(h.segment_slopes()[1], -0.0038, 1e-4);
 
-  const RunResult correct = run("correct --model " + path("model.json") + " --in " +
-                                path("test.csv") + " --out " + path("corrected.csv"));
-  ASSERT_EQ(correct.exit_code, 0) << correct.err;
+  const test::CliResult correct = run("correct --model " + path("model.json") + " --in " +
+                                      path("test.csv") + " --out " + path("corrected.csv"));
+  ASSERT_EQ(correct.status, 0) << correct.err;
   const auto rows = io::read_corrected_csv(path("corrected.csv"));
   ASSERT_EQ(rows.size(), 360u);
   double sum2 = 0;
@@ -139,8 +103,9 @@ TEST_F(ChainCli, FitCorrectEvaluateRoundTrip) {
   EXPECT_LT(rms, 1.3 * kNoise_m);  // corrected errors at the noise level
   EXPECT_GT(rms, 0.7 * kNoise_m);
 
-  const RunResult eval = run("evaluate --in " + path("corrected.csv") + " --by reflectance --json");
-  ASSERT_EQ(eval.exit_code, 0) << eval.err;
+  const test::CliResult eval =
+      run("evaluate --in " + path("corrected.csv") + " --by reflectance --json");
+  ASSERT_EQ(eval.status, 0) << eval.err;
   const nlohmann::json j = nlohmann::json::parse(eval.out);
   // Independent computation per reflectance: bias and RMS of true - distance_m.
   std::map<double, std::vector<double>> by_reflectance, raw_by_reflectance;
@@ -178,19 +143,19 @@ TEST_F(ChainCli, FitCorrectEvaluateRoundTrip) {
   EXPECT_NEAR(j["overall"]["within_2_sigma"]["share"].get<double>(), 0.95, 0.04);
   EXPECT_EQ(j["overall"]["within_2_sigma"]["amplitude_terciles"].size(), 3u);
 
-  const RunResult text = run("evaluate --in " + path("corrected.csv"));
-  ASSERT_EQ(text.exit_code, 0) << text.err;
+  const test::CliResult text = run("evaluate --in " + path("corrected.csv"));
+  ASSERT_EQ(text.status, 0) << text.err;
   EXPECT_NE(text.out.find("all"), std::string::npos);
 }
 
 TEST_F(ChainCli, ConfidenceAndFirmwareOutputs) {
   io::write_raw_csv(path("calib.csv"), synthetic_records(2, 3));
-  const RunResult fit =
+  const test::CliResult fit =
       run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
           " --chain offset,grayvalue,temperature --confidence thesis --confidence-fraction 0.25"
           " --firmware " +
           path("fw"));
-  ASSERT_EQ(fit.exit_code, 0) << fit.err;
+  ASSERT_EQ(fit.status, 0) << fit.err;
   const ranging::Pipeline model = io::load_pipeline(path("model.json"));
   ASSERT_TRUE(model.confidence());
   EXPECT_EQ(model.confidence()->kind(), "thesis");
@@ -213,9 +178,9 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   const auto expect_failure = [&](const std::vector<ranging::Record>& records,
                                   const std::string& chain, const std::string& message) {
     io::write_raw_csv(path("bad.csv"), records);
-    const RunResult r =
+    const test::CliResult r =
         run("fit --in " + path("bad.csv") + " --out " + path("model.json") + " --chain " + chain);
-    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.status, 0);
     EXPECT_NE(r.err.find(message), std::string::npos) << r.err;
     if (message.find("--chain") == std::string::npos) {
       EXPECT_NE(r.err.find("bad.csv: "), std::string::npos) << r.err;
@@ -238,14 +203,14 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   // A model that cannot be read is named, and nothing is written.
   std::ofstream(path("broken.json")) << "{\"kind\": \"tofkit.pipeline\", \"version\": 1}";
   io::write_raw_csv(path("raw.csv"), records);
-  const RunResult c = run("correct --model " + path("broken.json") + " --in " + path("raw.csv") +
-                          " --out " + path("corrected.csv"));
-  EXPECT_NE(c.exit_code, 0);
+  const test::CliResult c = run("correct --model " + path("broken.json") + " --in " +
+                                path("raw.csv") + " --out " + path("corrected.csv"));
+  EXPECT_NE(c.status, 0);
   EXPECT_NE(c.err.find("broken.json: missing field 'time_to_distance'"), std::string::npos)
       << c.err;
   EXPECT_FALSE(fs::exists(path("corrected.csv")));
-  const RunResult e = run("evaluate --in " + path("raw.csv") + " --by colour");
-  EXPECT_NE(e.exit_code, 0);
+  const test::CliResult e = run("evaluate --in " + path("raw.csv") + " --by colour");
+  EXPECT_NE(e.status, 0);
   EXPECT_NE(e.err.find("--by colour: no such column"), std::string::npos) << e.err;
 }
 

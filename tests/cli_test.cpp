@@ -2,68 +2,23 @@
 // errors that stop a command before it writes anything, reproducible
 // measurements whatever the thread count, and the config dump loading back.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <atomic>
 #include <cmath>
-#include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
-#include <sstream>
 #include <string>
 #include <vector>
 
+#include "cli_runner.hpp"
 #include "tofkit/io/raw_csv.hpp"
 
 namespace fs = std::filesystem;
 
 namespace {
 
-class CliTest : public ::testing::Test {
+class CliTest : public tofkit::test::CliFixture {
  protected:
-  void SetUp() override {
-    static std::atomic<int> counter{0};
-    dir_ = fs::temp_directory_path() /
-           ("tofkit_cli_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-
-  struct Result {
-    int status = -1;
-    std::string out;
-    std::string err;
-  };
-
-  // Runs `tofkit <args>` in the test's directory.
-  Result run(const std::string& args) const {
-    const std::string command =
-        "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args + " >stdout.txt 2>stderr.txt";
-    const int raw = std::system(command.c_str());
-    Result r;
-    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-    r.out = read("stdout.txt");
-    r.err = read("stderr.txt");
-    return r;
-  }
-
-  [[nodiscard]] std::string read(const std::string& name) const {
-    std::ifstream in(dir_ / name, std::ios::binary);
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
-
-  void write(const std::string& name, const std::string& text) const {
-    std::ofstream(dir_ / name, std::ios::binary) << text;
-  }
-
-  fs::path dir_;
+  CliTest() : CliFixture("tofkit_cli_test_") {}
 };
 
 }  // namespace

@@ -8,7 +8,6 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <csignal>
 #include <cstdlib>
@@ -21,51 +20,26 @@
 #include <thread>
 #include <vector>
 
+#include "cli_runner.hpp"
+
 namespace fs = std::filesystem;
 
 namespace {
 
-class Robustness : public ::testing::Test {
+class Robustness : public tofkit::test::CliFixture {
  protected:
-  void SetUp() override {
-    static std::atomic<int> counter{0};
-    dir_ = fs::temp_directory_path() /
-           ("tofkit_robustness_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
+  Robustness() : CliFixture("tofkit_robustness_") {}
+
+  // Stdout discarded; stderr outside the directory under test.
+  tofkit::test::CliResult run(const std::string& args) const {
+    return tofkit::test::run_tofkit(dir_, args, "/dev/null", scratch() / "stderr.txt");
   }
 
-  struct Result {
-    int status = -1;  // exit status, or -signal
-    std::string err;
-  };
-
-  Result run(const std::string& args) const {
-    const std::string command = "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args +
-                                " >/dev/null 2>'" + (scratch() / "stderr.txt").string() + "'";
-    const int raw = std::system(command.c_str());
-    Result r;
-    r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : WIFSIGNALED(raw) ? -WTERMSIG(raw) : -1;
-    std::ifstream in(scratch() / "stderr.txt");
-    std::ostringstream s;
-    s << in.rdbuf();
-    r.err = s.str();
-    return r;
-  }
-
-  // Stderr lives outside the directory under test.
   fs::path scratch() const {
     fs::path p = dir_;
     p += "_scratch";
     fs::create_directories(p);
     return p;
-  }
-
-  void write(const std::string& name, const std::string& text) const {
-    std::ofstream(dir_ / name, std::ios::binary) << text;
   }
 
   // Every entry (hidden ones too): its type, and for files size, mtime and a
@@ -96,7 +70,7 @@ class Robustness : public ::testing::Test {
   // and leave the directory untouched.
   void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
     const auto before = snapshot();
-    const Result r = run(args);
+    const tofkit::test::CliResult r = run(args);
     EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
     EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
     for (const auto& needle : needles) {
@@ -135,8 +109,6 @@ class Robustness : public ::testing::Test {
     }
     write(name, out.str());
   }
-
-  fs::path dir_;
 };
 
 // Item 1: an overflowing squared error must not crash the hinge fit.
@@ -147,7 +119,7 @@ TEST_F(Robustness, HugeCellsInAChainFitAreAnErrorNotACrash) {
   for (const char* chain : {"offset,grayvalue", "offset,temperature"}) {
     for (const char* file : {"huge_truth.csv", "huge_tof.csv"}) {
       const auto before = snapshot();
-      const Result r =
+      const tofkit::test::CliResult r =
           run(std::string("fit --in ") + file + " --chain " + chain + " --out out.json");
       EXPECT_EQ(r.status, 1) << file << " " << chain << "\n" << r.err;
       EXPECT_EQ(snapshot(), before);

@@ -7,10 +7,7 @@
 // acceptance run is TOFKIT_LINK_E2E_SECONDS=10.
 
 #include <gtest/gtest.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -21,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "cli_runner.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/link/decoder.hpp"
@@ -30,41 +28,14 @@
 
 namespace fs = std::filesystem;
 
+const fs::path kScenes = fs::path(TOFKIT_REFERENCE_DIR).parent_path() / "examples" / "scenes";
+
 namespace tofkit {
 namespace {
 
-class StreamCli : public ::testing::Test {
+class StreamCli : public test::CliFixture {
  protected:
-  void SetUp() override {
-    static std::atomic<int> counter{0};
-    dir_ = fs::temp_directory_path() /
-           ("tofkit_stream_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-
-  struct Result {
-    int status = -1;
-    std::string err;
-  };
-
-  // `tofkit <args>` in the test's directory; stdout to `out`, stderr captured.
-  Result run(const std::string& args, const std::string& out = "stdout.txt") const {
-    const std::string command = "cd '" + dir_.string() + "' && '" TOFKIT_BINARY "' " + args +
-                                " >'" + out + "' 2>stderr.txt";
-    const int raw = std::system(command.c_str());
-    return {WIFEXITED(raw) ? WEXITSTATUS(raw) : -1, read("stderr.txt")};
-  }
-  [[nodiscard]] std::string read(const std::string& name) const {
-    std::ifstream in(dir_ / name, std::ios::binary);
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
-  [[nodiscard]] std::string path(const std::string& name) const { return (dir_ / name).string(); }
+  StreamCli() : CliFixture("tofkit_stream_test_") {}
 
   // A model fitted on the device's own calibration run.
   void make_model() const {
@@ -75,8 +46,6 @@ class StreamCli : public ::testing::Test {
     ASSERT_EQ(run("fit --in cal.csv --out model.json --chain offset,grayvalue,temperature").status,
               0);
   }
-
-  fs::path dir_;
 };
 
 // One CSV table by header name.
@@ -222,6 +191,165 @@ TEST_F(StreamCli, CorruptionChangesBytesNeverValues) {
     row_b.back() = row_a.back() = "";  // link_status: a sequence gap before it
     ASSERT_EQ(row_b, row_a) << seq;
   }
+}
+
+// `emulate --scene` against `tofkit scan` with the same scene, pattern options
+// and seed: one frame per beam of scan.csv, in its (time) order, carrying
+// scan.csv's values. Exact oracle: scan.csv's rows through the format's own
+// encoder and decoder; independent one: scan.csv itself within the wire's
+// half resolution step.
+TEST_F(StreamCli, EmulatedSceneCarriesTheScansBeamsInTimeOrder) {
+  const std::string scene = (kScenes / "blocks.toml").string();
+  // Two patterns: a spherical scan, and a mirror whose revolution rate is
+  // scan's --rate and emulate's --scan-rate (emulate's --rate is frames/s).
+  struct Case {
+    std::string pattern, scan_rate;
+  } cases[] = {{"--pattern spherical --azimuth=-20:20:2 --elevation=-12:40:2.6", ""},
+               {"--pattern mirror --elevation=-30:30:1.5 --revolutions 6 --speed 0.2", "25"}};
+  for (const auto& c : cases) {
+    const std::string common = "--scene " + scene + " " + c.pattern + " --shots 20 --seed 5";
+    SCOPED_TRACE(common);
+    fs::create_directories(dir_ / "scan");
+    ASSERT_EQ(run("scan " + common + (c.scan_rate.empty() ? "" : " --rate " + c.scan_rate) +
+                  " --write csv --out scan")
+                  .status,
+              0);
+    const Table beams = read_table(path("scan/scan.csv"));
+    ASSERT_GT(beams.rows.size(), 200u);
+    std::vector<ranging::RawMeasurement> expected(beams.rows.size());
+    std::size_t with_echo = 0;
+    for (std::size_t i = 0; i < beams.rows.size(); ++i) {
+      if (i > 0) ASSERT_GE(beams.number(i, "time_s"), beams.number(i - 1, "time_s"));
+      auto& r = expected[i];
+      r.tof_ns = beams.number(i, "tof_ns");
+      r.distance_raw_m = beams.number(i, "distance_raw_m");
+      r.pulse_width_ns = beams.number(i, "pulse_width_ns");
+      r.amplitude = beams.number(i, "amplitude");
+      r.temperature_c = beams.number(i, "temperature_c");
+      r.shots_valid = static_cast<std::uint32_t>(beams.number(i, "shots_valid"));
+      r.flags = static_cast<std::uint32_t>(beams.number(i, "flags"));
+      with_echo += r.has_echo() ? 1 : 0;
+    }
+    EXPECT_GT(with_echo, beams.rows.size() / 2);
+    EXPECT_LT(with_echo, beams.rows.size());  // misses, too (NaN must stay empty)
+
+    for (const auto format : {link::Format::kNative, link::Format::kTfmini}) {
+      const std::string name = format == link::Format::kNative ? "native" : "tfmini";
+      SCOPED_TRACE(name);
+      const auto e =
+          run("emulate --format " + name + " --rate 1000000 " + common +
+                  (c.scan_rate.empty() ? "" : " --scan-rate " + c.scan_rate) + " --out -",
+              "scene.bin");
+      ASSERT_EQ(e.status, 0) << e.err;
+      ASSERT_EQ(run("stream --format " + name + " --in scene.bin --out live.csv").status, 0);
+      const Table live = read_table(path("live.csv"));
+      ASSERT_EQ(live.rows.size(), beams.rows.size());
+
+      auto decoder = link::make_decoder(format);
+      std::vector<link::Frame> decoded;
+      for (std::size_t i = 0; i < expected.size(); ++i) {
+        if (format == link::Format::kNative) {
+          decoder->feed(link::encode_native({static_cast<std::uint32_t>(i), 0, expected[i]}),
+                        decoded);
+        } else {
+          decoder->feed(link::encode_tfmini(link::tfmini_reading_from(expected[i])), decoded);
+        }
+      }
+      ASSERT_EQ(decoded.size(), expected.size());
+      for (std::size_t i = 0; i < live.rows.size(); ++i) {
+        SCOPED_TRACE(i);
+        ASSERT_EQ(std::stoull(live.rows[i][live.column("sequence")]), i);
+        const auto& d = decoded[i].raw;
+        ASSERT_TRUE(same(live.number(i, "tof_ns"), d.tof_ns));
+        ASSERT_TRUE(same(live.number(i, "distance_raw_m"), d.distance_raw_m));
+        ASSERT_TRUE(same(live.number(i, "pulse_width_ns"), d.pulse_width_ns));
+        ASSERT_TRUE(same(live.number(i, "amplitude"), d.amplitude));
+        ASSERT_TRUE(same(live.number(i, "temperature_c"), d.temperature_c));
+        ASSERT_EQ(live.number(i, "shots_valid"), d.shots_valid);
+        ASSERT_EQ(live.number(i, "flags"), d.flags);
+        const auto& x = expected[i];
+        if (format == link::Format::kNative) {
+          // The native frame's resolution: 1 fs, 1 ps, 1 uV, 1/128 C.
+          ASSERT_EQ(std::isnan(live.number(i, "tof_ns")), std::isnan(x.tof_ns));
+          if (!std::isnan(x.tof_ns)) {
+            ASSERT_NEAR(live.number(i, "tof_ns"), x.tof_ns, 0.5e-6 + 1e-12);
+            ASSERT_NEAR(live.number(i, "pulse_width_ns"), x.pulse_width_ns, 0.5e-3 + 1e-12);
+            ASSERT_NEAR(live.number(i, "amplitude"), x.amplitude, 0.5e-6 + 1e-12);
+          }
+          ASSERT_NEAR(live.number(i, "temperature_c"), x.temperature_c, 0.5 / 128 + 1e-12);
+          ASSERT_EQ(live.number(i, "shots_valid"), x.shots_valid);
+          ASSERT_EQ(live.number(i, "flags"), x.flags);
+        } else if (x.has_echo()) {
+          // TFmini: whole centimetres.
+          ASSERT_NEAR(live.number(i, "distance_raw_m"), x.distance_raw_m, 0.005 + 1e-12);
+        } else {
+          ASSERT_TRUE(std::isnan(live.number(i, "distance_raw_m")));
+        }
+      }
+    }
+    fs::remove_all(dir_ / "scan");
+  }
+}
+
+TEST_F(StreamCli, EmulatedSceneCorruptionChangesBytesNeverValues) {
+  const std::string args = "emulate --format native --rate 1000000 --scene " +
+                           (kScenes / "blocks.toml").string() +
+                           " --pattern spinning --elevation=-10:10:2 --azimuth-step 2 "
+                           "--revolutions 2 --shots 30 --seed 11 --out -";
+  ASSERT_EQ(run(args, "clean.bin").status, 0);
+  ASSERT_EQ(run(args + " --corrupt 0.01", "dirty.bin").status, 0);
+  const std::string clean = read("clean.bin"), dirty = read("dirty.bin");
+  ASSERT_EQ(clean.size(), dirty.size());
+  ASSERT_NE(clean, dirty);
+  ASSERT_EQ(run("stream --format native --in clean.bin --out clean.csv").status, 0);
+  ASSERT_EQ(run("stream --format native --in dirty.bin --out dirty.csv").status, 0);
+  const Table a = read_table(path("clean.csv")), b = read_table(path("dirty.csv"));
+  ASSERT_EQ(a.rows.size(), 11u * 180u * 2u);
+  EXPECT_LT(b.rows.size(), a.rows.size());
+  EXPECT_GT(b.rows.size(), a.rows.size() * 2 / 3);
+  for (std::size_t i = 0; i < b.rows.size(); ++i) {
+    const auto seq = std::stoull(b.rows[i][0]);
+    std::vector<std::string> row_b = b.rows[i], row_a = a.rows[seq];
+    row_b.back() = row_a.back() = "";  // link_status: a sequence gap before it
+    ASSERT_EQ(row_b, row_a) << seq;
+  }
+}
+
+// A bad scene stops emulate before anything is written: no frame on stdout,
+// no pty path printed; the message names the file, line and key.
+TEST_F(StreamCli, EmulatedBadSceneFailsWithAMessageAndNoOutput) {
+  write("bad.toml",
+        "[sensor]\npose_m = [0, 0, 0]\n[[surface]]\nkind = \"plane\"\ncenter_m = [0.5, 0, 0]\n"
+        "normal = [-1, 0, 0]\nsize_m = [0.3, 0.2]\nreflectanse = 0.5\n");
+  for (const std::string out : {" --out -", ""}) {
+    const auto r =
+        run("emulate --format native --rate 1000 --scene bad.toml --pattern spherical "
+            "--azimuth 0 --elevation 0" +
+            out);
+    EXPECT_EQ(r.status, 1) << out;
+    EXPECT_NE(r.err.find("bad.toml:8"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("reflectanse"), std::string::npos) << r.err;
+    EXPECT_EQ(r.out, "") << out;
+  }
+  // The scene's options are the scene's: not mixed with the plate grid.
+  auto r = run("emulate --scene bad.toml --pattern spherical --distance 1 --out -");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("--distance"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "");
+  r = run("emulate --distance 1 --reflectance 0.5 --elevation 0 --out -");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("--elevation needs --scene"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "");
+  r = run("emulate --scene " + (kScenes / "blocks.toml").string() + " --out -");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("--pattern"), std::string::npos) << r.err;
+  // A beam a frame cannot carry (shots x raster samples above the native
+  // frame's 16-bit field) is refused before the first byte.
+  r = run("emulate --scene " + (kScenes / "blocks.toml").string() +
+          " --pattern raster --y 0,0.1 --z 0 --samples 5000 --shots 20 --out -");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("shots_valid"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out, "");
 }
 
 TEST_F(StreamCli, TfminiCaptureFromStdinInAnyOrderOfArrival) {
