@@ -251,11 +251,14 @@ TEST_F(StreamCli, EmulatedSceneCarriesTheScansBeamsInTimeOrder) {
     for (const auto format : {link::Format::kNative, link::Format::kTfmini}) {
       const std::string name = format == link::Format::kNative ? "native" : "tfmini";
       SCOPED_TRACE(name);
-      const auto e =
-          run("emulate --format " + name + " --rate 1000000 " + common +
-                  (c.scan_rate.empty() ? "" : " --scan-rate " + c.scan_rate) + " --out -",
-              "scene.bin");
+      const std::string emulate = "emulate --format " + name + " --rate 1000000 " + common +
+                                  (c.scan_rate.empty() ? "" : " --scan-rate " + c.scan_rate) +
+                                  " --out -";
+      const auto e = run("--threads 2 " + emulate, "scene.bin");
       ASSERT_EQ(e.status, 0) << e.err;
+      // The same bytes on one thread.
+      ASSERT_EQ(run("--threads 1 " + emulate, "scene_1.bin").status, 0);
+      ASSERT_EQ(read("scene.bin"), read("scene_1.bin"));
       ASSERT_EQ(run("stream --format " + name + " --in scene.bin --out live.csv").status, 0);
       const Table live = read_table(path("live.csv"));
       ASSERT_EQ(live.rows.size(), beams.rows.size());
