@@ -77,6 +77,27 @@ TEST(PaperStudy, VerificationResidualIsWithinTheTwinsUncorrectableErrors) {
     EXPECT_LE(std::abs(row.deviation_mm), 2.0 * inl_mm + 3.0 * power_on_mm) << row.actual_m;
 }
 
+TEST(PaperStudy, EveryAccuracyFigureSplitsNoiseFromSystematicResidual) {
+  const auto& r = study();
+  for (const auto* split :
+       {&r.grayvalue.split, &r.temperature.split, &r.verification_split, &r.holdout_split}) {
+    EXPECT_GE(split->groups, 8u);
+    EXPECT_TRUE(std::isfinite(split->noise_m));
+    EXPECT_GT(split->noise_m, 0.0);
+    EXPECT_TRUE(std::isfinite(split->systematic_rms_m));
+    // The worst group mean is at least the RMS of the means (noise removed).
+    EXPECT_GE(split->systematic_max_abs_m + 1e-12, split->systematic_rms_m);
+  }
+  // Table 2 rows: the deviation is the error of the mean of the repeats, and
+  // the row carries the repeatability of one measurement beside it.
+  for (const auto& row : r.verification_rows) {
+    EXPECT_GE(row.repeats, 2) << row.actual_m;
+    EXPECT_GT(row.noise_mm, 0.0) << row.actual_m;
+  }
+  // Noise grows with distance (weaker echo, paper Eq. 8): 8 m is noisier than 1 m.
+  EXPECT_GT(r.verification_rows.back().noise_mm, r.verification_rows.front().noise_mm);
+}
+
 TEST(PaperStudy, FindsThePapersKnees) {
   const auto& fit = study().fit;
   ASSERT_TRUE(fit.grayvalue.has_value());

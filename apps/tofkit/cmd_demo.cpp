@@ -56,6 +56,30 @@ std::string verdict(double worst, std::size_t missing, std::size_t rows, double 
   return worst <= limit_mm ? "yes" : "NO";
 }
 
+// Every accuracy figure told apart: noise of one measurement (repeatability)
+// and the error of the mean of the repeats (what a better correction could remove).
+void print_split_table(const experiments::PaperStudyResult& r) {
+  const auto& v = r.verification_rows;
+  const int repeats = v.empty() ? 0 : v.front().repeats;
+  fmt::print(
+      "\nnoise vs systematic residual ({} repeats of each condition; error = corrected - true)\n",
+      repeats);
+  fmt::print("{:<24} {:>10} {:>12} {:>14} {:>14} {:>14}\n", "test set", "conditions", "noise (mm)",
+             "syst. RMS (mm)", "syst. max (mm)", "noise of mean");
+  auto line = [](std::string_view name, const calib::RepeatabilitySplit& s) {
+    fmt::print("{:<24} {:>10} {:>12.2f} {:>14.2f} {:>14.2f} {:>14.2f}\n", name, s.groups,
+               1e3 * s.noise_m, 1e3 * s.systematic_rms_m, 1e3 * s.systematic_max_abs_m,
+               1e3 * s.noise_of_mean_m);
+  };
+  line("gray-value, 2.355 m", r.grayvalue.split);
+  line("temperature, 2.402 m", r.temperature.split);
+  line("Table 2, 1-8 m", r.verification_split);
+  line("held out", r.holdout_split);
+  fmt::print(
+      "(noise: std of one measurement about its condition's mean; syst.: error of that mean, "
+      "RMS with the mean's own noise removed)\n");
+}
+
 void print_table(const experiments::PaperStudyResult& r) {
   namespace paper = experiments::paper;
   fmt::print("tofkit demo: the paper's Section 5 on the virtual rangefinder\n\n");
@@ -73,14 +97,15 @@ void print_table(const experiments::PaperStudyResult& r) {
   fmt::print("{:<44} {:>12} {:>12.2f}\n", "temperature at 2.402 m: accuracy +- (mm)",
              fmt::format("{:.0f}", paper::kTemperatureAccuracy_mm), r.temperature.accuracy_mm);
   fmt::print("\nTable 2 (black foam plate, rho 0.1); deviation = actual - measured\n");
-  fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14}\n", "actual (m)", "paper meas.", "paper dev (mm)",
-             "tofkit meas.", "tofkit dev (mm)");
+  fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14} {:>14}\n", "actual (m)", "paper meas.",
+             "paper dev (mm)", "tofkit meas.", "tofkit dev (mm)", "noise 1s (mm)");
   double worst = 0;
   std::size_t missing = 0;
   for (const auto& row : r.verification_rows) {
     if (!std::isfinite(row.deviation_mm)) ++missing;
-    fmt::print("{:>10.3f} {:>14.3f} {:>14.1f} {:>14.4f} {:>14.2f}\n", row.actual_m,
-               row.paper_measured_m, row.paper_deviation_mm, row.measured_m, row.deviation_mm);
+    fmt::print("{:>10.3f} {:>14.3f} {:>14.1f} {:>14.4f} {:>14.2f} {:>14.2f}\n", row.actual_m,
+               row.paper_measured_m, row.paper_deviation_mm, row.measured_m, row.deviation_mm,
+               row.noise_mm);
     worst = std::max(worst, std::abs(row.deviation_mm));
   }
   fmt::print("{:>10} {:>14} {:>14} {:>14} {:>14.2f}\n", "worst", "", "+-11", "", worst);
@@ -89,11 +114,21 @@ void print_table(const experiments::PaperStudyResult& r) {
       "max |error| {:.2f} mm, RMS {:.2f} mm (uncorrected RMS {:.1f} mm)\n",
       r.holdout_stats.rows, r.holdout_rows_without_echo, 1e3 * r.holdout_stats.max_abs_m,
       1e3 * r.holdout_stats.rms_m, 1e3 * r.holdout_raw_stats.rms_m);
+  print_split_table(r);
   fmt::print("fixed point vs floating point: max difference {:.3f} mm\n",
              r.fixed_vs_float_max_diff_mm);
   const std::size_t rows = r.verification_rows.size();
   fmt::print("every verification row within +-11 mm: {}; within +-3 mm: {}\n",
              verdict(worst, missing, rows, 11.0), verdict(worst, missing, rows, 3.0));
+}
+
+nlohmann::json split_json(const calib::RepeatabilitySplit& s) {
+  return {{"conditions", s.groups},
+          {"rows", s.rows},
+          {"noise_mm", 1e3 * s.noise_m},
+          {"systematic_rms_mm", 1e3 * s.systematic_rms_m},
+          {"systematic_max_abs_mm", 1e3 * s.systematic_max_abs_m},
+          {"noise_of_mean_mm", 1e3 * s.noise_of_mean_m}};
 }
 
 nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
@@ -104,16 +139,20 @@ nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
                     {"std_mm", r.grayvalue.std_mm},
                     {"accuracy_mm", r.grayvalue.accuracy_mm},
                     {"raw_spread_mm", r.grayvalue.raw_spread_mm},
-                    {"rows", r.grayvalue.rows}};
+                    {"rows", r.grayvalue.rows},
+                    {"split", split_json(r.grayvalue.split)}};
   j["temperature"] = {{"distance_m", r.temperature.distance_m},
                       {"std_mm", r.temperature.std_mm},
                       {"accuracy_mm", r.temperature.accuracy_mm},
-                      {"rows", r.temperature.rows}};
+                      {"rows", r.temperature.rows},
+                      {"split", split_json(r.temperature.split)}};
   j["verification"] = nlohmann::json::array();
   for (const auto& row : r.verification_rows)
     j["verification"].push_back({{"actual_m", row.actual_m},
                                  {"measured_m", row.measured_m},
                                  {"deviation_mm", row.deviation_mm},
+                                 {"noise_mm", row.noise_mm},
+                                 {"repeats", row.repeats},
                                  {"paper_measured_m", row.paper_measured_m},
                                  {"paper_deviation_mm", row.paper_deviation_mm}});
   j["holdout"] = {{"max_abs_error_mm", 1e3 * r.holdout_stats.max_abs_m},
@@ -121,7 +160,9 @@ nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
                   {"bias_mm", 1e3 * r.holdout_stats.bias_m},
                   {"rows", r.holdout_stats.rows},
                   {"rows_without_reliable_echo", r.holdout_rows_without_echo},
-                  {"uncorrected_rms_mm", 1e3 * r.holdout_raw_stats.rms_m}};
+                  {"uncorrected_rms_mm", 1e3 * r.holdout_raw_stats.rms_m},
+                  {"split", split_json(r.holdout_split)}};
+  j["verification_split"] = split_json(r.verification_split);
   j["fixed_point"] = {{"max_abs_difference_to_float_mm", r.fixed_vs_float_max_diff_mm}};
   nlohmann::json knots = nlohmann::json::object();
   if (r.fit.grayvalue) knots["grayvalue_ns"] = r.fit.grayvalue->knots;

@@ -336,11 +336,31 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
   row("fixed vs float max difference (mm)", "-", r.fixed_vs_float_max_diff_mm);
   h << "</table>\n<h2>Table 2: verification from 1 to 8 m</h2><table><tr><th>actual (m)</th>"
     << "<th>paper measured (m)</th><th>paper deviation (mm)</th><th>tofkit measured (m)</th>"
-    << "<th>tofkit deviation (mm)</th></tr>\n";
+    << "<th>tofkit deviation (mm)</th><th>tofkit noise, 1 sigma (mm)</th></tr>\n";
   for (const auto& v : r.verification_rows)
     h << fmt::format(
-        "<tr><td>{:.3f}</td><td>{:.3f}</td><td>{:.1f}</td><td>{:.4f}</td><td>{:.2f}</td></tr>\n",
-        v.actual_m, v.paper_measured_m, v.paper_deviation_mm, v.measured_m, v.deviation_mm);
+        "<tr><td>{:.3f}</td><td>{:.3f}</td><td>{:.1f}</td><td>{:.4f}</td><td>{:.2f}</td>"
+        "<td>{:.2f}</td></tr>\n",
+        v.actual_m, v.paper_measured_m, v.paper_deviation_mm, v.measured_m, v.deviation_mm,
+        v.noise_mm);
+  h << "</table>\n<h2>Noise vs systematic residual</h2><p>Each test condition is measured "
+    << (r.verification_rows.empty() ? 0 : r.verification_rows.front().repeats)
+    << " times. Noise: the standard deviation of one measurement about its condition's mean "
+       "(repeatability). Systematic: the error of that mean (RMS with the mean's own noise "
+       "removed, and the worst), what a better correction could still remove.</p><table>"
+    << "<tr><th>test set</th><th>conditions</th><th>noise (mm)</th><th>systematic RMS (mm)</th>"
+    << "<th>systematic worst (mm)</th><th>noise of a mean (mm)</th></tr>\n";
+  auto split_row = [&](const std::string& name, const calib::RepeatabilitySplit& s) {
+    h << fmt::format(
+        "<tr><td>{}</td><td>{}</td><td>{:.2f}</td><td>{:.2f}</td><td>{:.2f}</td><td>{:.2f}</td>"
+        "</tr>\n",
+        html_escape(name), s.groups, 1e3 * s.noise_m, 1e3 * s.systematic_rms_m,
+        1e3 * s.systematic_max_abs_m, 1e3 * s.noise_of_mean_m);
+  };
+  split_row("gray-value, 2.355 m", r.grayvalue.split);
+  split_row("temperature, 2.402 m", r.temperature.split);
+  split_row("Table 2, 1-8 m", r.verification_split);
+  split_row("held out", r.holdout_split);
   h << "</table>\n<h2>Fitted chain</h2><pre>" << html_escape(r.fit.summary()) << "</pre>\n";
   h << "<h2>The thesis's protocol (AccuRange-like preset)</h2>\n"
     << thesis_tables_html(summary) << "<details><summary>full text</summary><pre>"

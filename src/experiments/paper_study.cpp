@@ -43,20 +43,26 @@ bool reliable(const Record& r, int shots, double share) {
   return r.raw.has_echo() && r.raw.shots_valid >= share * shots;
 }
 
+/// `group[i]` names the condition record i repeats (equal ids: one condition).
 AccuracyFigures accuracy_of(const std::vector<Record>& records, std::span<const double> corrected_m,
-                            const ranging::Pipeline& pipeline, double distance_m) {
+                            std::span<const std::size_t> group, const ranging::Pipeline& pipeline,
+                            double distance_m) {
   AccuracyFigures f;
   f.distance_m = distance_m;
-  std::vector<double> errors;
+  std::vector<double> errors, all_errors(records.size(), ranging::kNaN);
   double raw_min = 1e300, raw_max = -1e300;
   for (std::size_t i = 0; i < records.size(); ++i) {
     if (!std::isfinite(corrected_m[i])) continue;
-    errors.push_back(corrected_m[i] - records[i].truth.distance_m);
+    all_errors[i] = corrected_m[i] - records[i].truth.distance_m;
+    // The paper's figures come from one pass over the conditions: the first repeat.
+    if (i > 0 && group[i] == group[i - 1]) continue;
+    errors.push_back(all_errors[i]);
     const double raw = pipeline.start_distance_m(records[i].raw);
     raw_min = std::min(raw_min, raw);
     raw_max = std::max(raw_max, raw);
   }
   f.rows = errors.size();
+  f.split = calib::split_noise_systematic(all_errors, group);
   if (errors.empty()) return f;
   double mean = 0, worst = 0;
   for (double e : errors) {
@@ -91,6 +97,7 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   PaperStudyResult result;
   const int shots = config.measurement.shots;
   const int repeats = std::max(1, options.repeats);
+  const int test_repeats = std::max(1, options.test_repeats);
 
   // Figure 3: the link budget with Table 1 (sunlit target).
   progress("link budget", 0.0);
@@ -111,6 +118,20 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   const auto reflectances =
       log_spaced(options.reflectance_min, options.reflectance_max, options.grayvalue_groups);
   std::vector<PlannedMeasurement> plan;
+  // Test sets: each condition measured test_repeats times; group[i] names the
+  // condition of plan[i] so that errors split into noise and systematic.
+  std::vector<std::size_t> group;
+  auto start_test_plan = [&] {
+    plan.clear();
+    group.clear();
+  };
+  auto repeat = [&](const PlannedMeasurement& p) {
+    const std::size_t id = group.empty() ? 0 : group.back() + 1;
+    for (int k = 0; k < test_repeats; ++k) {
+      plan.push_back(p);
+      group.push_back(id);
+    }
+  };
   std::vector<double> calibration_distances{options.grayvalue_distance_m};
   calibration_distances.insert(calibration_distances.end(),
                                options.extra_calibration_distances_m.begin(),
@@ -173,27 +194,27 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
 
   // Gray-value test at 2.355 m through the fixed-point chain (paper Figure 7).
   progress("gray-value test", 0.35);
-  plan.clear();
+  start_test_plan();
   for (double rho : reflectances)
-    plan.push_back(plate(options.grayvalue_distance_m, rho, options.calibration_ambient_c));
+    repeat(plate(options.grayvalue_distance_m, rho, options.calibration_ambient_c));
   result.grayvalue_test = run(device, plan, run_seed(kGrayvalueTestRun));
   result.grayvalue_corrected = correct(pipeline, result.grayvalue_test);
   track_fixed_vs_float(result.grayvalue_test, result.grayvalue_corrected);
   result.grayvalue_fixed_point_m = fixed_distances(result.grayvalue_test);
-  result.grayvalue = accuracy_of(result.grayvalue_test, result.grayvalue_fixed_point_m, pipeline,
-                                 options.grayvalue_distance_m);
+  result.grayvalue = accuracy_of(result.grayvalue_test, result.grayvalue_fixed_point_m, group,
+                                 pipeline, options.grayvalue_distance_m);
 
   // Temperature test at 2.402 m (paper Figure 9).
   progress("temperature test", 0.45);
-  plan.clear();
+  start_test_plan();
   for (double t : ambients)
-    plan.push_back(plate(options.temperature_distance_m, options.temperature_reflectance, t));
+    repeat(plate(options.temperature_distance_m, options.temperature_reflectance, t));
   result.temperature_test = run(device, plan, run_seed(kTemperatureTestRun));
   result.temperature_corrected = correct(pipeline, result.temperature_test);
   track_fixed_vs_float(result.temperature_test, result.temperature_corrected);
   const auto temperature_m = distances_of(result.temperature_corrected);
-  result.temperature =
-      accuracy_of(result.temperature_test, temperature_m, pipeline, options.temperature_distance_m);
+  result.temperature = accuracy_of(result.temperature_test, temperature_m, group, pipeline,
+                                   options.temperature_distance_m);
 
   // Longest achievable distance on the black foam plate (paper Figure 10).
   progress("longest distance", 0.55);
@@ -208,25 +229,36 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
 
   // Verification from 1 to 8 m (Table 2).
   progress("verification", 0.65);
-  plan.clear();
+  start_test_plan();
   for (double d : options.verification_distances_m)
-    for (int k = 0; k < repeats; ++k)
-      plan.push_back(plate(d, options.verification_reflectance, options.calibration_ambient_c));
+    repeat(plate(d, options.verification_reflectance, options.calibration_ambient_c));
   result.verification = run(device, plan, run_seed(kVerificationRun));
   result.verification_corrected = correct(pipeline, result.verification);
   track_fixed_vs_float(result.verification, result.verification_corrected);
-  for (double d : options.verification_distances_m) {
-    double sum = 0;
-    int n = 0;
-    for (std::size_t i = 0; i < result.verification.size(); ++i) {
-      if (result.verification[i].truth.distance_m != d) continue;
-      if (!std::isfinite(result.verification_corrected[i].distance_m)) continue;
-      sum += result.verification_corrected[i].distance_m;
-      ++n;
-    }
+  {
+    std::vector<double> errors;
+    for (std::size_t i = 0; i < result.verification.size(); ++i)
+      errors.push_back(result.verification_corrected[i].distance_m -
+                       result.verification[i].truth.distance_m);
+    result.verification_split = calib::split_noise_systematic(errors, group);
+  }
+  for (std::size_t g = 0; g < options.verification_distances_m.size(); ++g) {
+    const double d = options.verification_distances_m[g];
+    std::vector<double> measured;
+    for (std::size_t i = 0; i < result.verification.size(); ++i)
+      if (group[i] == g && std::isfinite(result.verification_corrected[i].distance_m))
+        measured.push_back(result.verification_corrected[i].distance_m);
     VerificationRow row;
     row.actual_m = d;
-    row.measured_m = n > 0 ? sum / n : ranging::kNaN;
+    row.repeats = static_cast<int>(measured.size());
+    double sum = 0;
+    for (double m : measured) sum += m;
+    row.measured_m = measured.empty() ? ranging::kNaN : sum / static_cast<double>(measured.size());
+    if (measured.size() >= 2) {
+      double ss = 0;
+      for (double m : measured) ss += (m - row.measured_m) * (m - row.measured_m);
+      row.noise_mm = 1e3 * std::sqrt(ss / static_cast<double>(measured.size() - 1));
+    }
     row.deviation_mm = 1e3 * (d - row.measured_m);  // Table 2's sign: actual - measured
     for (const auto& p : paper_table2) {
       if (std::abs(p.actual_value_m - d) < 0.05) {
@@ -239,14 +271,15 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
 
   // Held-out grid: distances x reflectances x ambient temperatures, never fitted.
   progress("held-out grid", 0.75);
-  plan.clear();
+  start_test_plan();
   for (double d : options.holdout_distances_m)
     for (double rho : options.holdout_reflectances)
-      for (double t : options.holdout_ambient_c) plan.push_back(plate(d, rho, t));
+      for (double t : options.holdout_ambient_c) repeat(plate(d, rho, t));
   result.holdout = run(device, plan, run_seed(kHoldoutRun));
   result.holdout_corrected = correct(pipeline, result.holdout);
   track_fixed_vs_float(result.holdout, result.holdout_corrected);
   std::vector<double> corrected_errors, raw_errors;
+  std::vector<double> split_errors(result.holdout.size(), ranging::kNaN);
   for (std::size_t i = 0; i < result.holdout.size(); ++i) {
     const auto& r = result.holdout[i];
     if (!reliable(r, shots, options.max_range_min_valid_share)) {
@@ -255,9 +288,11 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
     }
     corrected_errors.push_back(r.truth.distance_m - result.holdout_corrected[i].distance_m);
     raw_errors.push_back(r.truth.distance_m - pipeline.start_distance_m(r.raw));
+    split_errors[i] = result.holdout_corrected[i].distance_m - r.truth.distance_m;
   }
   result.holdout_stats = calib::error_stats(corrected_errors);
   result.holdout_raw_stats = calib::error_stats(raw_errors);
+  result.holdout_split = calib::split_noise_systematic(split_errors, group);
   progress("done", 1.0);
   return result;
 }

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "tofkit/calib/chain_fit.hpp"
+#include "tofkit/calib/repeatability.hpp"
 #include "tofkit/calib/statistics.hpp"
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/physics/link_budget.hpp"
@@ -23,7 +24,10 @@ namespace tofkit::experiments {
 
 struct PaperStudyOptions {
   std::uint64_t seed = 2022;
-  int repeats = 3;  ///< measurements per group (each the device's measurement.shots average)
+  int repeats = 3;  ///< calibration measurements per group (each a measurement.shots average)
+  /// Test sets measure every condition this many times, so that each accuracy
+  /// figure splits into noise (repeatability) and systematic residual.
+  int test_repeats = 8;
 
   // Gray-value calibration, paper Section 5.1.
   double grayvalue_distance_m = 2.355;
@@ -68,8 +72,10 @@ struct PaperStudyOptions {
 /// One row of the Table 2-style comparison.
 struct VerificationRow {
   double actual_m = 0;
-  double measured_m = 0;                    ///< mean corrected distance
-  double deviation_mm = 0;                  ///< actual - measured (Table 2's sign)
+  double measured_m = 0;            ///< mean corrected distance of the repeats
+  double deviation_mm = 0;          ///< actual - measured (Table 2's sign): the systematic residual
+  double noise_mm = ranging::kNaN;  ///< std of one measurement about that mean (repeatability)
+  int repeats = 0;                  ///< measurements averaged into measured_m
   double paper_measured_m = ranging::kNaN;  ///< reference/table2_accuracy.csv, when given
   double paper_deviation_mm = ranging::kNaN;
 };
@@ -82,6 +88,9 @@ struct AccuracyFigures {
   double accuracy_mm = 0;  ///< largest |error|: the paper's "within +-X mm"
   double mean_error_mm = 0;
   double raw_spread_mm = 0;  ///< max - min of the uncorrected distances
+  /// The same errors told apart: noise of one measurement vs error of the mean
+  /// of the repeats of each condition (error sign: corrected - true).
+  calib::RepeatabilitySplit split;
 };
 
 struct PaperStudyResult {
@@ -112,8 +121,10 @@ struct PaperStudyResult {
   AccuracyFigures grayvalue;
   AccuracyFigures temperature;
   std::vector<VerificationRow> verification_rows;
-  calib::ErrorStats holdout_stats;      ///< true - corrected over the held-out grid
-  calib::ErrorStats holdout_raw_stats;  ///< true - c t / 2 (no correction) on the same rows
+  calib::ErrorStats holdout_stats;          ///< true - corrected over the held-out grid
+  calib::ErrorStats holdout_raw_stats;      ///< true - c t / 2 (no correction) on the same rows
+  calib::RepeatabilitySplit holdout_split;  ///< noise vs systematic over the held-out conditions
+  calib::RepeatabilitySplit verification_split;  ///< the same over the Table 2 distances
   std::size_t holdout_rows_without_echo = 0;
 
   [[nodiscard]] std::string summary() const;
