@@ -60,6 +60,19 @@ std::vector<std::vector<double>> read_csv_numbers(const std::string& path) {
 
 }  // namespace
 
+/// The accurange preset as a pulsed timer (oscillator.enabled = false) with the
+/// receiver it had as one (70 MHz, 32 kOhm: the short pulse's echo loses most
+/// of its peak in that receiver), for the pulsed core's tests on this device.
+namespace {
+device::DeviceConfig pulsed_accurange() {
+  auto c = device::accurange_preset();
+  c.oscillator.enabled = false;
+  c.link.receiver.bandwidth_mhz = 70.0;
+  c.link.receiver.transimpedance_kohm = 32.0;
+  return c;
+}
+}  // namespace
+
 TEST(AccurangePreset, IsValidAndCarriesTheThesisDevice) {
   const auto c = device::accurange_preset();
   EXPECT_TRUE(device::validate(c).empty());
@@ -80,14 +93,16 @@ TEST(AccurangePreset, IsValidAndCarriesTheThesisDevice) {
 }
 
 TEST(AccurangePreset, AnalyticAndWaveformModesAgree) {
-  // The preset's fast edge (0.3 ns pulse, 70 MHz receiver) is sampled every 50 ps
-  // in waveform mode; both modes give the same walk and pulse width.
-  const device::VirtualRangefinder waveform(device::accurange_preset(),
-                                            device::SimulationMode::kWaveform);
+  // The preset's receiver on the pulsed core (oscillator.enabled = false): its fast
+  // edge (0.3 ns pulse) is sampled every 50 ps in waveform mode; both modes give
+  // the same walk and pulse width. (The loop principle has one evaluation.)
+  const auto pulsed = pulsed_accurange();
+  const device::VirtualRangefinder analytic(pulsed);
+  const device::VirtualRangefinder waveform(pulsed, device::SimulationMode::kWaveform);
   const int shots = sanitized() ? 300 : 1500;
   for (const int grey : {0, 255}) {
     const auto target = device::Target::plate(inches_to_m(20), grey_reflectance(grey));
-    const auto a = accurange().measure(target, {}, 4, 0, shots);
+    const auto a = analytic.measure(target, {}, 4, 0, shots);
     const auto w = waveform.measure(target, {}, 4, 0, shots);
     EXPECT_EQ(w.shots_valid, static_cast<std::uint32_t>(shots));
     EXPECT_NEAR(a.distance_raw_m, w.distance_raw_m, 0.5e-3) << grey;
@@ -174,23 +189,47 @@ TEST(TurnOn, FirstSamplesAreBiasedThenAPlateau) {
   EXPECT_NEAR(sample_stats(means).sd / noise, 1.0, 0.5);
 }
 
-TEST(Sampling, SpreadFallsAsOneOverSqrtShotsAndRatesMatchFig44) {
+TEST(Sampling, SpreadFallsAsOneOverSqrtShotsOnThePulsedCore) {
+  // A pulsed device averages independent shots: sd ~ 1 / sqrt(2^N).
+  const device::VirtualRangefinder dev(pulsed_accurange());
   SamplingOptions o;
   if (sanitized()) o.max_exponent = 6;  // the cost is per output: fewer settings, same noise
-  const auto r = run_sampling(accurange(), o, 3);
+  const auto r = run_sampling(dev, o, 3);
   ASSERT_EQ(r.rows.size(), static_cast<std::size_t>(o.max_exponent - o.min_exponent + 1));
   EXPECT_NEAR(r.log_slope, -0.5, sanitized() ? 0.1 : 0.05);  // 4 settings: a looser slope
   const double first = r.rows.front().sd_times_sqrt_shots_m;
   for (const auto& row : r.rows) {
     EXPECT_NEAR(row.sd_times_sqrt_shots_m / first, 1.0, 0.2) << row.shots;
+    EXPECT_TRUE(std::isnan(row.resolution_m));
   }
-  // Thesis Fig. 4.4: sampling rate = 312,500 / 2^N for N = 3..11.
+}
+
+TEST(Sampling, ResolutionAndVarianceFollowFig44OnTheLoop) {
+  // The AccuRange counts its loop with an 80 MHz clock over a gate set by the
+  // sampling rate: thesis Fig. 4.4 (reference/fig4_4_sampling.csv).
+  SamplingOptions o;
+  if (sanitized()) o.max_exponent = 6;
+  const auto r = run_sampling(accurange(), o, 3);
   const auto fig = read_csv_numbers(std::string(TOFKIT_REFERENCE_DIR) + "/fig4_4_sampling.csv");
   ASSERT_EQ(fig.size(), 9u);
+  const double in2 = 0.0254 * 0.0254;
   for (const auto& row : r.rows) {
     const auto& thesis = fig[static_cast<std::size_t>(row.exponent - 3)];
+    // Sampling rate = 312,500 / 2^N.
     EXPECT_NEAR(row.sampling_rate_hz / thesis[1], 1.0, 1e-6) << row.exponent;
+    // Resolution (mm per count) within 10 % of the thesis's column.
+    EXPECT_NEAR(row.resolution_m * 1e3 / thesis[0], 1.0, 0.10) << row.exponent;
+    // Variance of the outputs within a factor 2.5 of the thesis's.
+    const double variance_in2 = row.sd_range_m * row.sd_range_m / in2;
+    EXPECT_GT(variance_in2, thesis[3] / 2.5) << row.exponent;
+    EXPECT_LT(variance_in2, thesis[3] * 2.5) << row.exponent;
   }
+  // Resolution halves with the rate; the spread falls until the loop's wander is
+  // the floor (thesis: 5.6e-4 in^2 at 39 kHz, 1.2-2.3e-4 in^2 from 4.9 kHz down).
+  for (std::size_t k = 1; k < r.rows.size(); ++k) {
+    EXPECT_NEAR(r.rows[k].resolution_m / r.rows[k - 1].resolution_m, 0.5, 1e-9);
+  }
+  EXPECT_GT(r.rows.front().sd_range_m, 1.5 * r.rows.back().sd_range_m);
 }
 
 TEST(Temperature, DriftSlopeIsTheSameAtEveryDistance) {

@@ -33,18 +33,27 @@ DeviceConfig accurange_preset() {
   rx.optics_efficiency = 0.5;      // Assumption: lens, filter, coaxial mirror obstruction
   rx.field_of_view_rad = 0.005;    // Assumption: 5 mrad field stop (short-range unit)
   rx.filter_bandwidth_nm = 10.0;   // Assumption: 10 nm interference filter at 780 nm
-  rx.bandwidth_mhz = 70.0;         // Assumption: slow, low-noise TIA (see pulse_width_ns)
+  // Assumption: a 300 MHz receiver (pole 0.53 ns). In the loop, the walk between
+  // the weakest and the strongest returns is a fraction of that pole (the AC-coupled
+  // step response crossing a fixed threshold), so it sets the spread across greys:
+  // 0.39 in (1 sigma) over the six greys at 19 in, thesis Fig. 4.18 raw variance
+  // 0.177 in^2 (0.42 in).
+  rx.bandwidth_mhz = 300.0;
   rx.responsivity_a_per_w = 0.5;   // Si at 780 nm (about 0.5 A/W unity gain)
   rx.apd_gain = 30.0;              // Assumption: low gain, echoes are strong at < 1 m
   rx.excess_noise_factor = 3.0;    // Si APD at M = 30 (k about 0.02-0.05)
   rx.nep_w_per_sqrt_hz = 2.0e-14;  // same amplifier class as the paper's (Table 1)
   rx.dark_current_na = 0.5;        // typical Si APD, as the paper preset
-  // Assumption: sets the echo scale: a grey-0 chart (rho 0.03) at 20 in gives
-  // twice the threshold, so it is still seen at 22 in (training distance) and
-  // fades out near 30 in ("grey 0 unusable" far away and at large angles).
-  rx.transimpedance_kohm = 32.0;
+  // Assumption: sets the echo scale. The loop sees a step of optical power (the
+  // laser stays on), so the full transimpedance gain applies: a grey-0 chart
+  // (rho 0.03) at 19 in gives 0.079 V, four times the threshold: its swing above
+  // the AC-coupled baseline still crosses the threshold at 22 in (training
+  // distance), and the loop stops near 30 in and at large angles ("grey 0 unusable").
+  rx.transimpedance_kohm = 4.5;
   // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates out to 22 in and
-  // grey 204 (rho 0.58) inside about 17 in (thesis: "very bright targets saturate").
+  // grey 204 (rho 0.58) inside about 20 in (thesis: "very bright targets saturate";
+  // in the loop a saturated return rises ever faster while it falls from the clip
+  // level, so it reads short).
   rx.saturation_v = 1.0;
   // Assumption: the intensity output taps the linear transimpedance stage ahead
   // of the comparator's limiting gain, linear to 4 V: distinct over the thesis's
@@ -122,6 +131,38 @@ DeviceConfig accurange_preset() {
   c.memory.time_constant_ms = 1.0;
   c.memory.strength_gain_mm_per_neper = 6.0;
   c.memory.distance_gain = 0.0;
+
+  // ----------------------------------------------------------- the loop
+  // Thesis Section 3.1, Fig. 3.2: the AccuRange 3000 is a self-oscillating loop
+  // (device/oscillator_loop.hpp): the laser stays on until the detector sees the
+  // return, then off until the return has gone. Period ~20 ns at zero range and
+  // 280 ns at 20 m (thesis); here 16.5 ns and 283 ns.
+  auto& osc = c.oscillator;
+  osc.enabled = true;
+  // Assumption: laser driver turn-on/off, comparator and logic per edge. With the
+  // receiver's latency (~3 ns at 0.5 m, including the round trip) it makes the
+  // thesis's ~20 ns period at zero range and 280 ns at 20 m (slope 4/c: two round
+  // trips per period).
+  osc.loop_delay_ns = 8.0;
+  // Thesis Section 4.4: the unit reads about an inch short over the grey chart:
+  // its reflectance fit r = 0.9804 T - 0.6732 in gives 1.065 in short at 20 in.
+  // The vendor zero (the half period read as range 0) is set so that the mean over
+  // the six greys at 20 in, 20 C, warmed up, reads that short.
+  osc.zero_half_period_ns = 8.518;
+  osc.count_clock_mhz = 80.0;  // thesis: 80 MHz timing clock on the interface board
+  // Assumption: the board counts during half of each output period (and transfers
+  // during the other half). Then one count is c/4 x 12.5 ns x T / gate = 1.71 mm at
+  // 39,062.5 samples/s at 20 in (T = 23 ns): thesis Fig. 4.4, 1.756 mm, halving with
+  // each halving of the sampling rate.
+  osc.gate_fraction = 0.5;
+  osc.coupling_duty = 0.5;  // AC coupling of the loop's ~50 % duty square wave
+  // Assumption: an overdriven receiver recovers with a storage-time jitter that
+  // grows with the overdrive (thesis Section 4.4: saturation makes the range erratic).
+  osc.overdrive_jitter_ps_per_neper = 50.0;
+  // Assumption: slow wander of the loop delay, 2.6 ps (0.39 mm) per output, which no
+  // averaging removes: thesis Fig. 4.4's variance floor of 1.2-2.3e-4 in^2 at
+  // 152-4883 samples/s, where the 80 MHz count's quantization no longer dominates.
+  osc.flicker_delay_ps = 2.6;
   return c;
 }
 
