@@ -244,3 +244,23 @@ TEST(ThesisProtocol, PlotDataAndSummary) {
   bad.samples_per_point = 0;
   EXPECT_THROW((void)run_thesis_protocol(accurange(), bad, 1), std::invalid_argument);
 }
+
+TEST(ThesisProtocol, WarmerTestScansExplainTheThesisResidual) {
+  // Thesis Section 4.4: temperature not constant between scans; the range falls
+  // 0.25-0.60 in per 10 C. Oracle: the preset's delay tempco moves every range
+  // (raw and corrected alike) by c/2 x tempco per degree; the surfaces do not see it.
+  const auto& r = result();
+  ASSERT_EQ(r.temperature.size(), r.options.test_temperature_offsets_c.size());
+  const double mm_per_c =
+      accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0 * 1e3;
+  for (const auto& t : r.temperature) {
+    const double expected_shift_m = -mm_per_c * 1e-3 * t.offset_c;  // true - measured rises
+    const double raw_shift = t.raw.bias_m - r.row("raw").test.bias_m;
+    const double spline_shift = t.bspline.bias_m - r.row("bspline").test.bias_m;
+    EXPECT_NEAR(raw_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
+    EXPECT_NEAR(spline_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
+    const double in_per_10c = m_to_inches(raw_shift) * 10.0 / t.offset_c;
+    EXPECT_GT(in_per_10c, 0.25);
+    EXPECT_LT(in_per_10c, 0.60);
+  }
+}
