@@ -10,10 +10,8 @@ DeviceConfig accurange_preset() {
   auto& laser = c.link.laser;
   laser.wavelength_nm = 780.0;  // thesis title: 780 nm diode
   laser.peak_power_w = 0.020;   // thesis title: 20 mW
-  // Assumption: a gain-switched diode pulse of 0.3 ns. With the 70 MHz receiver
-  // below, the echo's leading edge is the receiver's (nearly linear) impulse
-  // response, so walk is strong near the threshold and weak far above it: the
-  // thesis's "dark reads long by inches, light greys within a quarter inch".
+  // Pulsed core only (oscillator.enabled = false; the loop keeps the laser on
+  // for a half period): a gain-switched diode pulse of 0.3 ns. Assumption.
   laser.pulse_width_ns = 0.3;
   laser.repetition_hz = 312500.0;         // thesis: sampling rate = 312,500 / 2^N samples/s
   laser.transmit_efficiency = 0.9;        // Assumption: uncoated collimator + window
@@ -48,7 +46,7 @@ DeviceConfig accurange_preset() {
   // laser stays on), so the full transimpedance gain applies: a grey-0 chart
   // (rho 0.03) at 19 in gives 0.079 V, four times the threshold: its swing above
   // the AC-coupled baseline still crosses the threshold at 22 in (training
-  // distance), and the loop stops near 30 in and at large angles ("grey 0 unusable").
+  // distance), and the loop stops beyond 27 in and at large angles ("grey 0 unusable").
   rx.transimpedance_kohm = 4.5;
   // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates out to 22 in and
   // grey 204 (rho 0.58) inside about 20 in (thesis: "very bright targets saturate";
@@ -115,8 +113,8 @@ DeviceConfig accurange_preset() {
   c.measurement.power_on_offset_ps = 0.0;
   c.measurement.flicker_delay_ps = 0.0;
   c.measurement.shots = 16;  // N = 4: 312,500 / 16 = 19,531 samples/s (thesis Fig. 4.4)
-  // Assumption: the vendor zeroed the range offset on a mid-grey target (grey 153,
-  // rho 0.32) at 20 in, 20 C, warmed up; the chain delay is whatever makes that true.
+  // Pulsed core only (the loop's zero is oscillator.zero_half_period_ns): a
+  // chain delay that zeroes a mid-grey target at 20 in on the pulsed variant.
   c.measurement.fixed_delay_ns = 0.077;
   c.measurement.window_ns = 30.0;
   c.measurement.sample_period_ps = 50.0;  // waveform mode: 20 samples per ns (fast edge)
@@ -126,12 +124,15 @@ DeviceConfig accurange_preset() {
   // Thesis Figs. 3.4-3.5 and 4.28: spikes at every edge swept by the mirror and
   // swings after a mid-grey-to-black transition, decaying exponentially.
   // Assumption: an AC-coupled receiver whose baseline (and AGC) recovers with a
-  // 1 ms time constant (a ~160 Hz coupling corner), and 8 mm of range per neper of
-  // unrecovered echo-strength step (the strength being ln(intensity x comparator
-  // high time) in the loop: spikes of 8-16 mm at the mirror's edges). No distance
-  // memory: the loop re-locks within a period (~23 ns), far below the 1 ms.
+  // 1 ms time constant (a ~160 Hz coupling corner), and 10 mm of range per neper
+  // of unrecovered echo-strength step (the strength being ln(intensity x comparator
+  // high time) in the loop): spikes of about 15 mm at the mirror's edges, 20-25 mm
+  // after the colour transition. (At 6-8 mm per neper the loop's own walk, not
+  // linear in that strength across saturated and unsaturated surfaces, pulls the
+  // memory fit to 1.26 ms on most seeds.) No distance memory: the loop re-locks
+  // within a period (~23 ns), far below the 1 ms.
   c.memory.time_constant_ms = 1.0;
-  c.memory.strength_gain_mm_per_neper = 8.0;
+  c.memory.strength_gain_mm_per_neper = 10.0;
   c.memory.distance_gain = 0.0;
 
   // ----------------------------------------------------------- the loop
