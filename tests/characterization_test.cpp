@@ -60,6 +60,19 @@ std::vector<std::vector<double>> read_csv_numbers(const std::string& path) {
 
 }  // namespace
 
+/// The accurange preset as a pulsed timer (oscillator.enabled = false) with the
+/// receiver it had as one (70 MHz, 32 kOhm: the short pulse's echo loses most
+/// of its peak in that receiver), for the pulsed core's tests on this device.
+namespace {
+device::DeviceConfig pulsed_accurange() {
+  auto c = device::accurange_preset();
+  c.oscillator.enabled = false;
+  c.link.receiver.bandwidth_mhz = 70.0;
+  c.link.receiver.transimpedance_kohm = 32.0;
+  return c;
+}
+}  // namespace
+
 TEST(AccurangePreset, IsValidAndCarriesTheThesisDevice) {
   const auto c = device::accurange_preset();
   EXPECT_TRUE(device::validate(c).empty());
@@ -80,14 +93,16 @@ TEST(AccurangePreset, IsValidAndCarriesTheThesisDevice) {
 }
 
 TEST(AccurangePreset, AnalyticAndWaveformModesAgree) {
-  // The preset's fast edge (0.3 ns pulse, 70 MHz receiver) is sampled every 50 ps
-  // in waveform mode; both modes give the same walk and pulse width.
-  const device::VirtualRangefinder waveform(device::accurange_preset(),
-                                            device::SimulationMode::kWaveform);
+  // The preset's receiver on the pulsed core (oscillator.enabled = false): its fast
+  // edge (0.3 ns pulse) is sampled every 50 ps in waveform mode; both modes give
+  // the same walk and pulse width. (The loop principle has one evaluation.)
+  const auto pulsed = pulsed_accurange();
+  const device::VirtualRangefinder analytic(pulsed);
+  const device::VirtualRangefinder waveform(pulsed, device::SimulationMode::kWaveform);
   const int shots = sanitized() ? 300 : 1500;
   for (const int grey : {0, 255}) {
     const auto target = device::Target::plate(inches_to_m(20), grey_reflectance(grey));
-    const auto a = accurange().measure(target, {}, 4, 0, shots);
+    const auto a = analytic.measure(target, {}, 4, 0, shots);
     const auto w = waveform.measure(target, {}, 4, 0, shots);
     EXPECT_EQ(w.shots_valid, static_cast<std::uint32_t>(shots));
     EXPECT_NEAR(a.distance_raw_m, w.distance_raw_m, 0.5e-3) << grey;
@@ -174,23 +189,47 @@ TEST(TurnOn, FirstSamplesAreBiasedThenAPlateau) {
   EXPECT_NEAR(sample_stats(means).sd / noise, 1.0, 0.5);
 }
 
-TEST(Sampling, SpreadFallsAsOneOverSqrtShotsAndRatesMatchFig44) {
+TEST(Sampling, SpreadFallsAsOneOverSqrtShotsOnThePulsedCore) {
+  // A pulsed device averages independent shots: sd ~ 1 / sqrt(2^N).
+  const device::VirtualRangefinder dev(pulsed_accurange());
   SamplingOptions o;
   if (sanitized()) o.max_exponent = 6;  // the cost is per output: fewer settings, same noise
-  const auto r = run_sampling(accurange(), o, 3);
+  const auto r = run_sampling(dev, o, 3);
   ASSERT_EQ(r.rows.size(), static_cast<std::size_t>(o.max_exponent - o.min_exponent + 1));
   EXPECT_NEAR(r.log_slope, -0.5, sanitized() ? 0.1 : 0.05);  // 4 settings: a looser slope
   const double first = r.rows.front().sd_times_sqrt_shots_m;
   for (const auto& row : r.rows) {
     EXPECT_NEAR(row.sd_times_sqrt_shots_m / first, 1.0, 0.2) << row.shots;
+    EXPECT_TRUE(std::isnan(row.resolution_m));
   }
-  // Thesis Fig. 4.4: sampling rate = 312,500 / 2^N for N = 3..11.
+}
+
+TEST(Sampling, ResolutionAndVarianceFollowFig44OnTheLoop) {
+  // The AccuRange counts its loop with an 80 MHz clock over a gate set by the
+  // sampling rate: thesis Fig. 4.4 (reference/fig4_4_sampling.csv).
+  SamplingOptions o;
+  if (sanitized()) o.max_exponent = 6;
+  const auto r = run_sampling(accurange(), o, 3);
   const auto fig = read_csv_numbers(std::string(TOFKIT_REFERENCE_DIR) + "/fig4_4_sampling.csv");
   ASSERT_EQ(fig.size(), 9u);
+  const double in2 = 0.0254 * 0.0254;
   for (const auto& row : r.rows) {
     const auto& thesis = fig[static_cast<std::size_t>(row.exponent - 3)];
+    // Sampling rate = 312,500 / 2^N.
     EXPECT_NEAR(row.sampling_rate_hz / thesis[1], 1.0, 1e-6) << row.exponent;
+    // Resolution (mm per count) within 10 % of the thesis's column.
+    EXPECT_NEAR(row.resolution_m * 1e3 / thesis[0], 1.0, 0.10) << row.exponent;
+    // Variance of the outputs within a factor 2.5 of the thesis's.
+    const double variance_in2 = row.sd_range_m * row.sd_range_m / in2;
+    EXPECT_GT(variance_in2, thesis[3] / 2.5) << row.exponent;
+    EXPECT_LT(variance_in2, thesis[3] * 2.5) << row.exponent;
   }
+  // Resolution halves with the rate; the spread falls until the loop's wander is
+  // the floor (thesis: 5.6e-4 in^2 at 39 kHz, 1.2-2.3e-4 in^2 from 4.9 kHz down).
+  for (std::size_t k = 1; k < r.rows.size(); ++k) {
+    EXPECT_NEAR(r.rows[k].resolution_m / r.rows[k - 1].resolution_m, 0.5, 1e-9);
+  }
+  EXPECT_GT(r.rows.front().sd_range_m, 1.5 * r.rows.back().sd_range_m);
 }
 
 TEST(Temperature, DriftSlopeIsTheSameAtEveryDistance) {
@@ -298,14 +337,26 @@ TEST(Reflectance, DarkReadsLongBrightSaturatesAndReadsShortLineNearOne) {
     EXPECT_EQ(point(0, k).saturated_share, 0.0);
     EXPECT_EQ(point(0, k).echo_share, 1.0);
   }
-  // At 20 in (vendor zero on mid-grey): dark reads long, the saturated white short.
-  EXPECT_GT(r.darkest_error_m, 25e-3);
-  EXPECT_LT(r.brightest_error_m, -5e-3);
-  // Thesis: RMS 1.07 in over all greys, 0.23 in for grey >= 102: an inch, a quarter inch.
+  // At 20 in the unit reads about an inch short over the greys (the thesis's fit
+  // r = 0.9804 T - 0.6732 in: 1.065 in at 20 in; the vendor zero of the preset);
+  // relative to that mean, dark reads long and the saturated white short.
+  double mean_20 = 0;
+  std::vector<double> light_20;
+  for (const auto& p : r.points) {
+    if (std::abs(p.distance_m - o.rms_distance_m) > 1e-9) continue;
+    mean_20 += p.mean_error_m / double(o.grey_levels.size());
+    if (p.grey >= o.light_grey_min) light_20.push_back(p.mean_error_m);
+  }
+  EXPECT_LT(m_to_inches(mean_20), -0.7);
+  EXPECT_GT(m_to_inches(mean_20), -1.4);
+  EXPECT_GT(r.darkest_error_m - mean_20, 10e-3);
+  EXPECT_LT(r.brightest_error_m - mean_20, -10e-3);
+  // Thesis: RMS 1.07 in over all greys at 20 in: an inch.
   EXPECT_GT(m_to_inches(r.rms_all_m), 0.7);
   EXPECT_LT(m_to_inches(r.rms_all_m), 1.6);
-  EXPECT_LT(m_to_inches(r.rms_light_m), 0.45);
-  EXPECT_LT(r.rms_light_m, 0.5 * r.rms_all_m);
+  // The light greys (>= 102) lie within about a quarter inch of each other (thesis:
+  // 0.23 in for grey >= 102; read here as their spread, the offset being common).
+  EXPECT_LT(m_to_inches(sample_stats(light_20).sd), 0.45);
   // Mean range linear in true range, slope near 1 (thesis 0.9804).
   EXPECT_NEAR(r.line.slope, 1.0, 0.15);
   EXPECT_LT(r.line.residual_sd, 0.1 * (distances.back() - distances.front()));
@@ -335,12 +386,28 @@ TEST(Angle, ErrorGrowsWithAngleFastestForDarkGreys) {
     }
     EXPECT_GT(r.growth[g].slope_mm_per_deg, 0.0);
   }
-  // Faster for darker greys; dark greys become unusable at large angles.
+  // Thesis Section 4.4: roughly linear below ~60 deg for the lighter greys (102 and
+  // up): a line over 0-60 deg leaves at most a quarter of the error's change (the
+  // cos(phi) amplitude loss alone leaves 13 %). (On the loop the saturated greys'
+  // error grows fastest: less overdrive, slower rise.)
+  for (std::size_t g = 2; g < r.growth.size(); ++g) {
+    std::vector<double> x, y;
+    for (std::size_t a = 0; a < na; ++a) {
+      const auto& p = r.points[g * na + a];
+      if (p.angle_deg > 60.0 + 1e-9) break;
+      x.push_back(p.angle_deg);
+      y.push_back(p.mean_error_m);
+    }
+    const auto line = fit_line(x, y);
+    double worst = 0;
+    for (std::size_t k = 0; k < x.size(); ++k)
+      worst = std::max(worst, std::abs(y[k] - (line.intercept + line.slope * x[k])));
+    EXPECT_LT(worst, 0.25 * std::abs(y.back() - y.front())) << r.growth[g].grey;
+  }
+  // Dark greys become unusable at large angles.
   for (std::size_t g = 1; g < r.growth.size(); ++g) {
-    EXPECT_LT(r.growth[g].slope_mm_per_deg, r.growth[g - 1].slope_mm_per_deg) << g;
     EXPECT_GE(r.growth[g].max_usable_angle_deg, r.growth[g - 1].max_usable_angle_deg) << g;
   }
-  EXPECT_GT(r.growth[0].slope_mm_per_deg, 5 * r.growth[5].slope_mm_per_deg);
   EXPECT_LT(r.growth[0].max_usable_angle_deg, 70.0);
   EXPECT_GE(r.growth[5].max_usable_angle_deg, 80.0);
 }
@@ -356,7 +423,12 @@ TEST(Characterization, ReproducibleFromTheSeedAndOptionsValidated) {
   for (std::size_t i = 0; i < a.records.size(); ++i) {
     EXPECT_EQ(a.records[i].raw.tof_ns, b.records[i].raw.tof_ns);
   }
-  EXPECT_NE(a.records[0].raw.tof_ns, c.records[0].raw.tof_ns);
+  // Another seed, another run (outputs are clock counts: single records may
+  // coincide, the run does not).
+  bool differs = false;
+  for (std::size_t i = 0; i < a.records.size(); ++i)
+    differs = differs || a.records[i].raw.tof_ns != c.records[i].raw.tof_ns;
+  EXPECT_TRUE(differs);
 
   WarmupOptions w;
   w.final_window_min = 200;

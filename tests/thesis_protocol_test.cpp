@@ -107,13 +107,29 @@ TEST(ThesisProtocol, RawErrorIsOfTheThesisOrder) {
   const auto fig = fig4_18();
   ASSERT_FALSE(fig.empty());
   const double thesis_raw_rms_in = fig[0][3];
-  // Thesis: raw RMS 1.2409 in at 19 in; the same order here (an inch, from walk).
+  // Issue 12: raw RMS within +-25 % of the thesis's 1.2409 in at 19 in, and the
+  // bias positive (the unit reads short) as in the thesis's table.
   const double raw_in = m_to_inches(r.row("raw").test.rms_m);
-  EXPECT_GT(raw_in, 0.5 * thesis_raw_rms_in);
-  EXPECT_LT(raw_in, 2.0 * thesis_raw_rms_in);
-  // Dark greys carry the error (Fig. 4.19): grey 0 worst, grey 153 (vendor zero) best.
-  EXPECT_GT(r.per_grey.front().raw_rms_m, 3 * r.row("raw").test.rms_m / 2);
-  for (const auto& g : r.per_grey) EXPECT_GE(g.raw_rms_m, r.per_grey[3].raw_rms_m);
+  EXPECT_GT(raw_in, 0.75 * thesis_raw_rms_in);
+  EXPECT_LT(raw_in, 1.25 * thesis_raw_rms_in);
+  EXPECT_GT(r.row("raw").test.bias_m, 0.0);
+  EXPECT_NEAR(m_to_inches(r.row("raw").test.bias_m), fig[0][1], 0.25 * fig[0][1]);
+  // The walk (thesis Section 4.4): dark greys read long, saturating bright ones
+  // short: the mean error true - measured rises with the grey level.
+  std::vector<double> mean_error;
+  for (const auto& g : r.per_grey) {
+    double sum = 0;
+    int n = 0;
+    for (const auto& t : r.test_rows) {
+      if (t.grey != g.grey) continue;
+      sum += t.raw_error_m;
+      ++n;
+    }
+    ASSERT_GT(n, 0);
+    mean_error.push_back(sum / n);
+  }
+  for (std::size_t k = 1; k < mean_error.size(); ++k) EXPECT_GT(mean_error[k], mean_error[k - 1]);
+  EXPECT_GT(mean_error.back() - mean_error.front(), inches_to_m(0.5));
 }
 
 TEST(ThesisProtocol, HeldOutStatisticsAreConsistent) {
@@ -227,4 +243,24 @@ TEST(ThesisProtocol, PlotDataAndSummary) {
   bad = {};
   bad.samples_per_point = 0;
   EXPECT_THROW((void)run_thesis_protocol(accurange(), bad, 1), std::invalid_argument);
+}
+
+TEST(ThesisProtocol, WarmerTestScansExplainTheThesisResidual) {
+  // Thesis Section 4.4: temperature not constant between scans; the range falls
+  // 0.25-0.60 in per 10 C. Oracle: the preset's delay tempco moves every range
+  // (raw and corrected alike) by c/2 x tempco per degree; the surfaces do not see it.
+  const auto& r = result();
+  ASSERT_EQ(r.temperature.size(), r.options.test_temperature_offsets_c.size());
+  const double mm_per_c =
+      accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0 * 1e3;
+  for (const auto& t : r.temperature) {
+    const double expected_shift_m = -mm_per_c * 1e-3 * t.offset_c;  // true - measured rises
+    const double raw_shift = t.raw.bias_m - r.row("raw").test.bias_m;
+    const double spline_shift = t.bspline.bias_m - r.row("bspline").test.bias_m;
+    EXPECT_NEAR(raw_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
+    EXPECT_NEAR(spline_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
+    const double in_per_10c = m_to_inches(raw_shift) * 10.0 / t.offset_c;
+    EXPECT_GT(in_per_10c, 0.25);
+    EXPECT_LT(in_per_10c, 0.60);
+  }
 }

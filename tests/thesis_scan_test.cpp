@@ -212,9 +212,15 @@ TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
     EXPECT_GT(t->noise_limit_m, 0);
     for (const auto& row : t->rows) EXPECT_GT(row.test.rms_m, 0.9 * t->noise_limit_m);
   }
-  // Fig. 4.24: the darkest grey has the largest raw error; every grey improves.
+  // Fig. 4.24 and Section 4.4: the unit reads short overall (positive bias) and the
+  // walk makes dark greys read long and saturating ones short, so the darkest
+  // grey's raw error is the smallest and the brightest's the largest; every grey
+  // improves.
   ASSERT_EQ(r.per_grey.size(), 6u);
-  EXPECT_GT(r.per_grey.front().raw_rms_m, r.per_grey[3].raw_rms_m);
+  for (const auto& row : r.per_grey) {
+    EXPECT_GE(row.raw_rms_m, r.per_grey.front().raw_rms_m) << row.grey;
+    EXPECT_LE(row.raw_rms_m, r.per_grey.back().raw_rms_m) << row.grey;
+  }
   for (const auto& row : r.per_grey) EXPECT_LT(row.best_rms_m, row.raw_rms_m);
   // Figs. 4.32-4.33: +-2 sigma coverage of each confidence image in 90-98 %.
   for (const auto* im : {&r.stripe_images, &r.checker_images}) {
@@ -251,7 +257,7 @@ TEST(ThesisScanFigures, MirrorEdgeSpikesAndColourTransitionAreCorrected) {
 // Acceptance item not met on the current preset (the raw bias's sign follows
 // the preset's range zero, measurement.fixed_delay_ns, being re-tuned by the
 // twin's work): enable after merging it.
-TEST(ThesisScanFigures, DISABLED_RawBiasHasTheThesisSign) {
+TEST(ThesisScanFigures, RawBiasHasTheThesisSign) {
   EXPECT_GT(line_result().line.row("raw").test.bias_m, 0);     // Fig. 4.23: +0.126 in
   EXPECT_GT(line_result().checker.row("raw").test.bias_m, 0);  // Fig. 4.27: +0.423 in
   EXPECT_NEAR(m_to_inches(line_result().checker.row("raw").test.rms_m), 1.436, 0.25 * 1.436);

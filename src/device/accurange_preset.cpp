@@ -10,10 +10,8 @@ DeviceConfig accurange_preset() {
   auto& laser = c.link.laser;
   laser.wavelength_nm = 780.0;  // thesis title: 780 nm diode
   laser.peak_power_w = 0.020;   // thesis title: 20 mW
-  // Assumption: a gain-switched diode pulse of 0.3 ns. With the 70 MHz receiver
-  // below, the echo's leading edge is the receiver's (nearly linear) impulse
-  // response, so walk is strong near the threshold and weak far above it: the
-  // thesis's "dark reads long by inches, light greys within a quarter inch".
+  // Pulsed core only (oscillator.enabled = false; the loop keeps the laser on
+  // for a half period): a gain-switched diode pulse of 0.3 ns. Assumption.
   laser.pulse_width_ns = 0.3;
   laser.repetition_hz = 312500.0;         // thesis: sampling rate = 312,500 / 2^N samples/s
   laser.transmit_efficiency = 0.9;        // Assumption: uncoated collimator + window
@@ -33,18 +31,28 @@ DeviceConfig accurange_preset() {
   rx.optics_efficiency = 0.5;      // Assumption: lens, filter, coaxial mirror obstruction
   rx.field_of_view_rad = 0.005;    // Assumption: 5 mrad field stop (short-range unit)
   rx.filter_bandwidth_nm = 10.0;   // Assumption: 10 nm interference filter at 780 nm
-  rx.bandwidth_mhz = 70.0;         // Assumption: slow, low-noise TIA (see pulse_width_ns)
+  // Assumption: a 285 MHz receiver (pole 0.56 ns). In the loop, the walk between
+  // the weakest and the strongest returns is a fraction of that pole (the AC-coupled
+  // step response crossing a fixed threshold), so it sets the spread across greys:
+  // 0.42 in (1 sigma) over the six greys at 19 in, thesis Fig. 4.18 raw variance
+  // 0.177 in^2 (0.42 in).
+  rx.bandwidth_mhz = 285.0;
   rx.responsivity_a_per_w = 0.5;   // Si at 780 nm (about 0.5 A/W unity gain)
   rx.apd_gain = 30.0;              // Assumption: low gain, echoes are strong at < 1 m
   rx.excess_noise_factor = 3.0;    // Si APD at M = 30 (k about 0.02-0.05)
   rx.nep_w_per_sqrt_hz = 2.0e-14;  // same amplifier class as the paper's (Table 1)
   rx.dark_current_na = 0.5;        // typical Si APD, as the paper preset
-  // Assumption: sets the echo scale: a grey-0 chart (rho 0.03) at 20 in gives
-  // twice the threshold, so it is still seen at 22 in (training distance) and
-  // fades out near 30 in ("grey 0 unusable" far away and at large angles).
-  rx.transimpedance_kohm = 32.0;
+  // Assumption: sets the echo scale. The loop sees a step of optical power (the
+  // laser stays on), so the full transimpedance gain applies: a grey-0 chart
+  // (rho 0.03) at 19 in gives 0.094 V, 4.7 times the threshold: its swing above the
+  // AC-coupled baseline still crosses the threshold out to 29 in (the thesis's
+  // reflectance study: six greys at 10-30 in), and the loop stops beyond that and
+  // at large angles ("grey 0 unusable").
+  rx.transimpedance_kohm = 5.4;
   // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates out to 22 in and
-  // grey 204 (rho 0.58) inside about 17 in (thesis: "very bright targets saturate").
+  // grey 204 (rho 0.58) inside about 20 in (thesis: "very bright targets saturate";
+  // in the loop a saturated return rises ever faster while it falls from the clip
+  // level, so it reads short).
   rx.saturation_v = 1.0;
   // Assumption: the intensity output taps the linear transimpedance stage ahead
   // of the comparator's limiting gain, linear to 4 V: distinct over the thesis's
@@ -106,8 +114,8 @@ DeviceConfig accurange_preset() {
   c.measurement.power_on_offset_ps = 0.0;
   c.measurement.flicker_delay_ps = 0.0;
   c.measurement.shots = 16;  // N = 4: 312,500 / 16 = 19,531 samples/s (thesis Fig. 4.4)
-  // Assumption: the vendor zeroed the range offset on a mid-grey target (grey 153,
-  // rho 0.32) at 20 in, 20 C, warmed up; the chain delay is whatever makes that true.
+  // Pulsed core only (the loop's zero is oscillator.zero_half_period_ns): a
+  // chain delay that zeroes a mid-grey target at 20 in on the pulsed variant.
   c.measurement.fixed_delay_ns = 0.077;
   c.measurement.window_ns = 30.0;
   c.measurement.sample_period_ps = 50.0;  // waveform mode: 20 samples per ns (fast edge)
@@ -117,11 +125,51 @@ DeviceConfig accurange_preset() {
   // Thesis Figs. 3.4-3.5 and 4.28: spikes at every edge swept by the mirror and
   // swings after a mid-grey-to-black transition, decaying exponentially.
   // Assumption: an AC-coupled receiver whose baseline (and AGC) recovers with a
-  // 1 ms time constant (a ~160 Hz coupling corner), and 6 mm of walk per neper of
-  // unrecovered echo-strength step. No distance memory (the pulsed timing has none).
+  // 1 ms time constant (a ~160 Hz coupling corner), and 10 mm of range per neper
+  // of unrecovered echo-strength step (the strength being ln(intensity x comparator
+  // high time) in the loop): spikes of about 15 mm at the mirror's edges, 20-25 mm
+  // after the colour transition. (At 6-8 mm per neper the loop's own walk, not
+  // linear in that strength across saturated and unsaturated surfaces, pulls the
+  // memory fit to 1.26 ms on most seeds.) No distance memory: the loop re-locks
+  // within a period (~23 ns), far below the 1 ms.
   c.memory.time_constant_ms = 1.0;
-  c.memory.strength_gain_mm_per_neper = 6.0;
+  c.memory.strength_gain_mm_per_neper = 10.0;
   c.memory.distance_gain = 0.0;
+
+  // ----------------------------------------------------------- the loop
+  // Thesis Section 3.1, Fig. 3.2: the AccuRange 3000 is a self-oscillating loop
+  // (device/oscillator_loop.hpp): the laser stays on until the detector sees the
+  // return, then off until the return has gone. Period ~20 ns at zero range and
+  // 280 ns at 20 m (thesis); here 16.5 ns and 283 ns.
+  auto& osc = c.oscillator;
+  osc.enabled = true;
+  // Assumption: laser driver turn-on/off, comparator and logic per edge. With the
+  // receiver's latency (~3 ns at 0.5 m, including the round trip) it makes the
+  // thesis's ~20 ns period at zero range and 280 ns at 20 m (slope 4/c: two round
+  // trips per period).
+  osc.loop_delay_ns = 8.0;
+  // Thesis Section 4.4: the unit reads about an inch short over the grey chart:
+  // its reflectance fit r = 0.9804 T - 0.6732 in gives 1.065 in short at 20 in.
+  // The vendor zero (the half period read as range 0) is set so that the mean over
+  // the six greys at 20 in, 20 C, warmed up, reads 1.04 in short (within 0.03 in
+  // of the fit; that last step places the raw rows of Figs. 4.18, 4.23 and 4.27,
+  // all three on this one zero, inside +-25 % of the thesis's RMS).
+  osc.zero_half_period_ns = 8.5028;
+  osc.count_clock_mhz = 80.0;  // thesis: 80 MHz timing clock on the interface board
+  // Assumption: the board counts during half of each output period (and transfers
+  // during the other half). Then one count is c/4 x 12.5 ns x T / gate = 1.71 mm at
+  // 39,062.5 samples/s at 20 in (T = 23 ns): thesis Fig. 4.4, 1.756 mm, halving with
+  // each halving of the sampling rate.
+  osc.gate_fraction = 0.5;
+  osc.coupling_duty = 0.5;  // AC coupling of the loop's ~50 % duty square wave
+  // Assumption: an overdriven receiver recovers with a storage-time jitter that
+  // grows with the overdrive (thesis Section 4.4: saturation makes the range erratic).
+  osc.overdrive_jitter_ps_per_neper = 50.0;
+  // Assumption: slow wander of the loop delay, 2.2 ps (0.33 mm of range) per output,
+  // which no averaging removes: thesis Fig. 4.4's variance floor, 1.75e-4 in^2 on
+  // average over 152-4883 samples/s, where the 80 MHz count's quantization no
+  // longer dominates.
+  osc.flicker_delay_ps = 2.2;
   return c;
 }
 

@@ -210,6 +210,25 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             1e4, kClosed, "range error per neper of echo-strength step not yet recovered"),
       field("memory.distance_gain", &config.memory.distance_gain, 0, 1, kClosed,
             "share of a distance step the timing loop still lags by, decaying likewise"),
+
+      // oscillator: the self-oscillating loop principle (device/oscillator_loop.hpp)
+      field("oscillator.enabled", &config.oscillator.enabled,
+            "measuring principle: true = self-oscillating loop (AccuRange), false = pulsed TDC"),
+      field("oscillator.loop_delay_ns", &config.oscillator.loop_delay_ns, 0, 1e4, kClosed,
+            "per edge: laser driver turn-on/off, comparator and logic delay"),
+      field("oscillator.zero_half_period_ns", &config.oscillator.zero_half_period_ns, 0, 1e4,
+            kClosed, "vendor zero: the loop half period reported as range 0"),
+      field("oscillator.count_clock_mhz", &config.oscillator.count_clock_mhz, 0, 1e5, kOpen,
+            "interface board's counting clock (thesis: 80 MHz)"),
+      field("oscillator.gate_fraction", &config.oscillator.gate_fraction, 0, 1, kOpen,
+            "share of each output period the period counter is gated on. Assumption"),
+      field("oscillator.coupling_duty", &config.oscillator.coupling_duty, 0, 1, kOpen,
+            "AC-coupled receiver baseline as a share of the signal swing (the loop's duty)"),
+      field("oscillator.overdrive_jitter_ps_per_neper",
+            &config.oscillator.overdrive_jitter_ps_per_neper, 0, 1e6, kClosed,
+            "extra edge jitter per neper of receiver overdrive (erratic in saturation)"),
+      field("oscillator.flicker_delay_ps", &config.oscillator.flicker_delay_ps, 0, 1e6, kClosed,
+            "rms of the loop delay's slow wander, drawn per output (averaging floor)"),
   };
 }
 
@@ -246,6 +265,25 @@ std::vector<std::string> validate(const DeviceConfig& config) {
   if (m.window_ns > 0 && m.sample_period_ps > 0 && m.window_ns * 1e3 / m.sample_period_ps > 1e7) {
     messages.push_back("measurement.sample_period_ps = " + number_text(m.sample_period_ps) +
                        " gives more than 1e7 samples per measurement.window_ns");
+  }
+  const auto& osc = config.oscillator;
+  if (osc.enabled) {
+    // The loop oscillates only if the AC-coupled swing can cross the threshold:
+    // the clipped swing above the baseline must exceed it.
+    const auto& rx = config.link.receiver;
+    if (!(rx.saturation_v * (1.0 - osc.coupling_duty) > config.discriminator.threshold_v)) {
+      messages.push_back(
+          "oscillator.enabled = true needs receiver.saturation_v x (1 - "
+          "oscillator.coupling_duty) above discriminator.threshold_v (the loop "
+          "could never oscillate)");
+    }
+    // The counter's gate must hold loop periods: at least two of the zero-range period.
+    if (laser.repetition_hz > 0 && m.shots > 0 &&
+        osc.gate_fraction * m.shots / laser.repetition_hz * 1e9 < 4.0 * osc.loop_delay_ns) {
+      messages.push_back("oscillator.gate_fraction = " + number_text(osc.gate_fraction) +
+                         " with measurement.shots / laser.repetition_hz gates the counter for "
+                         "less than two loop periods (oscillator.loop_delay_ns)");
+    }
   }
   return messages;
 }

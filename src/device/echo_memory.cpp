@@ -95,8 +95,14 @@ double EchoMemory::echo_strength(const Target& target, const Conditions& conditi
   const EchoShape e = device_->echo(target, conditions);
   if (!e.detected) return std::log(floor_charge);
   // The amplifier clips at saturation_v and stays clipped longer (charge storage):
-  // what passes the coupling grows with the width, not the linear peak.
-  const double peak = std::min(e.peak_v, c.link.receiver.saturation_v);
+  // what passes the coupling grows with the width, not the linear peak. In the
+  // self-oscillating loop (oscillator.enabled) the fast coupling sits inside the
+  // loop (its baseline is part of the loop's walk); the slow operating point (AGC)
+  // is driven from the linear stage, the intensity channel, which clips at
+  // amplitude_clip_v, and the width is the comparator's high time per period.
+  const double clip_v =
+      c.oscillator.enabled ? c.link.receiver.amplitude_clip_v : c.link.receiver.saturation_v;
+  const double peak = std::min(e.peak_v, clip_v);
   const double width = std::max(e.fall_crossing_ns - e.rise_crossing_ns, rise_ns);
   return std::log(std::max(peak * width, floor_charge));
 }

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/physics/air.hpp"
@@ -605,6 +606,7 @@ VirtualRangefinder::VirtualRangefinder(DeviceConfig config, SimulationMode mode)
     for (const auto& e : errors) message += "\n  " + e;
     throw std::invalid_argument(message);
   }
+  if (config.oscillator.enabled) oscillator_ = std::make_unique<const OscillatorLoop>(config);
   impl_ = std::make_unique<Impl>(std::move(config), mode);
 }
 
@@ -620,6 +622,7 @@ SimulationMode VirtualRangefinder::mode() const {
 }
 
 EchoShape VirtualRangefinder::echo(const Target& target, const Conditions& conditions) const {
+  if (oscillator_) return oscillator_->echo(target, conditions);
   const auto m = impl_->setup(target, conditions);
   EchoShape e;
   e.peak_v = m.peak_v;
@@ -641,6 +644,7 @@ EchoShape VirtualRangefinder::echo(const Target& target, const Conditions& condi
 
 Shot VirtualRangefinder::shoot(const Target& target, const Conditions& conditions,
                                std::uint64_t seed, std::uint64_t stream, std::uint32_t shot) const {
+  if (oscillator_) return oscillator_->shoot(target, conditions, seed, stream, shot);
   const CounterRng rng(seed);
   const auto m = impl_->setup(target, conditions);
   Shot s;
@@ -657,6 +661,7 @@ ranging::RawMeasurement VirtualRangefinder::measure(const Target& target,
                                                     const Conditions& conditions,
                                                     std::uint64_t seed, std::uint64_t stream,
                                                     int shots) const {
+  if (oscillator_) return oscillator_->measure(target, conditions, seed, stream, shots);
   return impl_->measure(target, conditions, seed, stream, shots);
 }
 
@@ -664,13 +669,15 @@ void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests,
                                        std::span<ranging::RawMeasurement> out) const {
   if (out.size() != requests.size())
     throw std::invalid_argument("measure_batch: output span size differs from the request count");
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, requests.size()),
-                    [&](const tbb::blocked_range<std::size_t>& range) {
-                      for (std::size_t i = range.begin(); i != range.end(); ++i) {
-                        const auto& r = requests[i];
-                        out[i] = impl_->measure(r.target, r.conditions, seed, i, r.shots);
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, requests.size()),
+      [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t i = range.begin(); i != range.end(); ++i) {
+          const auto& r = requests[i];
+          out[i] = oscillator_ ? oscillator_->measure(r.target, r.conditions, seed, i, r.shots)
+                               : impl_->measure(r.target, r.conditions, seed, i, r.shots);
+        }
+      });
 }
 
 double VirtualRangefinder::tof_to_distance_m(double tof_ns) const {

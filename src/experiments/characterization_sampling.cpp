@@ -3,7 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <stdexcept>
+
+#include "tofkit/device/oscillator_loop.hpp"
 
 namespace tofkit::experiments {
 
@@ -31,6 +34,8 @@ SamplingResult run_sampling(const device::VirtualRangefinder& device,
   }
   const std::vector<ranging::GroundTruth> truths(requests.size(), plate_truth(target, c));
   result.records = measure_records(device, requests, truths, seed);
+  std::optional<device::OscillatorLoop> loop;
+  if (device.config().oscillator.enabled) loop.emplace(device.config());
 
   const auto errors = range_errors_m(result.records);
   std::vector<double> log_shots, log_sd;
@@ -50,6 +55,7 @@ SamplingResult run_sampling(const device::VirtualRangefinder& device,
     row.sd_range_m = s.sd;
     row.rms_error_m = s.count ? std::sqrt(ss / static_cast<double>(s.count)) : ranging::kNaN;
     row.sd_times_sqrt_shots_m = s.sd * std::sqrt(static_cast<double>(row.shots));
+    if (loop) row.resolution_m = loop->resolution_m(target, c, row.shots);
     result.rows.push_back(row);
     log_shots.push_back(std::log(static_cast<double>(row.shots)));
     log_sd.push_back(std::log(s.sd));
@@ -79,11 +85,11 @@ std::vector<Finding> SamplingResult::findings() const {
 ResultTable SamplingResult::table() const {
   ResultTable t{"settings",
                 {"exponent", "shots", "sampling_rate_hz", "mean_range_m", "sd_range_m",
-                 "rms_error_m", "sd_times_sqrt_shots_m"},
+                 "rms_error_m", "sd_times_sqrt_shots_m", "resolution_m"},
                 {}};
   for (const auto& r : rows) {
     t.rows.push_back({double(r.exponent), double(r.shots), r.sampling_rate_hz, r.mean_range_m,
-                      r.sd_range_m, r.rms_error_m, r.sd_times_sqrt_shots_m});
+                      r.sd_range_m, r.rms_error_m, r.sd_times_sqrt_shots_m, r.resolution_m});
   }
   return t;
 }
@@ -91,12 +97,16 @@ ResultTable SamplingResult::table() const {
 std::string SamplingResult::summary() const {
   std::string out = "sampling rate vs resolution (thesis Fig. 4.4) at " +
                     std::to_string(m_to_inches(options.distance_m)).substr(0, 5) + " in:\n";
-  out += "     N   shots   rate [1/s]   mean [in]   sd [mm]   rms [in]   sd*sqrt(n) [mm]\n";
+  out +=
+      "     N   shots   rate [1/s]   mean [in]   sd [mm]   rms [in]   sd*sqrt(n) [mm]   "
+      "resolution [mm]   variance [in^2]\n";
   char line[160];
   for (const auto& r : rows) {
-    std::snprintf(line, sizeof line, "  %4d  %6d  %11.3f  %10.4f  %8.4f  %9.4f  %10.3f\n",
-                  r.exponent, r.shots, r.sampling_rate_hz, m_to_inches(r.mean_range_m),
-                  r.sd_range_m * 1e3, m_to_inches(r.rms_error_m), r.sd_times_sqrt_shots_m * 1e3);
+    std::snprintf(line, sizeof line,
+                  "  %4d  %6d  %11.3f  %10.4f  %8.4f  %9.4f  %10.3f  %16.4f  %16.5f\n", r.exponent,
+                  r.shots, r.sampling_rate_hz, m_to_inches(r.mean_range_m), r.sd_range_m * 1e3,
+                  m_to_inches(r.rms_error_m), r.sd_times_sqrt_shots_m * 1e3, r.resolution_m * 1e3,
+                  m_to_inches(r.sd_range_m) * m_to_inches(r.sd_range_m));
     out += line;
   }
   std::snprintf(line, sizeof line,

@@ -12,7 +12,8 @@ namespace {
 
 // Salts of the independent random streams of the protocol.
 constexpr std::uint64_t kTrainingSalt = 1, kConfidenceSalt = 2, kTestSalt = 3;
-constexpr std::uint64_t kChartSalt = 1000;  // per-point chart deviations
+constexpr std::uint64_t kChartSalt = 1000;        // per-point chart deviations
+constexpr std::uint64_t kTemperatureSalt = 2000;  // warmer repeats of the test scan
 
 /// A standard normal fixed by (seed, index, k): counter-based, so a chart point's
 /// deviations do not depend on how many points came before it.
@@ -34,14 +35,15 @@ struct Scan {
 /// same valid-shot mean), on a point whose reflectance and distance deviate a
 /// little from the nominal ones the experimenter knows (the record's truth).
 Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOptions& o,
-                const std::vector<double>& distances, int points_per_grey, std::uint64_t seed) {
+                const std::vector<double>& distances, int points_per_grey, std::uint64_t seed,
+                double ambient_offset_c = 0.0) {
   const int shots = resolve_shots(device, o.shots) * o.samples_per_point;
   const std::uint64_t chart_seed = derive_seed(seed, kChartSalt);
   Scan scan;
   std::vector<device::MeasureRequest> requests;
   std::vector<ranging::GroundTruth> truths;
   device::Conditions c;
-  c.ambient_c = o.ambient_c;
+  c.ambient_c = o.ambient_c + ambient_offset_c;
   std::uint64_t index = 0;
   for (const double d : distances) {
     for (const int g : o.grey_levels) {
@@ -53,7 +55,7 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
         const double d_point =
             d + o.point_distance_sd_mm * 1e-3 * point_normal(chart_seed, index, 1);
         requests.push_back({device::Target::plate(d_point, rho_point), c, shots});
-        truths.push_back({d, rho, 0.0, o.ambient_c});
+        truths.push_back({d, rho, 0.0, c.ambient_c});
         scan.grey.push_back(g);
       }
     }
@@ -145,6 +147,9 @@ void ThesisProtocolOptions::validate() const {
     fail("reflectance_variation_rel must be in [0, 0.5)");
   if (!(point_distance_sd_mm >= 0)) fail("point_distance_sd_mm must be >= 0");
   if (polynomial_orders.empty()) fail("polynomial_orders is empty");
+  for (const double t : test_temperature_offsets_c) {
+    if (!(std::abs(t) <= 60.0)) fail("test_temperature_offsets_c must be within +-60 C");
+  }
   for (const int order : polynomial_orders) {
     if (order < 1 || order > 12) fail("polynomial_orders must be in 1..12");
   }
@@ -288,6 +293,23 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
     }
     result.per_grey.push_back({g, grey_reflectance(g), sample_stats(amplitude).mean, rms_of(raw),
                                rms_of(poly), rms_of(spline)});
+  }
+
+  // Section 4.4's explanation of the thesis's residual: the test scan repeated
+  // warmer than the training, corrected with the same surfaces.
+  for (std::size_t k = 0; k < options.test_temperature_offsets_c.size(); ++k) {
+    const double offset = options.test_temperature_offsets_c[k];
+    const auto warm =
+        scan_chart(device, options, {options.test_distance_m}, options.test_points_per_grey,
+                   derive_seed(seed, kTemperatureSalt + k), offset);
+    const Columns w = columns_of(warm.records);
+    if (w.index.empty()) continue;
+    ThesisTemperatureRow row;
+    row.offset_c = offset;
+    row.raw = calib::error_stats(w.error_m);
+    row.best_polynomial = calib::error_stats(residuals(*result.best_polynomial, w));
+    row.bspline = calib::error_stats(residuals(*result.bspline, w));
+    result.temperature.push_back(row);
   }
 
   // Fig. 4.15: both surfaces over the training domain (intensity log-spaced).
@@ -480,6 +502,20 @@ std::string ThesisProtocolResult::summary() const {
                   m_to_inches(g.raw_rms_m), m_to_inches(g.best_polynomial_rms_m),
                   m_to_inches(g.bspline_rms_m));
     out += line;
+  }
+  if (!temperature.empty()) {
+    out +=
+        "  test scan taken warmer than the training (thesis Section 4.4: temperature not\n"
+        "  constant between scans, range falls 0.25-0.60 in per 10 C), bias / RMS [in]:\n"
+        "    warmer by   raw               best poly         bspline\n";
+    for (const auto& t : temperature) {
+      std::snprintf(line, sizeof line,
+                    "    %5.1f C   %7.4f / %6.4f  %7.4f / %6.4f  %7.4f / %6.4f\n", t.offset_c,
+                    m_to_inches(t.raw.bias_m), m_to_inches(t.raw.rms_m),
+                    m_to_inches(t.best_polynomial.bias_m), m_to_inches(t.best_polynomial.rms_m),
+                    m_to_inches(t.bspline.bias_m), m_to_inches(t.bspline.rms_m));
+      out += line;
+    }
   }
   out +=
       "  relative error of corrected ranges per training distance (thesis: 0.0117 0.0077 "

@@ -98,6 +98,21 @@ struct MemoryConfig {
   double distance_gain = 0.0;  ///< share of an unrecovered distance step the timing lags by
 };
 
+/// The self-oscillating loop of an AccuRange-like unit (device/oscillator_loop.hpp):
+/// the laser stays on until the detector sees the return, then turns off, and on
+/// again when the return has gone; an interface board counts the loop's period.
+/// `enabled = false` (the paper device): the pulsed time-of-flight core.
+struct OscillatorConfig {
+  bool enabled = false;              ///< measuring principle: true = self-oscillating loop
+  double loop_delay_ns = 8.0;        ///< per edge: laser driver turn-on/off, comparator and logic
+  double zero_half_period_ns = 8.0;  ///< the vendor's zero: half period read as range 0
+  double count_clock_mhz = 80.0;     ///< interface board's timing clock (thesis: 80 MHz)
+  double gate_fraction = 0.5;        ///< share of each output period the counter is gated on
+  double coupling_duty = 0.5;        ///< AC-coupled baseline as a share of the swing (duty)
+  double overdrive_jitter_ps_per_neper = 0.0;  ///< extra edge jitter per neper of overdrive
+  double flicker_delay_ps = 0.0;               ///< rms of the loop delay's slow wander per output
+};
+
 /// A complete device.
 struct DeviceConfig {
   std::string name = "paper";  ///< preset this config started from
@@ -108,6 +123,7 @@ struct DeviceConfig {
   MeasurementConfig measurement;
   ScanConfig scan;
   MemoryConfig memory;
+  OscillatorConfig oscillator;
 };
 
 /// One configuration key: a dotted name bound to a field, with its valid range.

@@ -3,6 +3,8 @@
 /// (link budget, APD, noise, echo waveform with saturation, fixed-threshold
 /// discriminator, delays and thermal drift, TDC, N-shot averaging, warm-up and
 /// laser turn-on, speed of light in air) in two evaluation modes that agree.
+/// With `oscillator.enabled` the device measures by the self-oscillating loop
+/// principle instead (device/oscillator_loop.hpp, the AccuRange's).
 
 #include <cstdint>
 #include <memory>
@@ -38,6 +40,8 @@ struct Shot {
 };
 
 /// One measurement request of a batch.
+class OscillatorLoop;  // device/oscillator_loop.hpp: the self-oscillating principle
+
 struct MeasureRequest {
   Target target;
   Conditions conditions;
@@ -81,6 +85,7 @@ class VirtualRangefinder {
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  std::unique_ptr<const OscillatorLoop> oscillator_;  ///< set when oscillator.enabled
 };
 
 }  // namespace tofkit::device

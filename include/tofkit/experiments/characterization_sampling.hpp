@@ -1,8 +1,10 @@
 #pragma once
 /// \file Sampling rate versus resolution (thesis Fig. 4.4,
 /// reference/fig4_4_sampling.csv): the unit averages 2^N shots per output, so
-/// the sampling rate is 312,500 / 2^N samples/s; the spread of the outputs falls
-/// with averaging, as 1 / sqrt(2^N) for independent shots.
+/// the sampling rate is 312,500 / 2^N samples/s; on a pulsed device the spread of
+/// the outputs falls with averaging, as 1 / sqrt(2^N) for independent shots; on the
+/// self-oscillating loop (oscillator.enabled) the count's resolution halves with
+/// each halving of the rate until a slow wander of the loop delay is the floor.
 
 #include <cstdint>
 #include <string>
@@ -33,6 +35,9 @@ struct SamplingRow {
   double sd_range_m = ranging::kNaN;             ///< spread of the outputs (resolution)
   double rms_error_m = ranging::kNaN;            ///< about the true distance
   double sd_times_sqrt_shots_m = ranging::kNaN;  ///< constant if sd ~ 1/sqrt(2^N)
+  /// Range step of one count of the interface board's clock (thesis Fig. 4.4's
+  /// resolution column); NaN on a pulsed device (its TDC LSB does not depend on N).
+  double resolution_m = ranging::kNaN;
 };
 
 struct SamplingResult {

@@ -1,0 +1,105 @@
+#pragma once
+/// \file The self-oscillating loop of an AccuRange-like rangefinder (thesis
+/// Section 3.1, Fig. 3.2): not a single-pulse timer. The laser stays on until
+/// the detector sees the return, then turns off, and on again when the return
+/// has gone, so the loop's period encodes range:
+///
+///   T = t_on + t_off + 2 loop_delay,
+///   t_on  = round trip + time for the receiver to rise through its threshold,
+///   t_off = round trip + time for it to fall back through it,
+///
+/// about 17 ns at zero range and 284 ns at 20 m with the accurange preset
+/// (thesis: ~20 ns and 280 ns). Causes, each from a key:
+///  - the return is a step of optical power (link budget, as the pulsed core,
+///    without the short pulse's bandwidth loss), through a single-pole receiver
+///    (receiver.bandwidth_mhz) whose state clips at receiver.saturation_v;
+///  - the receiver is AC-coupled: on the loop's square wave its baseline sits at
+///    oscillator.coupling_duty of the swing, and the comparator
+///    (discriminator.threshold_v) fires that far above the baseline on both edges.
+///    A weak return rises slowly through it (reads long); a return too weak to
+///    lift the swing above the threshold stops the loop (no echo). A saturated
+///    return rises ever faster while it falls from the clip level (reads short),
+///    and an overdriven receiver recovers erratically
+///    (oscillator.overdrive_jitter_ps_per_neper);
+///  - noise per edge: receiver noise (paper Eq. 8 terms) over the slope at each
+///    crossing; each period's jitter is independent, so the mean period of M
+///    periods carries sigma_T / sqrt(M); a slow wander of the loop delay
+///    (oscillator.flicker_delay_ps) does not average within an output;
+///  - the interface board counts its clock (oscillator.count_clock_mhz, 80 MHz)
+///    from the first loop edge in its gate to the last (reciprocal counting, both
+///    ends asynchronous to the clock), the gate being oscillator.gate_fraction
+///    of the output period measurement.shots / laser.repetition_hz
+///    (312,500 / 2^N samples/s): resolution = c/4 x t_clk x T / gate, so it
+///    trades against the sampling rate (thesis Fig. 4.4);
+///  - the device reports the mean half period minus its vendor zero
+///    (oscillator.zero_half_period_ns) as the round-trip time; thermal drift,
+///    warm-up and the laser's turn-on transient add to the half period as in the
+///    pulsed core.
+/// No correction's functional form appears here: the walk is the receiver's
+/// exponential step response crossing a fixed threshold.
+///
+/// Randomness is counter-based (Philox4x32): an output depends on (seed,
+/// stream) only, whatever thread computes it.
+
+#include <cstdint>
+
+#include "tofkit/device/device_config.hpp"
+#include "tofkit/device/target.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+
+namespace tofkit::device {
+
+/// The noise-free state of the loop on one target.
+struct LoopState {
+  bool oscillates = false;        ///< the swing crosses the threshold on both edges
+  bool saturated = false;         ///< the receiver's state clips
+  double amplitude_v = 0;         ///< linear step amplitude of the return (sum of surfaces)
+  double swing_v = 0;             ///< clipped swing
+  double on_detect_ns = 0;        ///< laser on -> return seen (round trip + rise latency)
+  double off_detect_ns = 0;       ///< laser off -> return gone (round trip + fall latency)
+  double period_ns = 0;           ///< on_detect + off_detect + 2 loop delays (+ thermal)
+  double period_jitter_ns = 0;    ///< 1 sigma of one period (independent per period)
+  double comparator_high_ns = 0;  ///< comparator output high per period (reported width)
+  double noise_v = 0;             ///< receiver noise (1 sigma) at the threshold level
+  double rise_slope_v_per_ns = 0;
+};
+
+class OscillatorLoop {
+ public:
+  /// `config.oscillator.enabled` need not be set (tests compare principles).
+  explicit OscillatorLoop(DeviceConfig config);
+
+  [[nodiscard]] const DeviceConfig& config() const { return config_; }
+
+  /// Noise-free loop on a target (thermal drift and warm-up included).
+  [[nodiscard]] LoopState state(const Target& target, const Conditions& conditions) const;
+
+  /// The receiver's view as the pulsed core reports it (for EchoMemory's strength).
+  [[nodiscard]] EchoShape echo(const Target& target, const Conditions& conditions) const;
+
+  /// One loop period (the half period minus the zero as tof_ns).
+  [[nodiscard]] Shot shoot(const Target& target, const Conditions& conditions, std::uint64_t seed,
+                           std::uint64_t stream, std::uint32_t shot) const;
+
+  /// One output: the board counts the loop over a gate of gate_fraction x
+  /// shots / laser.repetition_hz (shots = 0: measurement.shots).
+  [[nodiscard]] ranging::RawMeasurement measure(const Target& target, const Conditions& conditions,
+                                                std::uint64_t seed, std::uint64_t stream,
+                                                int shots = 0) const;
+
+  /// Range step of one clock count for an output of `shots` (0: the config's)
+  /// on a target: c/4 x t_clk x T / gate (thesis Fig. 4.4's resolution column).
+  [[nodiscard]] double resolution_m(const Target& target, const Conditions& conditions,
+                                    int shots = 0) const;
+
+  /// Distance the device reports for a round-trip time (nominal c in air).
+  [[nodiscard]] double tof_to_distance_m(double tof_ns) const;
+
+ private:
+  DeviceConfig config_;
+  double c_nominal_m_per_ns_ = 0;
+  double tau_ns_ = 0;  // receiver pole time constant 1 / (2 pi B)
+};
+
+}  // namespace tofkit::device

@@ -1,0 +1,179 @@
+// The self-oscillating loop (device/oscillator_loop.hpp; thesis Section 3.1,
+// Fig. 3.2, Section 4.4, Fig. 4.4). Oracles: the single-pole step response's
+// closed-form crossing times, the thesis's loop periods, the counter's
+// resolution c/4 t_clk T / gate, the dispatch against the loop itself, the
+// thread-count independence of counter-based randomness, and key validation.
+#include "tofkit/device/oscillator_loop.hpp"
+
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "tofkit/device/accurange_preset.hpp"
+#include "tofkit/experiments/thesis_grey_chart.hpp"
+#include "tofkit/physics/air.hpp"
+
+using namespace tofkit;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+double c_air_m_per_ns(const device::DeviceConfig& c, double ambient_c) {
+  physics::AirConditions air{ambient_c, c.link.environment.pressure_hpa,
+                             c.link.environment.relative_humidity_pct};
+  return physics::speed_of_light_in_air_m_per_s(c.link.laser.wavelength_nm, air) * 1e-9;
+}
+
+}  // namespace
+
+TEST(OscillatorLoop, EdgesAreTheStepResponsesClosedForm) {
+  const auto c = device::accurange_preset();
+  const device::OscillatorLoop loop(c);
+  const double tau = 1e3 / (2 * kPi * c.link.receiver.bandwidth_mhz);
+  const double vth = c.discriminator.threshold_v, vsat = c.link.receiver.saturation_v;
+  const double duty = c.oscillator.coupling_duty;
+  for (const int grey : {0, 51, 153, 255}) {
+    const double d = 0.48;
+    const auto s = loop.state(device::Target::plate(d, experiments::grey_reflectance(grey)), {});
+    ASSERT_TRUE(s.oscillates) << grey;
+    const double rt = 2 * d / c_air_m_per_ns(c, 20.0);
+    const double swing = vsat * std::tanh(s.amplitude_v / vsat);
+    const double level = duty * swing + vth;
+    // Rising: A (1 - exp(-t / tau)) reaches the level; falling: swing exp(-t / tau) leaves it.
+    EXPECT_NEAR(s.on_detect_ns - rt, tau * std::log(s.amplitude_v / (s.amplitude_v - level)), 1e-9)
+        << grey;
+    EXPECT_NEAR(s.off_detect_ns - rt, tau * std::log(swing / level), 1e-9) << grey;
+    EXPECT_EQ(s.saturated, s.amplitude_v > vsat);
+  }
+}
+
+TEST(OscillatorLoop, WeakReturnsAreSlowerAndTooWeakStopsTheLoop) {
+  const device::OscillatorLoop loop(device::accurange_preset());
+  // Weak returns: each stronger one is faster (the rising edge's walk dominates).
+  double last_latency = 1e9;
+  for (const double rho : {0.02, 0.03, 0.06, 0.15}) {
+    const auto s = loop.state(device::Target::plate(0.5, rho), {});
+    ASSERT_TRUE(s.oscillates) << rho;
+    ASSERT_FALSE(s.saturated) << rho;
+    const double latency = s.on_detect_ns + s.off_detect_ns;
+    EXPECT_LT(latency, last_latency) << rho;
+    last_latency = latency;
+  }
+  // Saturating returns rise ever faster from a swing that no longer grows: they
+  // are faster than every unsaturated one (bright reads short).
+  for (const double rho : {0.6, 0.93}) {
+    const auto s = loop.state(device::Target::plate(0.5, rho), {});
+    ASSERT_TRUE(s.saturated) << rho;
+    EXPECT_LT(s.on_detect_ns + s.off_detect_ns, last_latency) << rho;
+  }
+  // Far enough, grey 0's swing no longer lifts above the threshold: no echo.
+  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(0));
+  EXPECT_FALSE(loop.state(far, {}).oscillates);
+  const auto m = loop.measure(far, {}, 1, 0);
+  EXPECT_FALSE(m.has_echo());
+}
+
+TEST(OscillatorLoop, PeriodsAreTheThesisFig32) {
+  // Thesis: ~20 ns at zero range, 280 ns at 20 m (two round trips per period).
+  auto c = device::accurange_preset();
+  const device::OscillatorLoop near(c);
+  const auto s0 = near.state(device::Target::plate(0.01, 0.5), {});
+  ASSERT_TRUE(s0.oscillates);
+  EXPECT_GT(s0.period_ns, 14.0);
+  EXPECT_LT(s0.period_ns, 22.0);
+  // At 20 m with the same return amplitude (power raised by (20 / 0.5)^2): 4 d / c more.
+  c.link.laser.peak_power_w *= (20.0 / 0.5) * (20.0 / 0.5);
+  const device::OscillatorLoop far(c);
+  const auto s20 = far.state(device::Target::plate(20.0, 0.5), {});
+  ASSERT_TRUE(s20.oscillates);
+  EXPECT_NEAR(s20.period_ns, 280.0, 15.0);
+}
+
+TEST(OscillatorLoop, ResolutionIsOneClockCountOverTheGate) {
+  const auto c = device::accurange_preset();
+  const device::OscillatorLoop loop(c);
+  const auto target = device::Target::plate(0.508, experiments::grey_reflectance(204));
+  const auto s = loop.state(target, {});
+  for (const int shots : {8, 64, 2048}) {
+    const double gate_ns = c.oscillator.gate_fraction * shots / c.link.laser.repetition_hz * 1e9;
+    const double expected = 0.25 * c_air_m_per_ns(c, c.measurement.reference_temperature_c) *
+                            (1e3 / c.oscillator.count_clock_mhz) * s.period_ns / gate_ns;
+    EXPECT_NEAR(loop.resolution_m(target, {}, shots), expected, 1e-12) << shots;
+  }
+  // Reported ranges are counts: with the wander and the jitter off, every output
+  // of one gate length lies on the grid of (counts x t_clk / M) / 2 - zero.
+  auto quiet = c;
+  quiet.oscillator.flicker_delay_ps = 0;
+  const device::OscillatorLoop q(quiet);
+  const double clock_ns = 1e3 / c.oscillator.count_clock_mhz;
+  for (std::uint64_t i = 0; i < 50; ++i) {
+    const auto m = q.measure(target, {}, 9, i, 8);
+    ASSERT_TRUE(m.has_echo());
+    const double period = 2 * (m.tof_ns + c.oscillator.zero_half_period_ns);
+    const double gate_ns = c.oscillator.gate_fraction * 8 / c.link.laser.repetition_hz * 1e9;
+    // Some whole M near gate / T gives an integer count.
+    bool on_grid = false;
+    for (double whole = std::floor(gate_ns / period) - 2; whole <= gate_ns / period + 1; ++whole) {
+      const double counts = period * whole / clock_ns;
+      if (std::abs(counts - std::round(counts)) < 1e-6) on_grid = true;
+    }
+    EXPECT_TRUE(on_grid) << i;
+  }
+}
+
+TEST(OscillatorLoop, DeviceDispatchesToTheLoopAndIsThreadIndependent) {
+  const auto c = device::accurange_preset();
+  ASSERT_TRUE(c.oscillator.enabled);
+  const device::VirtualRangefinder dev(c);
+  const device::OscillatorLoop loop(c);
+  std::vector<device::MeasureRequest> req;
+  for (int i = 0; i < 64; ++i) {
+    req.push_back(
+        {device::Target::plate(0.4 + 0.002 * i, experiments::grey_reflectance(51 * (i % 6))),
+         {},
+         16 << (i % 3)});
+  }
+  std::vector<ranging::RawMeasurement> one(req.size()), two(req.size());
+  {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 1);
+    dev.measure_batch(req, 11, one);
+  }
+  {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 2);
+    dev.measure_batch(req, 11, two);
+  }
+  EXPECT_EQ(0, std::memcmp(one.data(), two.data(), one.size() * sizeof(one[0])));
+  for (std::size_t i = 0; i < req.size(); ++i) {
+    const auto direct = loop.measure(req[i].target, req[i].conditions, 11, i, req[i].shots);
+    EXPECT_EQ(direct.distance_raw_m, one[i].distance_raw_m) << i;
+    EXPECT_EQ(direct.amplitude, one[i].amplitude) << i;
+  }
+  // Another seed, another draw.
+  const auto other = dev.measure(req[0].target, {}, 12, 0, req[0].shots);
+  EXPECT_NE(other.tof_ns, one[0].tof_ns);
+}
+
+TEST(OscillatorLoop, KeysAreValidatedByName) {
+  auto c = device::accurange_preset();
+  EXPECT_TRUE(device::validate(c).empty());
+  c.oscillator.gate_fraction = 0;
+  c.oscillator.count_clock_mhz = -1;
+  auto messages = device::validate(c);
+  ASSERT_GE(messages.size(), 2u);
+  EXPECT_NE(messages[0].find("oscillator.count_clock_mhz"), std::string::npos) << messages[0];
+  EXPECT_NE(messages[1].find("oscillator.gate_fraction"), std::string::npos) << messages[1];
+  // A threshold above the clipped swing: the loop could never oscillate.
+  c = device::accurange_preset();
+  c.discriminator.threshold_v = c.link.receiver.saturation_v;
+  messages = device::validate(c);
+  ASSERT_EQ(messages.size(), 1u);
+  EXPECT_NE(messages[0].find("oscillator.enabled"), std::string::npos) << messages[0];
+  EXPECT_THROW(device::VirtualRangefinder{c}, std::invalid_argument);
+  // The paper device keeps the pulsed principle.
+  EXPECT_FALSE(device::DeviceConfig{}.oscillator.enabled);
+}
