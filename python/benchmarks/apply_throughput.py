@@ -2,8 +2,12 @@
 """Correction throughput from Python vs the C++ batch, in the same run.
 
 Corrects 10 M rows with a fitted chain (offset, gray value, temperature) by
-Model.apply from three input layouts, and by ranging::Pipeline::apply called
-from C++ on a std::vector of the same rows (tofkit._tofkit._CppBaseline).
+Model.apply from three input layouts, each read in place through
+ranging::RawColumns (a pointer and byte stride per field): RAW_DTYPE rows
+(48 B, RawMeasurement's own layout), measure()'s RECORD_DTYPE records (80 B
+rows: the strided case) and a dict of seven column arrays; and by
+ranging::Pipeline::apply called from C++ on a std::vector of the same rows
+(tofkit._tofkit._CppBaseline).
 Two comparisons of the same work:
   - into a reused output: Model.apply(raw, out=buffer) vs Pipeline::apply into
     a reused std::vector;

@@ -106,32 +106,24 @@ py::array apply(const Model& model, const py::tuple& columns,
   const std::size_t n = input.rows();
   py::array out = output_array(out_arg, n);
   auto* ranges = static_cast<ranging::Range*>(out.mutable_data());
-  py::ssize_t stride = 0;
-  const ranging::RawMeasurement* rows = input.raw_rows(stride);
+  const std::optional<ranging::RawColumns> columns_in_place = input.raw_columns();
   const ranging::Pipeline& pipeline = model.pipeline;
   py::gil_scoped_release release;
-  if (rows != nullptr && stride == static_cast<py::ssize_t>(sizeof(ranging::RawMeasurement))) {
-    // The input is an array of RawMeasurements: one call over all of it.
-    pipeline.apply(std::span(rows, n), std::span(ranges, n));
+  if (columns_in_place) {
+    // RawMeasurement's fields at any stride (RAW_DTYPE, measure()'s records,
+    // a dict of float64/uint32 columns): one call over all of it.
+    pipeline.apply(*columns_in_place, std::span(ranges, n));
     return out;
   }
+  // Other dtypes or absent columns: gathered a block at a time, with the raw
+  // CSV reader's defaults.
   std::vector<ranging::RawMeasurement> chunk(kChunk);
   for (std::size_t begin = 0; begin < n; begin += kChunk) {
     const std::size_t count = std::min(kChunk, n - begin);
     const std::span<ranging::RawMeasurement> block(chunk.data(), count);
     // The next block's reads overlap this block's compute.
     if (begin + count < n) input.prefetch_raw(begin + count, std::min(kChunk, n - begin - count));
-    if (rows != nullptr) {
-      // RawMeasurements inside larger rows (a measure() result): copy 48 bytes a row.
-      const char* first =
-          reinterpret_cast<const char*>(rows) + static_cast<py::ssize_t>(begin) * stride;
-      for (std::size_t i = 0; i < count; ++i) {
-        std::memcpy(&block[i], first + static_cast<py::ssize_t>(i) * stride,
-                    sizeof(ranging::RawMeasurement));
-      }
-    } else {
-      input.gather_raw(begin, block);
-    }
+    input.gather_raw(begin, block);
     pipeline.apply(block, std::span(ranges + begin, count));
   }
   return out;
@@ -283,6 +275,10 @@ class CppBaseline {
 };
 
 }  // namespace
+
+const ranging::Pipeline& pipeline_of(const py::handle& model) {
+  return model.cast<const Model&>().pipeline;
+}
 
 void bind_model(py::module_& m) {
   py::class_<Model>(m, "_Model")
