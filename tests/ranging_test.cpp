@@ -192,7 +192,7 @@ TEST(Pipeline, ReadsStridedColumnsInPlace) {
   std::vector<Record> records(in.size());
   for (std::size_t i = 0; i < in.size(); ++i) records[i].raw = in[i];
   std::vector<Range> out(in.size());
-  p.apply(RawColumns::of(&records[0].raw, records.size(), sizeof(Record)), out);
+  p.apply(RawColumns::of(records), out);
   for (std::size_t i = 0; i < in.size(); ++i) EXPECT_TRUE(same_range(out[i], expected[i])) << i;
 
   // One array per field, stored last row first (a negative stride, as NumPy's a[::-1]).

@@ -241,28 +241,33 @@ Model fit_surface(
   return model;
 }
 
-/// The C++ batch baseline of the benchmark script: Pipeline::apply over a
-/// std::vector of RawMeasurements (copied from the input once, not timed),
-/// into a reused output vector or (`allocate`) a new one per call as
-/// `tofkit correct` does. run() returns one call's wall time in seconds.
+/// The C++ batch baselines of the benchmark script: Pipeline::apply over a
+/// std::vector of the same rows (copied from the input once, not timed),
+/// either RawMeasurements (48 B, the span form) or Records (80 B, measure()'s
+/// layout, read through RawColumns as `tofkit correct` does), into a reused
+/// output vector or (`allocate`) a new one per call as `tofkit correct` does.
+/// run() returns one call's wall time in seconds.
 class CppBaseline {
  public:
   CppBaseline(const Model& model, const py::tuple& columns) : pipeline_(model.pipeline) {
     const ColumnSet input(columns);
-    raw_.resize(input.rows());
-    input.gather_raw(0, raw_);
+    records_.resize(input.rows());
+    input.gather_records(0, records_);
+    raw_.resize(records_.size());
+    for (std::size_t i = 0; i < records_.size(); ++i) raw_[i] = records_[i].raw;
     reused_.resize(raw_.size());
   }
 
-  double run(bool allocate) {
+  double run(bool allocate, bool records) {
     py::gil_scoped_release release;
     std::vector<ranging::Range> fresh;
     const auto start = std::chrono::steady_clock::now();
-    if (allocate) {
-      fresh.resize(raw_.size());
-      pipeline_.apply(raw_, fresh);
+    if (allocate) fresh.resize(raw_.size());
+    std::vector<ranging::Range>& out = allocate ? fresh : reused_;
+    if (records) {
+      pipeline_.apply(ranging::RawColumns::of(records_), out);
     } else {
-      pipeline_.apply(raw_, reused_);
+      pipeline_.apply(raw_, out);
     }
     const auto stop = std::chrono::steady_clock::now();
     return std::chrono::duration<double>(stop - start).count();
@@ -270,6 +275,7 @@ class CppBaseline {
 
  private:
   ranging::Pipeline pipeline_;
+  std::vector<ranging::Record> records_;
   std::vector<ranging::RawMeasurement> raw_;
   std::vector<ranging::Range> reused_;
 };
@@ -310,7 +316,7 @@ void bind_model(py::module_& m) {
         py::arg("rcond"));
   py::class_<CppBaseline>(m, "_CppBaseline")
       .def(py::init<const Model&, const py::tuple&>(), py::arg("model"), py::arg("columns"))
-      .def("run", &CppBaseline::run, py::arg("allocate"));
+      .def("run", &CppBaseline::run, py::arg("allocate"), py::arg("records") = false);
 }
 
 }  // namespace tofkit::python

@@ -268,6 +268,10 @@ RawColumns RawColumns::of(std::span<const RawMeasurement> rows) {
   return of(rows.data(), rows.size(), sizeof(RawMeasurement));
 }
 
+RawColumns RawColumns::of(std::span<const Record> records) {
+  return records.empty() ? RawColumns{} : of(&records[0].raw, records.size(), sizeof(Record));
+}
+
 RawColumns RawColumns::of(const RawMeasurement* first, std::size_t size, std::ptrdiff_t stride) {
   const auto* base = reinterpret_cast<const std::byte*>(first);
   const auto column = [&]<typename T>(std::size_t offset, T) {

@@ -97,6 +97,8 @@ struct RawColumns {
 
   /// The fields of an array of RawMeasurements (stride sizeof(RawMeasurement)).
   [[nodiscard]] static RawColumns of(std::span<const RawMeasurement> rows);
+  /// The device's fields of measurement records (their `raw`), in place.
+  [[nodiscard]] static RawColumns of(std::span<const Record> records);
   /// The RawMeasurement inside each of `size` records `stride` bytes apart
   /// (e.g. ranging::Record's `raw`); `first` is the first row's RawMeasurement.
   [[nodiscard]] static RawColumns of(const RawMeasurement* first, std::size_t size,
