@@ -225,6 +225,9 @@ TEST(Pipeline, ReadsStridedColumnsInPlace) {
   EXPECT_THROW(p.apply(columns, out), std::invalid_argument);
   std::vector<Range> short_out(2);
   EXPECT_THROW(p.apply(RawColumns::of(in), short_out), std::invalid_argument);
+  // Nothing in, nothing out (an empty vector's null data pointer is not offset).
+  EXPECT_NO_THROW(p.apply(std::span<const RawMeasurement>(), std::span<Range>()));
+  EXPECT_NO_THROW(p.apply(RawColumns::of(std::span<const Record>()), std::span<Range>()));
 }
 
 /// range + amplitude surface for testing the surface step: C = 1e-3 r + 1e-2 a, clamped.

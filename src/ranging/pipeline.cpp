@@ -273,6 +273,7 @@ RawColumns RawColumns::of(std::span<const Record> records) {
 }
 
 RawColumns RawColumns::of(const RawMeasurement* first, std::size_t size, std::ptrdiff_t stride) {
+  if (size == 0 || first == nullptr) return RawColumns{};  // (no offsets from a null pointer)
   const auto* base = reinterpret_cast<const std::byte*>(first);
   const auto column = [&]<typename T>(std::size_t offset, T) {
     return StridedColumn<T>{base + offset, stride};
