@@ -92,6 +92,28 @@ def test_raster_with_a_model_equals_tofkit_scan(cli, tmp_path, model):
     np.testing.assert_array_equal(again.sigma, result.sigma)
 
 
+@pytest.mark.parametrize("cli_args, kwargs", [
+    (["--pattern", "line", "--y", "-0.4:0.4:0.05", "--z", "-0.2,0.1", "--speed", "0.2",
+      "--turnaround", "0.3"],
+     dict(pattern="line", y="-0.4:0.4:0.05", z=[-0.2, 0.1], speed_m_per_s=0.2,
+          turnaround_s=0.3)),
+    (["--pattern", "mirror", "--elevation", "-20:10:2", "--revolutions", "4", "--rate", "5",
+      "--speed", "0.1"],
+     dict(pattern="mirror", elevation="-20:10:2", revolutions=4, rate_hz=5, speed_m_per_s=0.1)),
+    (["--pattern", "spinning", "--elevation", "-10,-5,0,5", "--azimuth-step", "4",
+      "--rate", "20", "--mode", "waveform", "--shots", "3"],
+     dict(pattern="spinning", elevation=[-10, -5, 0, 5], azimuth_step_deg=4, rate_hz=20,
+          mode="waveform", shots=3)),
+], ids=["line", "mirror", "spinning-waveform"])
+def test_every_pattern_equals_tofkit_scan(cli, tmp_path, cli_args, kwargs):
+    images, ply = cli_scan(cli, tmp_path / "cli", *cli_args, "--seed", "4")
+    result = tofkit.scan(BLOCKS, seed=4, **kwargs)
+    for name in ("range", "intensity"):
+        np.testing.assert_array_equal(getattr(result, name), images[name], err_msg=name)
+    assert np.isfinite(result.range).any()
+    assert_points_equal(result.points, ply)
+
+
 def test_errors_carry_the_cli_message(cli, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
