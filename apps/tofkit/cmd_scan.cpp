@@ -136,15 +136,12 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto start = std::chrono::steady_clock::now();
   const auto mode =
       o.mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
-  const device::VirtualRangefinder rangefinder(config, mode);
-  const scan::RayCaster caster(scene);
   scan::ScanOptions options;
   options.seed = o.seed;
   options.shots = shots;
   options.conditions.ambient_c = o.ambient_c;
   options.progress = Progress{};
-  scan::ScanResult result =
-      scan::run_scan(caster, scan::Footprint(config), rangefinder, pattern, options);
+  scan::ScanResult result = scan::run_scan(scene, config, mode, pattern, options);
   if (pipeline) scan::apply_pipeline(*pipeline, result);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -20,8 +20,6 @@
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scene_file.hpp"
 #include "tofkit/io/value_list.hpp"
-#include "tofkit/scan/footprint.hpp"
-#include "tofkit/scan/ray_caster.hpp"
 #include "tofkit/scan/scanner.hpp"
 
 namespace tofkit::python {
@@ -229,13 +227,11 @@ py::dict run(const device::DeviceConfig& config, const fs::path& scene_path, con
     py::gil_scoped_release release;
     const auto mode = args.mode == "waveform" ? device::SimulationMode::kWaveform
                                               : device::SimulationMode::kAnalytic;
-    const device::VirtualRangefinder rangefinder(config, mode);
-    const scan::RayCaster caster(scene);
     scan::ScanOptions options;
     options.seed = args.seed;
     options.shots = shots;
     options.conditions.ambient_c = args.ambient_c;
-    result = scan::run_scan(caster, scan::Footprint(config), rangefinder, pattern, options);
+    result = scan::run_scan(scene, config, mode, pattern, options);
     if (pipeline != nullptr) scan::apply_pipeline(*pipeline, result);
     images = scan::make_images(result);
     points = io::cloud_points(result);

@@ -77,6 +77,14 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
   return result;
 }
 
+ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
+                    device::SimulationMode mode, const BeamPattern& pattern,
+                    const ScanOptions& options) {
+  const device::VirtualRangefinder rangefinder(config, mode);
+  const RayCaster caster(scene);
+  return run_scan(caster, Footprint(config), rangefinder, pattern, options);
+}
+
 void apply_pipeline(const ranging::Pipeline& pipeline, ScanResult& result) {
   // The raw measurements read in place from the beams (one batch, no copy).
   std::vector<ranging::Range> ranges(result.beams.size());

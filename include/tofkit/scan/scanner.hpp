@@ -48,6 +48,12 @@ struct ScanOptions {
                                   const device::VirtualRangefinder& device,
                                   const BeamPattern& pattern, const ScanOptions& options);
 
+/// The same with the ray caster, footprint and virtual rangefinder made from
+/// `scene` and `config` (what `tofkit scan` and Python's tofkit.scan run).
+[[nodiscard]] ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
+                                  device::SimulationMode mode, const BeamPattern& pattern,
+                                  const ScanOptions& options);
+
 /// Corrects every beam's raw measurement with `pipeline` (one batch) into its
 /// `range` and sets has_model: the images and points then report corrected
 /// distances and sigma.
