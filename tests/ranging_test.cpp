@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -163,6 +164,70 @@ TEST(Pipeline, FlagsNoEchoOutOfDomainAndNaN) {
   EXPECT_NEAR(out[5].distance_m, 3.0 + paper_correction_m(5, 20), 1e-12);
   std::vector<Range> short_out(2);
   EXPECT_THROW(p.apply(in, short_out), std::invalid_argument);
+}
+
+/// Bitwise equality of two ranges (NaN equal to NaN).
+bool same_range(const Range& a, const Range& b) {
+  return std::memcmp(&a.distance_m, &b.distance_m, sizeof(double)) == 0 &&
+         std::memcmp(&a.sigma_m, &b.sigma_m, sizeof(double)) == 0 &&
+         a.correction_flags == b.correction_flags;
+}
+
+TEST(Pipeline, ReadsStridedColumnsInPlace) {
+  const Pipeline p = paper_pipeline();
+  // Rows across several blocks, with no echo, NaN and out-of-domain rows.
+  std::mt19937_64 rng(2);
+  std::uniform_real_distribution<double> tof(5, 60), pw(2, 13), t(-5, 45);
+  std::vector<RawMeasurement> in;
+  for (int i = 0; i < 1000; ++i) in.push_back(measurement(tof(rng), pw(rng), t(rng)));
+  in[3].shots_valid = 0;
+  in[300].flags = kRawNoEcho;
+  in[511].pulse_width_ns = std::nan("");
+  in[700].tof_ns = std::nan("");
+  in[700].distance_raw_m = 4.0;
+  std::vector<Range> expected(in.size());
+  p.apply(in, expected);
+
+  // RawMeasurements inside larger records (a structured array's rows).
+  std::vector<Record> records(in.size());
+  for (std::size_t i = 0; i < in.size(); ++i) records[i].raw = in[i];
+  std::vector<Range> out(in.size());
+  p.apply(RawColumns::of(records), out);
+  for (std::size_t i = 0; i < in.size(); ++i) EXPECT_TRUE(same_range(out[i], expected[i])) << i;
+
+  // One array per field, stored last row first (a negative stride, as NumPy's a[::-1]).
+  const std::size_t n = in.size();
+  std::vector<double> tof_v(n), raw_v(n), pw_v(n), amp_v(n), temp_v(n);
+  std::vector<std::uint32_t> shots_v(n), flags_v(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t j = n - 1 - i;
+    tof_v[j] = in[i].tof_ns, raw_v[j] = in[i].distance_raw_m, pw_v[j] = in[i].pulse_width_ns;
+    amp_v[j] = in[i].amplitude, temp_v[j] = in[i].temperature_c;
+    shots_v[j] = in[i].shots_valid, flags_v[j] = in[i].flags;
+  }
+  const auto reversed = []<typename T>(const std::vector<T>& v) {
+    return StridedColumn<T>{reinterpret_cast<const std::byte*>(&v.back()),
+                            -static_cast<std::ptrdiff_t>(sizeof(T))};
+  };
+  RawColumns columns{n,
+                     reversed(tof_v),
+                     reversed(raw_v),
+                     reversed(pw_v),
+                     reversed(amp_v),
+                     reversed(temp_v),
+                     reversed(shots_v),
+                     reversed(flags_v)};
+  std::fill(out.begin(), out.end(), Range{});
+  p.apply(columns, out);
+  for (std::size_t i = 0; i < n; ++i) EXPECT_TRUE(same_range(out[i], expected[i])) << i;
+
+  columns.flags = {};
+  EXPECT_THROW(p.apply(columns, out), std::invalid_argument);
+  std::vector<Range> short_out(2);
+  EXPECT_THROW(p.apply(RawColumns::of(in), short_out), std::invalid_argument);
+  // Nothing in, nothing out (an empty vector's null data pointer is not offset).
+  EXPECT_NO_THROW(p.apply(std::span<const RawMeasurement>(), std::span<Range>()));
+  EXPECT_NO_THROW(p.apply(RawColumns::of(std::span<const Record>()), std::span<Range>()));
 }
 
 /// range + amplitude surface for testing the surface step: C = 1e-3 r + 1e-2 a, clamped.

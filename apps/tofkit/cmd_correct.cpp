@@ -26,11 +26,8 @@ void run_correct(const CorrectOptions& o) {
   require_output_directory(o.out, "--out");
   const ranging::Pipeline pipeline = io::load_pipeline(o.model);
   const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
-  std::vector<ranging::RawMeasurement> raw;
-  raw.reserve(records.size());
-  for (const auto& r : records) raw.push_back(r.raw);
-  std::vector<ranging::Range> ranges(raw.size());
-  pipeline.apply(raw, ranges);
+  std::vector<ranging::Range> ranges(records.size());
+  pipeline.apply(ranging::RawColumns::of(records), ranges);  // read in place
   io::write_corrected_csv(o.out, records, ranges);
 
   std::size_t no_echo = 0, out_of_domain = 0, non_finite = 0;

@@ -105,15 +105,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
       o.mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
   scan::ScanResult result =
       run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
-  if (pipeline) {
-    std::vector<ranging::RawMeasurement> raw;
-    raw.reserve(result.beams.size());
-    for (const auto& b : result.beams) raw.push_back(b.raw);
-    std::vector<ranging::Range> ranges(raw.size());
-    pipeline->apply(raw, ranges);
-    for (std::size_t i = 0; i < ranges.size(); ++i) result.beams[i].range = ranges[i];
-    result.has_model = true;
-  }
+  if (pipeline) scan::apply_pipeline(*pipeline, result);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

@@ -96,14 +96,12 @@ scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& sc
                                 const device::DeviceConfig& config, device::SimulationMode mode,
                                 int shots, std::uint64_t seed,
                                 std::function<void(std::size_t, std::size_t)> progress) {
-  const device::VirtualRangefinder rangefinder(config, mode);
-  const scan::RayCaster caster(scene);
   scan::ScanOptions options;
   options.seed = seed;
   options.shots = shots;
   options.conditions.ambient_c = o.ambient_c;
   options.progress = std::move(progress);
-  return scan::run_scan(caster, scan::Footprint(config), rangefinder, pattern, options);
+  return scan::run_scan(scene, config, mode, pattern, options);
 }
 
 }  // namespace tofkit::app

@@ -8,10 +8,15 @@
 #include <exception>
 #include <filesystem>
 
+#include "tofkit/ranging/pipeline.hpp"
+
 namespace tofkit::python {
 
 namespace py = pybind11;
 
+/// A structured dtype of the given fields at their byte offsets.
+[[nodiscard]] py::dtype struct_dtype(const py::list& names, const py::list& formats,
+                                     const py::list& offsets, std::size_t itemsize);
 /// The raw CSV columns in ranging::Record's layout (80 bytes a row): a
 /// measure() result is the C++ records themselves.
 [[nodiscard]] py::dtype record_dtype();
@@ -25,7 +30,11 @@ namespace py = pybind11;
 /// does not exist, else rethrows `error` (translated as usual).
 [[noreturn]] void rethrow_for_file(const std::filesystem::path& path, const std::exception& error);
 
+/// The ranging pipeline of a tofkit._tofkit._Model (TypeError otherwise).
+[[nodiscard]] const ranging::Pipeline& pipeline_of(const py::handle& model);
+
 void bind_device(py::module_& m);
 void bind_model(py::module_& m);
+void bind_scan(py::module_& m);
 
 }  // namespace tofkit::python

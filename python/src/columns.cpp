@@ -12,10 +12,6 @@
 namespace tofkit::python {
 namespace {
 
-constexpr const char* kNames[kColumnCount] = {
-    "distance_true_m", "reflectance", "angle_deg",     "ambient_c",   "tof_ns", "distance_raw_m",
-    "pulse_width_ns",  "amplitude",   "temperature_c", "shots_valid", "flags"};
-
 bool native_byte_order(const py::dtype& dtype) {
   const char order = dtype.byteorder();
   return order == '=' || order == '|' || (order == '<' && PY_LITTLE_ENDIAN) ||
@@ -106,7 +102,7 @@ ColumnSet::ColumnSet(const py::tuple& columns) {
   for (std::size_t k = 0; k < kColumnCount; ++k) {
     const py::handle obj = columns[k];
     if (obj.is_none()) continue;
-    const std::string name = kNames[k];
+    const std::string name(ranging::kRecordColumns[k].name);
     py::array a = py::array::ensure(obj);
     if (!a) throw py::type_error(name + ": expected an array");
     if (a.ndim() != 1) {
@@ -141,29 +137,23 @@ void ColumnSet::gather_raw(std::size_t begin, std::span<ranging::RawMeasurement>
   const std::size_t n = out.size();
   char* base = reinterpret_cast<char*>(out.data());
   constexpr std::size_t stride = sizeof(RawMeasurement);
-  const struct {
-    ColumnIndex column;
-    std::size_t offset;
-  } doubles[] = {{kTof, offsetof(RawMeasurement, tof_ns)},
-                 {kDistanceRaw, offsetof(RawMeasurement, distance_raw_m)},
-                 {kPulseWidth, offsetof(RawMeasurement, pulse_width_ns)},
-                 {kAmplitude, offsetof(RawMeasurement, amplitude)},
-                 {kTemperature, offsetof(RawMeasurement, temperature_c)}};
-  for (const auto& f : doubles) {
-    const Column& c = columns_[f.column];
+  for (std::size_t k = kTof; k <= kTemperature; ++k) {
+    const Column& c = columns_[k];
+    char* dst = base + ranging::kRecordColumns[k].raw_offset();
     if (c.present()) {
-      read_column<double>(c, begin, n, base + f.offset, stride);
+      read_column<double>(c, begin, n, dst, stride);
     } else {
-      fill<double>(ranging::kNaN, n, base + f.offset, stride);
+      fill<double>(ranging::kNaN, n, dst, stride);
     }
   }
   const Column& shots = columns_[kShotsValid];
   const Column& flags = columns_[kFlags];
   if (shots.present())
-    read_column<std::uint32_t>(shots, begin, n, base + offsetof(RawMeasurement, shots_valid),
-                               stride);
+    read_column<std::uint32_t>(shots, begin, n,
+                               base + ranging::kRecordColumns[kShotsValid].raw_offset(), stride);
   if (flags.present())
-    read_column<std::uint32_t>(flags, begin, n, base + offsetof(RawMeasurement, flags), stride);
+    read_column<std::uint32_t>(flags, begin, n, base + ranging::kRecordColumns[kFlags].raw_offset(),
+                               stride);
   if (!shots.present() || !flags.present()) {
     // The raw CSV reader's defaults (io/raw_csv.hpp).
     for (RawMeasurement& m : out) {
@@ -175,21 +165,13 @@ void ColumnSet::gather_raw(std::size_t begin, std::span<ranging::RawMeasurement>
 }
 
 void ColumnSet::gather_records(std::size_t begin, std::span<ranging::Record> out) const {
-  using ranging::GroundTruth;
   using ranging::Record;
   std::vector<ranging::RawMeasurement> raw(out.size());
   gather_raw(begin, raw);
   char* base = reinterpret_cast<char*>(out.data());
-  const struct {
-    ColumnIndex column;
-    std::size_t offset;
-  } truths[] = {{kDistanceTrue, offsetof(GroundTruth, distance_m)},
-                {kReflectance, offsetof(GroundTruth, reflectance)},
-                {kAngle, offsetof(GroundTruth, angle_deg)},
-                {kAmbient, offsetof(GroundTruth, ambient_c)}};
-  for (const auto& f : truths) {
-    const Column& c = columns_[f.column];
-    char* dst = base + offsetof(Record, truth) + f.offset;
+  for (std::size_t k = kDistanceTrue; k <= kAmbient; ++k) {
+    const Column& c = columns_[k];
+    char* dst = base + ranging::kRecordColumns[k].offset;
     if (c.present()) {
       read_column<double>(c, begin, out.size(), dst, sizeof(Record));
     } else {
@@ -217,37 +199,26 @@ void ColumnSet::prefetch_raw(std::size_t begin, std::size_t n) const {
   }
 }
 
-const ranging::RawMeasurement* ColumnSet::raw_rows(py::ssize_t& stride) const {
-  using ranging::RawMeasurement;
-  const struct {
-    ColumnIndex column;
-    std::size_t offset;
-    char kind;
-  } fields[] = {{kTof, offsetof(RawMeasurement, tof_ns), 'f'},
-                {kDistanceRaw, offsetof(RawMeasurement, distance_raw_m), 'f'},
-                {kPulseWidth, offsetof(RawMeasurement, pulse_width_ns), 'f'},
-                {kAmplitude, offsetof(RawMeasurement, amplitude), 'f'},
-                {kTemperature, offsetof(RawMeasurement, temperature_c), 'f'},
-                {kShotsValid, offsetof(RawMeasurement, shots_valid), 'u'},
-                {kFlags, offsetof(RawMeasurement, flags), 'u'}};
-  const Column& first = columns_[kTof];
-  if (!first.present()) return nullptr;
-  const char* base = first.data - offsetof(RawMeasurement, tof_ns);
-  stride = first.stride;
-  if (reinterpret_cast<std::uintptr_t>(base) % alignof(RawMeasurement) != 0 ||
-      stride < static_cast<py::ssize_t>(sizeof(RawMeasurement)) ||
-      stride % static_cast<py::ssize_t>(alignof(RawMeasurement)) != 0) {
-    return nullptr;
-  }
-  for (const auto& f : fields) {
-    const Column& c = columns_[f.column];
-    const py::ssize_t size = f.kind == 'f' ? 8 : 4;
-    if (!c.present() || c.kind != f.kind || c.itemsize != size || c.stride != stride ||
-        c.data != base + f.offset) {
-      return nullptr;
+std::optional<ranging::RawColumns> ColumnSet::raw_columns() const {
+  const auto column = [this]<typename T>(std::size_t k, T, ranging::StridedColumn<T>& out) {
+    const Column& c = columns_[k];
+    const char kind = std::is_floating_point_v<T> ? 'f' : 'u';
+    if (!c.present() || c.kind != kind || c.itemsize != static_cast<py::ssize_t>(sizeof(T))) {
+      return false;
     }
+    out = {reinterpret_cast<const std::byte*>(c.data), c.stride};
+    return true;
+  };
+  ranging::RawColumns raw;
+  raw.size = rows_;
+  if (column(kTof, 0.0, raw.tof_ns) && column(kDistanceRaw, 0.0, raw.distance_raw_m) &&
+      column(kPulseWidth, 0.0, raw.pulse_width_ns) && column(kAmplitude, 0.0, raw.amplitude) &&
+      column(kTemperature, 0.0, raw.temperature_c) &&
+      column(kShotsValid, std::uint32_t{}, raw.shots_valid) &&
+      column(kFlags, std::uint32_t{}, raw.flags)) {
+    return raw;
   }
-  return reinterpret_cast<const RawMeasurement*>(base);
+  return std::nullopt;
 }
 
 }  // namespace tofkit::python

@@ -5,11 +5,14 @@
 /// rows at a time into a small buffer that stays in cache.
 
 #include <cstddef>
+#include <optional>
 #include <span>
 #include <vector>
 
 #include "bindings.hpp"
+#include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/ranging/record_columns.hpp"
 
 namespace tofkit::python {
 
@@ -22,21 +25,9 @@ struct Column {
   [[nodiscard]] bool present() const { return data != nullptr; }
 };
 
-/// The raw CSV columns, in file order (RECORD_DTYPE's fields).
-enum ColumnIndex : std::size_t {
-  kDistanceTrue,
-  kReflectance,
-  kAngle,
-  kAmbient,
-  kTof,
-  kDistanceRaw,
-  kPulseWidth,
-  kAmplitude,
-  kTemperature,
-  kShotsValid,
-  kFlags,
-  kColumnCount
-};
+/// Column k of a ColumnSet is ranging::kRecordColumns[k] (RECORD_DTYPE's field k).
+using namespace ranging::record_column;
+constexpr std::size_t kColumnCount = ranging::record_column::kCount;
 
 /// All columns of a table; holds references to the arrays it reads.
 class ColumnSet {
@@ -59,10 +50,11 @@ class ColumnSet {
   /// cache (the gather then overlaps memory with the previous block's compute).
   void prefetch_raw(std::size_t begin, std::size_t n) const;
 
-  /// The rows when the raw columns are the fields of ranging::RawMeasurement
-  /// themselves (a RECORD_DTYPE or RawMeasurement-layout array): the first
-  /// row and the byte stride between rows; nullptr otherwise.
-  [[nodiscard]] const ranging::RawMeasurement* raw_rows(py::ssize_t& stride) const;
+  /// The raw columns as the pipeline reads them in place, when all seven are
+  /// present with RawMeasurement's types (float64; uint32 shots_valid and
+  /// flags) in native byte order, at any stride: a RAW_DTYPE or RECORD_DTYPE
+  /// array, or a dict of such columns. std::nullopt otherwise (gather_raw).
+  [[nodiscard]] std::optional<ranging::RawColumns> raw_columns() const;
 
  private:
   std::vector<py::array> arrays_;  // keeps the inputs alive

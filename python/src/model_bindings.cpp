@@ -106,32 +106,24 @@ py::array apply(const Model& model, const py::tuple& columns,
   const std::size_t n = input.rows();
   py::array out = output_array(out_arg, n);
   auto* ranges = static_cast<ranging::Range*>(out.mutable_data());
-  py::ssize_t stride = 0;
-  const ranging::RawMeasurement* rows = input.raw_rows(stride);
+  const std::optional<ranging::RawColumns> columns_in_place = input.raw_columns();
   const ranging::Pipeline& pipeline = model.pipeline;
   py::gil_scoped_release release;
-  if (rows != nullptr && stride == static_cast<py::ssize_t>(sizeof(ranging::RawMeasurement))) {
-    // The input is an array of RawMeasurements: one call over all of it.
-    pipeline.apply(std::span(rows, n), std::span(ranges, n));
+  if (columns_in_place) {
+    // RawMeasurement's fields at any stride (RAW_DTYPE, measure()'s records,
+    // a dict of float64/uint32 columns): one call over all of it.
+    pipeline.apply(*columns_in_place, std::span(ranges, n));
     return out;
   }
+  // Other dtypes or absent columns: gathered a block at a time, with the raw
+  // CSV reader's defaults.
   std::vector<ranging::RawMeasurement> chunk(kChunk);
   for (std::size_t begin = 0; begin < n; begin += kChunk) {
     const std::size_t count = std::min(kChunk, n - begin);
     const std::span<ranging::RawMeasurement> block(chunk.data(), count);
     // The next block's reads overlap this block's compute.
     if (begin + count < n) input.prefetch_raw(begin + count, std::min(kChunk, n - begin - count));
-    if (rows != nullptr) {
-      // RawMeasurements inside larger rows (a measure() result): copy 48 bytes a row.
-      const char* first =
-          reinterpret_cast<const char*>(rows) + static_cast<py::ssize_t>(begin) * stride;
-      for (std::size_t i = 0; i < count; ++i) {
-        std::memcpy(&block[i], first + static_cast<py::ssize_t>(i) * stride,
-                    sizeof(ranging::RawMeasurement));
-      }
-    } else {
-      input.gather_raw(begin, block);
-    }
+    input.gather_raw(begin, block);
     pipeline.apply(block, std::span(ranges + begin, count));
   }
   return out;
@@ -249,28 +241,33 @@ Model fit_surface(
   return model;
 }
 
-/// The C++ batch baseline of the benchmark script: Pipeline::apply over a
-/// std::vector of RawMeasurements (copied from the input once, not timed),
-/// into a reused output vector or (`allocate`) a new one per call as
-/// `tofkit correct` does. run() returns one call's wall time in seconds.
+/// The C++ batch baselines of the benchmark script: Pipeline::apply over a
+/// std::vector of the same rows (copied from the input once, not timed),
+/// either RawMeasurements (48 B, the span form) or Records (80 B, measure()'s
+/// layout, read through RawColumns as `tofkit correct` does), into a reused
+/// output vector or (`allocate`) a new one per call as `tofkit correct` does.
+/// run() returns one call's wall time in seconds.
 class CppBaseline {
  public:
   CppBaseline(const Model& model, const py::tuple& columns) : pipeline_(model.pipeline) {
     const ColumnSet input(columns);
-    raw_.resize(input.rows());
-    input.gather_raw(0, raw_);
+    records_.resize(input.rows());
+    input.gather_records(0, records_);
+    raw_.resize(records_.size());
+    for (std::size_t i = 0; i < records_.size(); ++i) raw_[i] = records_[i].raw;
     reused_.resize(raw_.size());
   }
 
-  double run(bool allocate) {
+  double run(bool allocate, bool records) {
     py::gil_scoped_release release;
     std::vector<ranging::Range> fresh;
     const auto start = std::chrono::steady_clock::now();
-    if (allocate) {
-      fresh.resize(raw_.size());
-      pipeline_.apply(raw_, fresh);
+    if (allocate) fresh.resize(raw_.size());
+    std::vector<ranging::Range>& out = allocate ? fresh : reused_;
+    if (records) {
+      pipeline_.apply(ranging::RawColumns::of(records_), out);
     } else {
-      pipeline_.apply(raw_, reused_);
+      pipeline_.apply(raw_, out);
     }
     const auto stop = std::chrono::steady_clock::now();
     return std::chrono::duration<double>(stop - start).count();
@@ -278,11 +275,16 @@ class CppBaseline {
 
  private:
   ranging::Pipeline pipeline_;
+  std::vector<ranging::Record> records_;
   std::vector<ranging::RawMeasurement> raw_;
   std::vector<ranging::Range> reused_;
 };
 
 }  // namespace
+
+const ranging::Pipeline& pipeline_of(const py::handle& model) {
+  return model.cast<const Model&>().pipeline;
+}
 
 void bind_model(py::module_& m) {
   py::class_<Model>(m, "_Model")
@@ -314,7 +316,7 @@ void bind_model(py::module_& m) {
         py::arg("rcond"));
   py::class_<CppBaseline>(m, "_CppBaseline")
       .def(py::init<const Model&, const py::tuple&>(), py::arg("model"), py::arg("columns"))
-      .def("run", &CppBaseline::run, py::arg("allocate"));
+      .def("run", &CppBaseline::run, py::arg("allocate"), py::arg("records") = false);
 }
 
 }  // namespace tofkit::python

@@ -7,64 +7,56 @@
 #include "bindings.hpp"
 #include "tofkit/io/config_file.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/ranging/record_columns.hpp"
 
 namespace tofkit::python {
 
-py::dtype record_dtype() {
-  using ranging::RawMeasurement;
-  using ranging::Record;
-  static_assert(sizeof(RawMeasurement) == 48 && sizeof(Record) == 80, "unexpected record layout");
-  const auto raw = [](std::size_t member) { return offsetof(Record, raw) + member; };
-  py::list names, formats, offsets;
-  const auto add = [&](const char* name, const char* format, std::size_t offset) {
-    names.append(name);
-    formats.append(format);
-    offsets.append(offset);
-  };
-  add("distance_true_m", "<f8",
-      offsetof(Record, truth) + offsetof(ranging::GroundTruth, distance_m));
-  add("reflectance", "<f8", offsetof(Record, truth) + offsetof(ranging::GroundTruth, reflectance));
-  add("angle_deg", "<f8", offsetof(Record, truth) + offsetof(ranging::GroundTruth, angle_deg));
-  add("ambient_c", "<f8", offsetof(Record, truth) + offsetof(ranging::GroundTruth, ambient_c));
-  add("tof_ns", "<f8", raw(offsetof(RawMeasurement, tof_ns)));
-  add("distance_raw_m", "<f8", raw(offsetof(RawMeasurement, distance_raw_m)));
-  add("pulse_width_ns", "<f8", raw(offsetof(RawMeasurement, pulse_width_ns)));
-  add("amplitude", "<f8", raw(offsetof(RawMeasurement, amplitude)));
-  add("temperature_c", "<f8", raw(offsetof(RawMeasurement, temperature_c)));
-  add("shots_valid", "<u4", raw(offsetof(RawMeasurement, shots_valid)));
-  add("flags", "<u4", raw(offsetof(RawMeasurement, flags)));
+py::dtype struct_dtype(const py::list& names, const py::list& formats, const py::list& offsets,
+                       std::size_t itemsize) {
   py::dict spec;
   spec["names"] = names;
   spec["formats"] = formats;
   spec["offsets"] = offsets;
-  spec["itemsize"] = sizeof(Record);
+  spec["itemsize"] = itemsize;
   return py::dtype::from_args(spec);
 }
 
+namespace {
+
+/// ranging::kRecordColumns (all of them, or the device's only) as a dtype.
+py::dtype columns_dtype(bool raw_only) {
+  using ranging::ColumnType;
+  static_assert(sizeof(ranging::RawMeasurement) == 48 && sizeof(ranging::Record) == 80,
+                "unexpected record layout");
+  py::list names, formats, offsets;
+  for (const ranging::RecordColumn& c : ranging::kRecordColumns) {
+    if (raw_only && !c.is_raw()) continue;
+    names.append(py::str(c.name.data(), c.name.size()));
+    formats.append(c.type == ColumnType::kFloat64 ? "<f8" : "<u4");
+    offsets.append(raw_only ? c.raw_offset() : c.offset);
+  }
+  return struct_dtype(names, formats, offsets,
+                      raw_only ? sizeof(ranging::RawMeasurement) : sizeof(ranging::Record));
+}
+
+}  // namespace
+
+py::dtype record_dtype() {
+  return columns_dtype(false);
+}
+
 py::dtype raw_dtype() {
-  using ranging::RawMeasurement;
-  py::dict spec;
-  spec["names"] = py::make_tuple("tof_ns", "distance_raw_m", "pulse_width_ns", "amplitude",
-                                 "temperature_c", "shots_valid", "flags");
-  spec["formats"] = py::make_tuple("<f8", "<f8", "<f8", "<f8", "<f8", "<u4", "<u4");
-  spec["offsets"] =
-      py::make_tuple(offsetof(RawMeasurement, tof_ns), offsetof(RawMeasurement, distance_raw_m),
-                     offsetof(RawMeasurement, pulse_width_ns), offsetof(RawMeasurement, amplitude),
-                     offsetof(RawMeasurement, temperature_c), offsetof(RawMeasurement, shots_valid),
-                     offsetof(RawMeasurement, flags));
-  spec["itemsize"] = sizeof(RawMeasurement);
-  return py::dtype::from_args(spec);
+  return columns_dtype(true);
 }
 
 py::dtype range_dtype() {
   using ranging::Range;
-  py::dict spec;
-  spec["names"] = py::make_tuple("distance_m", "sigma_m", "correction_flags");
-  spec["formats"] = py::make_tuple("<f8", "<f8", "<u4");
-  spec["offsets"] = py::make_tuple(offsetof(Range, distance_m), offsetof(Range, sigma_m),
-                                   offsetof(Range, correction_flags));
-  spec["itemsize"] = sizeof(Range);
-  return py::dtype::from_args(spec);
+  py::list names, formats, offsets;
+  names.append("distance_m"), formats.append("<f8"), offsets.append(offsetof(Range, distance_m));
+  names.append("sigma_m"), formats.append("<f8"), offsets.append(offsetof(Range, sigma_m));
+  names.append("correction_flags"), formats.append("<u4"),
+      offsets.append(offsetof(Range, correction_flags));
+  return struct_dtype(names, formats, offsets, sizeof(Range));
 }
 
 void rethrow_for_file(const std::filesystem::path& path, const std::exception& error) {
@@ -99,4 +91,5 @@ PYBIND11_MODULE(_tofkit, m) {
   m.attr("RANGE_DTYPE") = tp::range_dtype();
   tp::bind_device(m);
   tp::bind_model(m);
+  tp::bind_scan(m);
 }

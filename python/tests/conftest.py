@@ -36,3 +36,25 @@ def cli_error(result):
     prefix, _, message = result.stderr.partition(": error: ")
     assert prefix.startswith("tofkit"), result.stderr
     return message.rstrip("\n")
+
+
+def pauses_of_another_thread(work):
+    """Runs work() in a thread while this one ticks as fast as it can; returns
+    the gaps between ticks (s). With the GIL released during work(), the
+    largest gap stays far below work()'s duration."""
+    import sys
+    import threading
+    import time
+
+    old_interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
+    try:
+        ticks = []
+        worker = threading.Thread(target=work)
+        worker.start()
+        while worker.is_alive():
+            ticks.append(time.perf_counter())
+        worker.join()
+    finally:
+        sys.setswitchinterval(old_interval)
+    return [b - a for a, b in zip(ticks, ticks[1:])]

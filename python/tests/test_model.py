@@ -93,10 +93,11 @@ def test_every_input_layout_gives_the_same_ranges(calibration):
         packed[n] = records[n]
     assert packed.dtype.itemsize == 48  # RawMeasurement's layout: handed over as is
     assert packed.dtype == np.dtype([(n, records.dtype[n]) for n in raw_fields])
-    columns = {n: records[n].copy() for n in raw_fields}
-    columns["shots_valid"] = columns["shots_valid"].astype(np.int64)
+    native_columns = {n: records[n].copy() for n in raw_fields}  # read in place
+    columns = dict(native_columns)
+    columns["shots_valid"] = columns["shots_valid"].astype(np.int64)  # gathered
     reversed_view = records[::-1]
-    for layout in (packed, columns, records[raw_fields]):
+    for layout in (packed, native_columns, columns, records[raw_fields]):
         for got, want in zip(model.apply(layout), expected):
             np.testing.assert_array_equal(got, want)
     for got, want in zip(model.apply(reversed_view), expected):

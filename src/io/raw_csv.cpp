@@ -5,6 +5,9 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
 #include <fstream>
 #include <iterator>
 #include <optional>
@@ -14,6 +17,7 @@
 
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/input_file.hpp"
+#include "tofkit/ranging/record_columns.hpp"
 
 namespace tofkit::io {
 namespace {
@@ -22,33 +26,29 @@ namespace fs = std::filesystem;
 using ranging::Range;
 using ranging::Record;
 
-// Every column either table may have; raw ones first, in file order.
-enum Column : std::size_t {
-  kDistanceTrue,
-  kReflectance,
-  kAngle,
-  kAmbient,
-  kTof,
-  kDistanceRaw,
-  kPulseWidth,
-  kAmplitude,
-  kTemperature,
-  kShotsValid,
-  kFlags,
-  kDistance,
+// Every column either table may have: the raw ones (ranging::kRecordColumns,
+// indices ranging::record_column::k...), then the three the corrected table adds.
+using namespace ranging::record_column;
+constexpr std::size_t kRawColumnCount = ranging::record_column::kCount;
+enum CorrectedColumn : std::size_t {
+  kDistance = kRawColumnCount,
   kSigma,
   kCorrectionFlags,
   kColumnCount
 };
-constexpr std::size_t kRawColumnCount = kDistance;
 
-constexpr std::array<std::string_view, kColumnCount> kColumnNames = {
-    "distance_true_m", "reflectance",    "angle_deg", "ambient_c",       "tof_ns",
-    "distance_raw_m",  "pulse_width_ns", "amplitude", "temperature_c",   "shots_valid",
-    "flags",           "distance_m",     "sigma_m",   "correction_flags"};
+constexpr std::array<std::string_view, kColumnCount> kColumnNames = [] {
+  std::array<std::string_view, kColumnCount> names{};
+  for (std::size_t c = 0; c < kRawColumnCount; ++c) names[c] = ranging::kRecordColumns[c].name;
+  names[kDistance] = "distance_m";
+  names[kSigma] = "sigma_m";
+  names[kCorrectionFlags] = "correction_flags";
+  return names;
+}();
 
 bool is_integer_column(std::size_t c) {
-  return c == kShotsValid || c == kFlags || c == kCorrectionFlags;
+  return c < kRawColumnCount ? ranging::kRecordColumns[c].type == ranging::ColumnType::kUint32
+                             : c == kCorrectionFlags;
 }
 
 // NaN is an empty field; everything else shortest round-trip ("{}").
@@ -57,14 +57,20 @@ void append_number(fmt::memory_buffer& out, double v) {
 }
 
 void append_record(fmt::memory_buffer& out, const Record& r) {
-  const auto& t = r.truth;
-  const auto& m = r.raw;
-  for (const double v : {t.distance_m, t.reflectance, t.angle_deg, t.ambient_c, m.tof_ns,
-                         m.distance_raw_m, m.pulse_width_ns, m.amplitude, m.temperature_c}) {
-    append_number(out, v);
-    out.push_back(',');
+  const auto* bytes = reinterpret_cast<const std::byte*>(&r);
+  for (std::size_t c = 0; c < kRawColumnCount; ++c) {
+    const ranging::RecordColumn& column = ranging::kRecordColumns[c];
+    if (c > 0) out.push_back(',');
+    if (column.type == ranging::ColumnType::kUint32) {
+      std::uint32_t v;
+      std::memcpy(&v, bytes + column.offset, sizeof(v));
+      fmt::format_to(std::back_inserter(out), "{}", v);
+    } else {
+      double v;
+      std::memcpy(&v, bytes + column.offset, sizeof(v));
+      append_number(out, v);
+    }
   }
-  fmt::format_to(std::back_inserter(out), "{},{}", m.shots_valid, m.flags);
 }
 
 void append_header(fmt::memory_buffer& out, std::size_t columns) {
@@ -221,20 +227,19 @@ class TableReader {
       }
     }
     CorrectedRow row;
-    auto& t = row.record.truth;
+    auto* bytes = reinterpret_cast<std::byte*>(&row.record);
+    for (std::size_t c = 0; c < kRawColumnCount; ++c) {
+      const ranging::RecordColumn& column = ranging::kRecordColumns[c];
+      if (column.type == ranging::ColumnType::kFloat64) {
+        std::memcpy(bytes + column.offset, &p.number[c], sizeof(double));
+      } else if (index_[c]) {
+        std::memcpy(bytes + column.offset, &p.integer[c], sizeof(std::uint32_t));
+      }
+    }
     auto& m = row.record.raw;
-    t.distance_m = p.number[kDistanceTrue];
-    t.reflectance = p.number[kReflectance];
-    t.angle_deg = p.number[kAngle];
-    t.ambient_c = p.number[kAmbient];
-    m.tof_ns = p.number[kTof];
-    m.distance_raw_m = p.number[kDistanceRaw];
-    m.pulse_width_ns = p.number[kPulseWidth];
-    m.amplitude = p.number[kAmplitude];
-    m.temperature_c = p.number[kTemperature];
     const bool has_distance = !std::isnan(m.tof_ns) || !std::isnan(m.distance_raw_m);
-    m.shots_valid = index_[kShotsValid] ? p.integer[kShotsValid] : (has_distance ? 1u : 0u);
-    m.flags = index_[kFlags] ? p.integer[kFlags] : (has_distance ? 0u : ranging::kRawNoEcho);
+    if (!index_[kShotsValid]) m.shots_valid = has_distance ? 1u : 0u;
+    if (!index_[kFlags]) m.flags = has_distance ? 0u : ranging::kRawNoEcho;
     row.range.distance_m = p.number[kDistance];
     row.range.sigma_m = p.number[kSigma];
     row.range.correction_flags = index_[kCorrectionFlags] ? p.integer[kCorrectionFlags] : 0u;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <sstream>
 #include <stdexcept>
 #include <utility>
@@ -263,27 +264,77 @@ double Pipeline::start_distance_m(const RawMeasurement& in) const {
   return std::isfinite(in.tof_ns) ? in.tof_ns * metres_per_ns_ : in.distance_raw_m;
 }
 
+RawColumns RawColumns::of(std::span<const RawMeasurement> rows) {
+  return of(rows.data(), rows.size(), sizeof(RawMeasurement));
+}
+
+RawColumns RawColumns::of(std::span<const Record> records) {
+  return records.empty() ? RawColumns{} : of(&records[0].raw, records.size(), sizeof(Record));
+}
+
+RawColumns RawColumns::of(const RawMeasurement* first, std::size_t size, std::ptrdiff_t stride) {
+  if (size == 0 || first == nullptr) return RawColumns{};  // (no offsets from a null pointer)
+  const auto* base = reinterpret_cast<const std::byte*>(first);
+  const auto column = [&]<typename T>(std::size_t offset, T) {
+    return StridedColumn<T>{base + offset, stride};
+  };
+  RawColumns c;
+  c.size = size;
+  c.tof_ns = column(offsetof(RawMeasurement, tof_ns), 0.0);
+  c.distance_raw_m = column(offsetof(RawMeasurement, distance_raw_m), 0.0);
+  c.pulse_width_ns = column(offsetof(RawMeasurement, pulse_width_ns), 0.0);
+  c.amplitude = column(offsetof(RawMeasurement, amplitude), 0.0);
+  c.temperature_c = column(offsetof(RawMeasurement, temperature_c), 0.0);
+  c.shots_valid = column(offsetof(RawMeasurement, shots_valid), std::uint32_t{});
+  c.flags = column(offsetof(RawMeasurement, flags), std::uint32_t{});
+  return c;
+}
+
+void RawColumns::validate() const {
+  if (size == 0) return;
+  const struct {
+    const char* name;
+    const std::byte* data;
+  } columns[] = {{"tof_ns", tof_ns.data},
+                 {"distance_raw_m", distance_raw_m.data},
+                 {"pulse_width_ns", pulse_width_ns.data},
+                 {"amplitude", amplitude.data},
+                 {"temperature_c", temperature_c.data},
+                 {"shots_valid", shots_valid.data},
+                 {"flags", flags.data}};
+  for (const auto& c : columns) {
+    if (c.data == nullptr) {
+      throw std::invalid_argument(std::string("RawColumns: column ") + c.name + " is missing");
+    }
+  }
+}
+
 void Pipeline::apply(std::span<const RawMeasurement> in, std::span<Range> out) const {
-  if (in.size() != out.size()) {
-    throw std::invalid_argument("Pipeline::apply: " + std::to_string(in.size()) +
+  apply(RawColumns::of(in), out);
+}
+
+void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
+  if (in.size != out.size()) {
+    throw std::invalid_argument("Pipeline::apply: " + std::to_string(in.size) +
                                 " measurements but room for " + std::to_string(out.size()));
   }
+  in.validate();
   BlockBuffers b;
   std::array<double, kBlock> sigma;
   const ConfidenceModel* confidence = confidence_.get();
-  for (std::size_t begin = 0; begin < in.size(); begin += kBlock) {
-    const std::size_t n = std::min(kBlock, in.size() - begin);
-    const RawMeasurement* raw = in.data() + begin;
+  for (std::size_t begin = 0; begin < in.size; begin += kBlock) {
+    const std::size_t n = std::min(kBlock, in.size - begin);
     for (std::size_t i = 0; i < n; ++i) {
-      const RawMeasurement& m = raw[i];
-      const bool echo = m.shots_valid > 0 && (m.flags & kRawNoEcho) == 0;
-      const double start = std::isfinite(m.tof_ns) ? m.tof_ns * metres_per_ns_ : m.distance_raw_m;
+      const std::size_t row = begin + i;
+      const double tof = in.tof_ns[row];
+      const bool echo = in.shots_valid[row] > 0 && (in.flags[row] & kRawNoEcho) == 0;
+      const double start = std::isfinite(tof) ? tof * metres_per_ns_ : in.distance_raw_m[row];
       b.distance[i] = echo ? start : kNaN;
       b.flags[i] = echo ? 0u : kCorrNoEcho;
       b.outside[i] = 0.0;
-      b.pulse_width[i] = m.pulse_width_ns;
-      b.temperature[i] = m.temperature_c;
-      b.amplitude[i] = m.amplitude;
+      b.pulse_width[i] = in.pulse_width_ns[row];
+      b.temperature[i] = in.temperature_c[row];
+      b.amplitude[i] = in.amplitude[row];
     }
     for (const Step& step : steps_) {
       switch (step.kind) {

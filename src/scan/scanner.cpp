@@ -77,6 +77,26 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
   return result;
 }
 
+ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
+                    device::SimulationMode mode, const BeamPattern& pattern,
+                    const ScanOptions& options) {
+  const device::VirtualRangefinder rangefinder(config, mode);
+  const RayCaster caster(scene);
+  return run_scan(caster, Footprint(config), rangefinder, pattern, options);
+}
+
+void apply_pipeline(const ranging::Pipeline& pipeline, ScanResult& result) {
+  // The raw measurements read in place from the beams (one batch, no copy).
+  std::vector<ranging::Range> ranges(result.beams.size());
+  if (!ranges.empty()) {
+    pipeline.apply(
+        ranging::RawColumns::of(&result.beams[0].raw, result.beams.size(), sizeof(BeamResult)),
+        ranges);
+  }
+  for (std::size_t i = 0; i < ranges.size(); ++i) result.beams[i].range = ranges[i];
+  result.has_model = true;
+}
+
 ScanImages make_images(const ScanResult& result) {
   const auto& p = result.pattern;
   const std::size_t pixels = static_cast<std::size_t>(p.rows) * p.columns;

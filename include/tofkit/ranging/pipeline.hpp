@@ -15,6 +15,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <span>
@@ -71,6 +72,41 @@ struct Step {
                                          InputDomain temperature_domain_c);
 [[nodiscard]] Step make_surface_step(std::shared_ptr<const CorrectionSurface> surface);
 
+/// One input field read in place: element i is the T at `data` + i * `stride`
+/// bytes (a member of an array of structs, a column of a structured NumPy
+/// array, or a plain array when stride == sizeof(T)). Need not be aligned.
+template <typename T>
+struct StridedColumn {
+  const std::byte* data = nullptr;
+  std::ptrdiff_t stride = sizeof(T);  ///< bytes from one element to the next
+
+  [[nodiscard]] T operator[](std::size_t i) const {
+    T value;
+    std::memcpy(&value, data + static_cast<std::ptrdiff_t>(i) * stride, sizeof(T));
+    return value;
+  }
+};
+
+/// RawMeasurement's fields as separate columns (nanoflann's pattern: the
+/// caller's memory in the caller's layout, read in place). All seven are
+/// required; `size` rows each.
+struct RawColumns {
+  std::size_t size = 0;
+  StridedColumn<double> tof_ns, distance_raw_m, pulse_width_ns, amplitude, temperature_c;
+  StridedColumn<std::uint32_t> shots_valid, flags;
+
+  /// The fields of an array of RawMeasurements (stride sizeof(RawMeasurement)).
+  [[nodiscard]] static RawColumns of(std::span<const RawMeasurement> rows);
+  /// The device's fields of measurement records (their `raw`), in place.
+  [[nodiscard]] static RawColumns of(std::span<const Record> records);
+  /// The RawMeasurement inside each of `size` records `stride` bytes apart
+  /// (e.g. ranging::Record's `raw`); `first` is the first row's RawMeasurement.
+  [[nodiscard]] static RawColumns of(const RawMeasurement* first, std::size_t size,
+                                     std::ptrdiff_t stride);
+  /// Throws std::invalid_argument naming the first missing column.
+  void validate() const;
+};
+
 class Pipeline {
  public:
   Pipeline() = default;
@@ -102,6 +138,10 @@ class Pipeline {
   /// surfaces clamp), kCorrOutOfDomain is set and sigma_m grows (above). A NaN
   /// input a step needs: NaN distance and kCorrNonFinite.
   void apply(std::span<const RawMeasurement> in, std::span<Range> out) const;
+  /// The same over columns read in place (in.size == out.size(), all columns
+  /// present, else std::invalid_argument): the one implementation, which the
+  /// span form calls.
+  void apply(const RawColumns& in, std::span<Range> out) const;
   /// One measurement (convenience; the batch form is the fast one).
   [[nodiscard]] Range apply(const RawMeasurement& in) const;
 

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
 #include "tofkit/scan/footprint.hpp"
 #include "tofkit/scan/pattern.hpp"
@@ -46,6 +47,17 @@ struct ScanOptions {
 [[nodiscard]] ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                                   const device::VirtualRangefinder& device,
                                   const BeamPattern& pattern, const ScanOptions& options);
+
+/// The same with the ray caster, footprint and virtual rangefinder made from
+/// `scene` and `config` (what `tofkit scan` and Python's tofkit.scan run).
+[[nodiscard]] ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
+                                  device::SimulationMode mode, const BeamPattern& pattern,
+                                  const ScanOptions& options);
+
+/// Corrects every beam's raw measurement with `pipeline` (one batch) into its
+/// `range` and sets has_model: the images and points then report corrected
+/// distances and sigma.
+void apply_pipeline(const ranging::Pipeline& pipeline, ScanResult& result);
 
 /// A row-major float image; NaN marks invalid pixels (no echo: REP-117).
 struct Image {
