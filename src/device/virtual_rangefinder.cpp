@@ -5,7 +5,12 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <bit>
 #include <cmath>
+#include <map>
+#include <memory>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -70,6 +75,190 @@ inline double table_at(const std::array<double, kLevels>& y, double x0, double i
   return y[i] + w * (y[i + 1] - y[i]);
 }
 
+/// Gauss-Chebyshev nodes across a tilted footprint (uniform disk -> semicircle
+/// weights): offsets u_k (in units of the half depth) and normalized weights.
+struct FootprintNodes {
+  std::array<double, kFootprintNodes> u{}, w{};
+  FootprintNodes() {
+    double weight_sum = 0;
+    for (int k = 0; k < kFootprintNodes; ++k) {
+      const double x = kPi * (k + 1) / (kFootprintNodes + 1);
+      u[static_cast<std::size_t>(k)] = std::cos(x);
+      w[static_cast<std::size_t>(k)] = std::sin(x) * std::sin(x);
+      weight_sum += w[static_cast<std::size_t>(k)];
+    }
+    for (auto& v : w) v /= weight_sum;
+  }
+};
+
+const FootprintNodes& footprint_nodes() {
+  static const FootprintNodes nodes;
+  return nodes;
+}
+
+/// The echo of one surface, tabulated once per pulse shape in normalized form.
+/// A surface at delay d, amplitude A and footprint spread h (ns of round trip
+/// over the half depth) gives the echo A g_h(t - d) with
+/// g_h(t) = sum_k w_k p(t - u_k h), p the pulse template. Its crossings of a
+/// level L are d + rise_h(L / A) and d + fall_h(L / A). Rows hold g_h for
+/// h = 0, dh, 2 dh, ... as long as g_h has a single peak (then the first
+/// upcrossing and the next downcrossing are the two branches of its inverse);
+/// each row holds the peak P_h, its time and both branches over the level
+/// y = x / P_h: log-spaced below 1/2 (pseudo-log2 of the double's bits, 32
+/// per octave, down to 2^-32) and uniform in sqrt(1 - y) above (the peak is
+/// parabolic there). Between rows the times are interpolated linearly in h.
+class SpreadEchoTable {
+ public:
+  static constexpr int kLowestExponent = -32;  // y below 2^-32: the first entry
+  static constexpr int kOctaves = 31;
+  static constexpr int kPerOctave = 32;
+  static constexpr std::size_t kLow = kOctaves * kPerOctave + 1;  // y in [2^-32, 1/2]
+  static constexpr std::size_t kHigh = 257;                       // y in [1/2, 1]
+  static constexpr std::size_t kRowSize = 2 * (kLow + kHigh);
+  static constexpr std::size_t kMaxRows = 256;
+  static constexpr double kSampleNs = 0.005;  // the template's own step
+
+  explicit SpreadEchoTable(const physics::PulseTemplate& pulse) {
+    const auto& nodes = footprint_nodes();
+    // Spread step: a small fraction of the echo's half-maximum width.
+    step_ns_ = pulse.width_at_level_ns(0.5) / 64.0;
+    inv_step_ = 1.0 / step_ns_;
+    const double sqrt_half = std::sqrt(0.5);
+    high_scale_ = static_cast<double>(kHigh - 1) / sqrt_half;
+    std::vector<double> g;
+    std::vector<double> levels(kLow + kHigh);
+    for (std::size_t j = 0; j < kLow; ++j) levels[j] = low_level(j);
+    for (std::size_t j = 0; j < kHigh; ++j) {
+      const double s = sqrt_half * (1.0 - static_cast<double>(j) / static_cast<double>(kHigh - 1));
+      levels[kLow + j] = j + 1 == kHigh ? 1.0 : 1.0 - s * s;
+    }
+    for (std::size_t r = 0; r < kMaxRows; ++r) {
+      const double h = static_cast<double>(r) * step_ns_;
+      const double t0 = pulse.begin_ns() - h - kSampleNs;
+      const auto n =
+          static_cast<std::size_t>((pulse.end_ns() + h + kSampleNs - t0) / kSampleNs) + 2;
+      g.assign(n, 0.0);
+      for (std::size_t i = 0; i < n; ++i) {
+        const double t = t0 + static_cast<double>(i) * kSampleNs;
+        double v = 0;
+        for (std::size_t k = 0; k < nodes.u.size(); ++k)
+          v += nodes.w[k] * pulse(t - (r == 0 ? 0.0 : nodes.u[k] * h));
+        g[i] = v;
+      }
+      const auto peak_i =
+          static_cast<std::size_t>(std::max_element(g.begin(), g.end()) - g.begin());
+      // One peak: non-decreasing before it, non-increasing after.
+      bool single = peak_i > 0 && peak_i + 1 < n;
+      for (std::size_t i = 1; single && i <= peak_i; ++i) single = g[i] >= g[i - 1];
+      for (std::size_t i = peak_i + 1; single && i < n; ++i) single = g[i] <= g[i - 1];
+      if (!single) break;
+      // Peak between samples: the parabola through the three around the largest.
+      const double a = g[peak_i - 1], b = g[peak_i], c = g[peak_i + 1];
+      const double den = a - 2.0 * b + c;
+      const double off = den < 0 ? std::clamp(0.5 * (a - c) / den, -0.5, 0.5) : 0.0;
+      const double peak = b - 0.25 * (a - c) * off;
+      const double peak_t = t0 + (static_cast<double>(peak_i) + off) * kSampleNs;
+      peaks_.push_back(peak);
+      peak_times_.push_back(peak_t);
+      const std::size_t base = times_.size();
+      times_.resize(base + kRowSize);
+      double* rise = &times_[base];
+      double* fall = rise + (kLow + kHigh);
+      std::size_t i_rise = 1, i_fall = n - 2;
+      for (std::size_t j = 0; j < kLow + kHigh; ++j) {
+        const double level = levels[j] * peak;
+        if (levels[j] >= 1.0) {
+          rise[j] = fall[j] = peak_t;
+          continue;
+        }
+        while (i_rise < peak_i && g[i_rise] < level) ++i_rise;
+        const double ra = g[i_rise - 1], rb = g[i_rise];
+        rise[j] =
+            rb > ra ? t0 + (static_cast<double>(i_rise - 1) + (level - ra) / (rb - ra)) * kSampleNs
+                    : t0 + static_cast<double>(i_rise) * kSampleNs;
+        while (i_fall > peak_i && g[i_fall] < level) --i_fall;
+        const double fa = g[i_fall], fb = g[i_fall + 1];
+        fall[j] = fa > fb
+                      ? t0 + (static_cast<double>(i_fall) + (fa - level) / (fa - fb)) * kSampleNs
+                      : t0 + static_cast<double>(i_fall) * kSampleNs;
+        rise[j] = std::min(rise[j], peak_t);
+        fall[j] = std::max(fall[j], peak_t);
+      }
+    }
+    max_spread_ns_ = static_cast<double>(peaks_.size() - 1) * step_ns_;
+  }
+
+  /// Largest spread covered (ns); beyond it the echo may have several peaks.
+  [[nodiscard]] double max_spread_ns() const { return max_spread_ns_; }
+
+  struct At {
+    std::size_t row = 0;
+    double w = 0;  // weight of row + 1
+  };
+  [[nodiscard]] At at(double spread_ns) const {
+    const double f = spread_ns * inv_step_;
+    At a;
+    a.row = std::min(static_cast<std::size_t>(f), peaks_.size() - 1);
+    a.w = a.row + 1 < peaks_.size() ? f - static_cast<double>(a.row) : 0.0;
+    return a;
+  }
+  [[nodiscard]] double peak(At a) const { return mix(a, peaks_); }
+  [[nodiscard]] double peak_time_ns(At a) const { return mix(a, peak_times_); }
+  /// First upcrossing / following downcrossing of x (level over amplitude).
+  [[nodiscard]] double rise_ns(At a, double x) const { return cross(a, x, 0); }
+  [[nodiscard]] double fall_ns(At a, double x) const { return cross(a, x, kLow + kHigh); }
+
+ private:
+  static double low_level(std::size_t j) {
+    const double pl = kLowestExponent + static_cast<double>(j) / kPerOctave;
+    const double e = std::floor(pl);
+    return std::ldexp(1.0 + (pl - e), static_cast<int>(e));
+  }
+  static double mix(At a, const std::vector<double>& v) {
+    return a.w > 0 ? v[a.row] + a.w * (v[a.row + 1] - v[a.row]) : v[a.row];
+  }
+  [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
+    const double* t = &times_[row * kRowSize + branch];
+    double f = 0;
+    if (y >= 0.5) {
+      if (y >= 1.0) return peak_times_[row];
+      f = static_cast<double>(kLow) + std::sqrt(0.5) * high_scale_ -
+          std::sqrt(1.0 - y) * high_scale_;
+    } else {
+      // (bits(y) - bits(2^-32)) / 2^52 is log2(y) + 32, piecewise linear in y.
+      constexpr auto kBase = std::bit_cast<std::int64_t>(0x1p-32);
+      const auto bits = std::bit_cast<std::int64_t>(y) - kBase;
+      if (bits <= 0) return t[0];
+      f = static_cast<double>(bits) * (kPerOctave * 0x1p-52);
+    }
+    const auto i = std::min(static_cast<std::size_t>(f), kLow + kHigh - 2);
+    const double w = f - static_cast<double>(i);
+    return t[i] + w * (t[i + 1] - t[i]);
+  }
+  [[nodiscard]] double cross(At a, double x, std::size_t branch) const {
+    const double t0 = row_cross(a.row, x / peaks_[a.row], branch);
+    if (a.w <= 0) return t0;
+    return t0 + a.w * (row_cross(a.row + 1, x / peaks_[a.row + 1], branch) - t0);
+  }
+
+  double step_ns_ = 0, inv_step_ = 0, high_scale_ = 0, max_spread_ns_ = 0;
+  std::vector<double> peaks_, peak_times_, times_;
+};
+
+/// Tables shared by devices with the same pulse (a few kept; the key is exact).
+std::shared_ptr<const SpreadEchoTable> spread_table(const physics::PulseTemplate& pulse,
+                                                    double fwhm_ns, double bandwidth_mhz) {
+  static std::mutex mutex;
+  static std::map<std::pair<double, double>, std::shared_ptr<const SpreadEchoTable>> cache;
+  const std::lock_guard lock(mutex);
+  const std::pair key{fwhm_ns, bandwidth_mhz};
+  if (const auto it = cache.find(key); it != cache.end()) return it->second;
+  if (cache.size() >= 8) cache.clear();  // devices keep their own reference
+  auto table = std::make_shared<const SpreadEchoTable>(pulse);
+  cache.emplace(key, table);
+  return table;
+}
+
 /// One delayed, scaled copy of the pulse template in the receiver.
 struct EchoComponent {
   double amplitude_v;
@@ -86,8 +275,15 @@ struct MeasurementSetup {
   double peak_time_ns = 0;
   // Threshold-crossing tables over levels threshold +- 6 sigma (level-shift noise model).
   double level_begin_v = 0, inv_level_step = 0;
-  std::array<double, kLevels> rise_ns{}, fall_ns{};
+  // (Filled only on the exact path; not value-initialized: 2 kB per measurement.)
+  double level_end_v = 0;
+  std::array<double, kLevels> rise_ns, fall_ns;
   double level_top_v = 0;  // largest level that is crossed at all
+  // Fast path (one surface, analytic mode): the echo is amplitude_v g_h(t - delay_ns)
+  // with g_h the device's tabulated normalized echo at spread h.
+  bool fast = false;
+  double amplitude_v = 0, delay_ns = 0;
+  SpreadEchoTable::At spread{};
   double noise_at_threshold_v = 0;
   double noise_floor_var_v2 = 0;  // noise variance without signal
   double shot_var_per_v = 0;      // signal shot noise variance per volt of signal
@@ -107,6 +303,26 @@ struct MeasurementSetup {
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
 };
 
+
+/// One surface's echo: amplitude, delay and the round-trip spread over half the
+/// footprint's depth (0 when below 1e-4 ns: a point echo).
+struct SurfaceEcho {
+  double amplitude_v = 0, delay_ns = 0, spread_ns = 0;
+};
+
+/// Everything that depends on the operating conditions only.
+struct ConditionState {
+  double internal_c = 0, board_c = 0, gain = 0, power_scale = 0;
+  double c_m_per_ns = 0;      // speed of light in air at the ambient temperature
+  double volts_per_watt = 0;  // at the comparator, for this gain and laser power
+  double fixed_delay_ns = 0, tdc_bin_scale = 1, temperature_reading_c = 0;
+  double floor_var_v2 = 0;     // noise floor without background light
+  double floor_var_per_w = 0;  // ... and its growth per watt of background
+  double shot_var_per_v = 0;   // signal shot noise variance per volt of signal
+};
+
+std::atomic<std::uint64_t> next_device_id{1};
+
 }  // namespace
 
 struct VirtualRangefinder::Impl {
@@ -117,12 +333,15 @@ struct VirtualRangefinder::Impl {
   double volts_per_watt_unity_gain;  // responsivity x transimpedance x bandwidth peak loss
   double c_nominal_m_per_ns;         // the device's assumed speed of light in air
   double pulse_period_ns;            // 1 / f_rep
+  std::uint64_t id;                  // tags the per-thread caches of this device
+  std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
         mode(m),
         pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz),
-        tdc(config.tdc) {
+        tdc(config.tdc),
+        id(next_device_id.fetch_add(1)) {
     const auto& rx = config.link.receiver;
     volts_per_watt_unity_gain =
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
@@ -132,67 +351,114 @@ struct VirtualRangefinder::Impl {
     c_nominal_m_per_ns =
         physics::speed_of_light_in_air_m_per_s(config.link.laser.wavelength_nm, air) * 1e-9;
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
+    if (mode == SimulationMode::kAnalytic)
+      shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
   }
 
-  [[nodiscard]] std::vector<EchoComponent> components(const Target& target, double ambient_c,
-                                                      double gain, double power_scale) const {
+  /// The conditions' share of a measurement's setup, cached per thread (a scan
+  /// or a batch has few distinct conditions).
+  [[nodiscard]] const ConditionState& condition_state(const Conditions& cond) const {
+    struct Cache {
+      std::uint64_t device = 0;
+      double ambient_c = 0, minutes = 0;
+      ConditionState state;
+    };
+    thread_local Cache cache;
+    if (cache.device == id && cache.ambient_c == cond.ambient_c &&
+        cache.minutes == cond.minutes_since_power_on)
+      return cache.state;
+    const auto& th = config.thermal;
+    const auto& rx = config.link.receiver;
     const auto& link = config.link;
-    physics::AirConditions air{ambient_c, link.environment.pressure_hpa,
+    ConditionState& c = cache.state;
+    c.internal_c = internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
+    // behind its heater; the APD's gain follows the board's temperature through
+    // the bias loop's residual.
+    c.board_c = timing_board_temperature_c(th, c.internal_c);
+    c.gain = physics::apd_gain_at(rx, c.board_c);
+    c.power_scale = std::max(
+        0.0, 1.0 + link.laser.power_temp_coeff_per_c * (c.internal_c - rx.nominal_temperature_c));
+    physics::AirConditions air{cond.ambient_c, link.environment.pressure_hpa,
                                link.environment.relative_humidity_pct};
-    const double c_m_per_ns =
-        physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
-    const double volts_per_watt = volts_per_watt_unity_gain * gain * power_scale;
-    std::vector<EchoComponent> out;
+    c.c_m_per_ns = physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
+    c.volts_per_watt = volts_per_watt_unity_gain * c.gain * c.power_scale;
+    // Delays: fixed chain delay plus the timing board's delay tempco and the
+    // unseen warm-up gradient, as extra round-trip time.
+    const double board_dt = c.board_c - rx.nominal_temperature_c;
+    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
+    c.fixed_delay_ns = config.measurement.fixed_delay_ns +
+                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
+                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
+    c.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
+    c.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+    // Noise floor: amplifier, dark and background shot noise (Eq. 8 terms); the
+    // variances add, so the floor is linear in the background power.
+    const double z_ohm = rx.transimpedance_kohm * 1e3;
+    auto floor_var = [&](double background_w) {
+      const auto n = physics::noise_currents(rx, 0.0, background_w, c.gain);
+      return z_ohm * z_ohm *
+             (n.background_shot_a * n.background_shot_a + n.dark_shot_a * n.dark_shot_a +
+              n.thermal_a * n.thermal_a);
+    };
+    c.floor_var_v2 = floor_var(0.0);
+    c.floor_var_per_w = floor_var(1.0) - c.floor_var_v2;
+    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
+    c.shot_var_per_v = 2.0 * physics::kElementaryCharge_c * c.gain * rx.excess_noise_factor *
+                       rx.bandwidth_mhz * 1e6 * z_ohm;
+    cache.device = id;
+    cache.ambient_c = cond.ambient_c;
+    cache.minutes = cond.minutes_since_power_on;
+    return c;
+  }
+
+  /// One surface's echo; false when it returns nothing.
+  [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
+                                  SurfaceEcho& out) const {
+    const auto& link = config.link;
+    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) return false;
+    // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
+    // Biaxial optics: only the share of the footprint inside the receiver's field.
+    const double power_w =
+        s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
+        physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
+    if (power_w <= 0.0) return false;
+    out.amplitude_v = power_w * c.volts_per_watt;
+    // The comparator is re-armed at every pulse: an echo later than the pulse
+    // period arrives after a later pulse and is timed from that one (ambiguity).
+    out.delay_ns = std::fmod(2.0 * s.distance_m / c.c_m_per_ns, pulse_period_ns);
+    // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
+    // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
+    const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
+                                std::tan(physics::deg_to_rad(s.angle_deg));
+    out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
+    if (out.spread_ns < 1e-4) out.spread_ns = 0.0;
+    return true;
+  }
+
+  /// All echo components: one per surface, or one per footprint node if spread.
+  void components(const Target& target, const ConditionState& c,
+                  std::vector<EchoComponent>& out) const {
+    const auto& nodes = footprint_nodes();
+    out.clear();
     for (const auto& s : target.surfaces) {
-      if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) continue;
-      // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-      // Biaxial optics: only the share of the footprint inside the receiver's field.
-      const double power_w =
-          s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-          physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
-      if (power_w <= 0.0) continue;
-      const double amplitude = power_w * volts_per_watt;
-      // The comparator is re-armed at every pulse: an echo later than the pulse
-      // period arrives after a later pulse and is timed from that one (ambiguity).
-      const double delay = std::fmod(2.0 * s.distance_m / c_m_per_ns, pulse_period_ns);
-      // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
-      // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-      const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
-                                  std::tan(physics::deg_to_rad(s.angle_deg));
-      if (half_depth_m * 2.0 / c_m_per_ns < 1e-4) {
-        out.push_back({amplitude, delay});
+      SurfaceEcho e;
+      if (!surface_echo(s, c, e)) continue;
+      if (e.spread_ns == 0.0) {
+        out.push_back({e.amplitude_v, e.delay_ns});
         continue;
       }
-      double weight_sum = 0;
-      std::array<double, kFootprintNodes> w{};
-      for (int k = 0; k < kFootprintNodes; ++k) {
-        const double x = kPi * (k + 1) / (kFootprintNodes + 1);
-        w[static_cast<std::size_t>(k)] = std::sin(x) * std::sin(x);
-        weight_sum += w[static_cast<std::size_t>(k)];
-      }
-      for (int k = 0; k < kFootprintNodes; ++k) {
-        const double u = std::cos(kPi * (k + 1) / (kFootprintNodes + 1));
-        out.push_back({amplitude * w[static_cast<std::size_t>(k)] / weight_sum,
-                       delay + 2.0 * u * half_depth_m / c_m_per_ns});
-      }
+      for (std::size_t k = 0; k < nodes.u.size(); ++k)
+        out.push_back({e.amplitude_v * nodes.w[k], e.delay_ns + nodes.u[k] * e.spread_ns});
     }
-    return out;
   }
 
   /// Noise variance (V^2) at a signal level: amplifier/background/dark floor
   /// plus signal shot noise proportional to the instantaneous signal (Eq. 8 terms).
-  [[nodiscard]] double noise_variance(double signal_v, double gain, double background_w) const {
-    const auto& rx = config.link.receiver;
-    const double z_ohm = rx.transimpedance_kohm * 1e3;
-    const auto floor = physics::noise_currents(rx, 0.0, background_w, gain);
-    const double floor_v2 =
-        z_ohm * z_ohm *
-        (floor.background_shot_a * floor.background_shot_a + floor.dark_shot_a * floor.dark_shot_a +
-         floor.thermal_a * floor.thermal_a);
-    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
-    const double shot_v_per_v = 2.0 * physics::kElementaryCharge_c * gain * rx.excess_noise_factor *
-                                rx.bandwidth_mhz * 1e6 * z_ohm;
-    return floor_v2 + shot_v_per_v * std::max(signal_v, 0.0);
+  [[nodiscard]] static double noise_variance(const ConditionState& c, double signal_v,
+                                             double background_w) {
+    return c.floor_var_v2 + c.floor_var_per_w * background_w +
+           c.shot_var_per_v * std::max(signal_v, 0.0);
   }
 
   /// Sunlight scattered by the surfaces into the receiver (paper Eq. 9).
@@ -204,29 +470,32 @@ struct VirtualRangefinder::Impl {
     return w;
   }
 
+  /// Crossing times of a comparator level (clamped to the tabulated span
+  /// threshold +- 6 sigma), from emission.
+  [[nodiscard]] double rise_at(const MeasurementSetup& m, double level) const {
+    if (!m.fast) return table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level);
+    const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
+    return m.delay_ns + shapes->rise_ns(m.spread, l / m.amplitude_v);
+  }
+  [[nodiscard]] double fall_at(const MeasurementSetup& m, double level) const {
+    if (!m.fast) return table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level);
+    const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
+    return m.delay_ns + shapes->fall_ns(m.spread, l / m.amplitude_v);
+  }
+
   [[nodiscard]] MeasurementSetup setup(const Target& target, const Conditions& cond) const {
-    const auto& th = config.thermal;
     const auto& rx = config.link.receiver;
+    const ConditionState& c = condition_state(cond);
     MeasurementSetup m;
-    const double internal_c =
-        internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
-    // behind its heater; the APD's gain follows the board's temperature through
-    // the bias loop's residual.
-    const double board_c = timing_board_temperature_c(th, internal_c);
-    const double gain = physics::apd_gain_at(rx, board_c);
-    const double power_scale = std::max(0.0, 1.0 + config.link.laser.power_temp_coeff_per_c *
-                                                       (internal_c - rx.nominal_temperature_c));
-    const auto comps = components(target, cond.ambient_c, gain, power_scale);
     const double background_w = background_power_w(target);
     const double threshold = config.discriminator.threshold_v;
-    m.noise_at_threshold_v = std::sqrt(noise_variance(threshold, gain, background_w));
-    m.noise_floor_var_v2 = noise_variance(0.0, gain, background_w);
-    m.shot_var_per_v = noise_variance(1.0, gain, background_w) - m.noise_floor_var_v2;
+    m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
+    m.noise_at_threshold_v = std::sqrt(m.noise_floor_var_v2 + c.shot_var_per_v * threshold);
+    m.shot_var_per_v = c.shot_var_per_v;
     {
       // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
       // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
-      const double u = threshold / std::sqrt(noise_variance(0.0, gain, background_w));
+      const double u = threshold / std::sqrt(m.noise_floor_var_v2);
       const double tau_p = pulse.pole_time_constant_ns();
       m.false_alarm_rate_per_ns = std::exp(-0.5 * u * u) / (2.0 * kPi * tau_p);
       // Mean excursion length above the level: P(X > u) / nu.
@@ -234,37 +503,76 @@ struct VirtualRangefinder::Impl {
                                    ? 0.5 * std::erfc(u / std::sqrt(2.0)) / m.false_alarm_rate_per_ns
                                    : 0.0;
     }
-
-    // Delays: fixed chain delay plus the timing board's delay tempco and the
-    // unseen warm-up gradient, as extra round-trip time.
-    const double board_dt = board_c - rx.nominal_temperature_c;
-    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
-    m.fixed_delay_ns = config.measurement.fixed_delay_ns +
-                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
-                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
-    m.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
-    m.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+    m.fixed_delay_ns = c.fixed_delay_ns;
+    m.tdc_bin_scale = c.tdc_bin_scale;
+    m.temperature_reading_c = c.temperature_reading_c;
     m.amplitude_noise_rel = rx.amplitude_noise_rel;
     m.turn_on_start_ms = cond.ms_since_laser_on;
+    // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
+    const double sigma = m.noise_at_threshold_v;
+    const double level_lo = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
+    const double level_hi = threshold + kLevelSpanSigma * sigma;
+    m.level_begin_v = level_lo;
+    m.level_end_v = level_hi;
+
+    // Fast path: one surface whose echo has a single peak, analytic mode.
+    if (shapes) {
+      int surfaces = 0;
+      SurfaceEcho e;
+      for (const auto& s : target.surfaces) {
+        SurfaceEcho one;
+        if (surface_echo(s, c, one)) {
+          e = one;
+          ++surfaces;
+        }
+      }
+      if (surfaces == 0) {
+        set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
+        return m;
+      }
+      if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns()) {
+        m.fast = true;
+        m.amplitude_v = e.amplitude_v;
+        m.delay_ns = e.delay_ns;
+        m.spread = shapes->at(e.spread_ns);
+        m.peak_v = e.amplitude_v * shapes->peak(m.spread);
+        m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
+        m.level_top_v = m.peak_v;
+        m.saturated = m.peak_v > rx.saturation_v;
+        m.recovery_ns =
+            m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+        if (m.peak_v >= threshold) {
+          m.edge_correlation =
+              pulse.noise_correlation(fall_at(m, threshold) - rise_at(m, threshold));
+        } else {
+          m.edge_correlation = 1.0;  // no crossing at the threshold: the tables' flat top
+        }
+        set_false_alarm_window(m, level_lo <= m.peak_v ? rise_at(m, level_lo) : m.peak_time_ns);
+        return m;
+      }
+    }
+
+    thread_local std::vector<EchoComponent> comps;
+    components(target, c, comps);
     if (comps.empty()) {
-      set_false_alarm_window(m, 1e9 / config.link.laser.repetition_hz);  // armed until next pulse
+      set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
       return m;
     }
 
     // Noise-free composite echo on a fine grid.
     double first = comps.front().delay_ns, last = first;
-    for (const auto& c : comps) {
-      first = std::min(first, c.delay_ns);
-      last = std::max(last, c.delay_ns);
+    for (const auto& comp : comps) {
+      first = std::min(first, comp.delay_ns);
+      last = std::max(last, comp.delay_ns);
     }
     m.grid_begin_ns = first + pulse.begin_ns();
     const double grid_end = last + pulse.end_ns();
     const auto n = static_cast<std::size_t>((grid_end - m.grid_begin_ns) / kCompositeStepNs) + 2;
     m.composite.assign(n, 0.0);
-    for (const auto& c : comps) {
+    for (const auto& comp : comps) {
       for (std::size_t i = 0; i < n; ++i) {
         const double t = m.grid_begin_ns + static_cast<double>(i) * kCompositeStepNs;
-        m.composite[i] += c.amplitude_v * pulse(t - c.delay_ns);
+        m.composite[i] += comp.amplitude_v * pulse(t - comp.delay_ns);
       }
     }
     const auto peak_it = std::max_element(m.composite.begin(), m.composite.end());
@@ -279,11 +587,7 @@ struct VirtualRangefinder::Impl {
 
     // Crossing tables: for each comparator level L (threshold shifted by the
     // noise), the first upcrossing and the following downcrossing of the echo.
-    const double sigma = m.noise_at_threshold_v;
-    const double level_lo = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
-    const double level_hi = threshold + kLevelSpanSigma * sigma;
     const double level_step = (level_hi - level_lo) / static_cast<double>(kLevels - 1);
-    m.level_begin_v = level_lo;
     m.inv_level_step = 1.0 / level_step;
     m.level_top_v = 0;
     // The first upcrossing index never decreases with the level: one forward pointer.
@@ -304,9 +608,9 @@ struct VirtualRangefinder::Impl {
         while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
         while (i < n && m.composite[i] >= level) ++i;
         if (i < n) {
-          const double c = m.composite[i - 1], d = m.composite[i];
+          const double c0 = m.composite[i - 1], d = m.composite[i];
           fall = m.grid_begin_ns +
-                 (static_cast<double>(i - 1) + (c - level) / (c - d)) * kCompositeStepNs;
+                 (static_cast<double>(i - 1) + (c0 - level) / (c0 - d)) * kCompositeStepNs;
         }
       }
       m.rise_ns[j] = rise;
@@ -321,7 +625,8 @@ struct VirtualRangefinder::Impl {
     if (mode == SimulationMode::kWaveform) {
       m.noise_sigma.resize(n);
       for (std::size_t i = 0; i < n; ++i)
-        m.noise_sigma[i] = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * m.composite[i]);
+        m.noise_sigma[i] =
+            std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
     set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? m.rise_ns[0] : m.record_begin_ns);
     return m;
@@ -360,14 +665,13 @@ struct VirtualRangefinder::Impl {
                                         double& rise, double& fall) const {
     const double threshold = config.discriminator.threshold_v;
     const double level_rise = crossing_level(m, threshold, z_rise);
-    if (m.composite.empty() || level_rise > m.peak_v || level_rise > m.level_top_v) return false;
+    if ((!m.fast && m.composite.empty()) || level_rise > m.peak_v || level_rise > m.level_top_v)
+      return false;
     const double z_fall = m.edge_correlation * z_rise +
                           std::sqrt(1.0 - m.edge_correlation * m.edge_correlation) * z_fall_ind;
     const double level_fall = crossing_level(m, threshold, z_fall);
-    rise = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level_rise);
-    fall = level_fall >= m.level_top_v
-               ? m.peak_time_ns
-               : table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level_fall);
+    rise = rise_at(m, level_rise);
+    fall = level_fall >= m.level_top_v ? m.peak_time_ns : fall_at(m, level_fall);
     fall = std::max(fall, rise) + m.recovery_ns;
     return true;
   }
@@ -626,15 +930,13 @@ EchoShape VirtualRangefinder::echo(const Target& target, const Conditions& condi
   e.saturated = m.saturated;
   e.noise_at_rise_v = m.noise_at_threshold_v;
   const double threshold = impl_->config.discriminator.threshold_v;
-  e.detected = !m.composite.empty() && m.peak_v >= threshold;
+  e.detected = (m.fast || !m.composite.empty()) && m.peak_v >= threshold;
   if (!e.detected) return e;
-  e.rise_crossing_ns = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
-  e.fall_crossing_ns =
-      table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold) + m.recovery_ns;
+  e.rise_crossing_ns = impl_->rise_at(m, threshold);
+  e.fall_crossing_ns = impl_->fall_at(m, threshold) + m.recovery_ns;
   // Slope from two nearby levels of the crossing table.
   const double dl = 0.01 * m.noise_at_threshold_v;
-  const double dt = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold + dl) -
-                    table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold - dl);
+  const double dt = impl_->rise_at(m, threshold + dl) - impl_->rise_at(m, threshold - dl);
   e.rise_slope_v_per_ns = dt > 0 ? 2.0 * dl / dt : 0.0;
   return e;
 }
