@@ -8,6 +8,7 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -40,7 +41,9 @@ constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place
 class CounterRng {
  public:
   explicit CounterRng(std::uint64_t seed)
-      : key_{{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32)}} {}
+      : seed_(seed),
+        key_{{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32)}} {}
+  [[nodiscard]] std::uint64_t seed() const { return seed_; }
   [[nodiscard]] std::array<std::uint32_t, 4> draw(std::uint64_t stream, std::uint32_t shot,
                                                   std::uint32_t block) const {
     const r123::Philox4x32::ctr_type ctr{{shot, block, static_cast<std::uint32_t>(stream),
@@ -50,6 +53,7 @@ class CounterRng {
   }
 
  private:
+  std::uint64_t seed_;
   r123::Philox4x32::key_type key_;
 };
 
@@ -58,11 +62,37 @@ inline double unit_open(std::uint32_t u) {
   return (static_cast<double>(u >> 8) + 0.5) * (1.0 / 16777216.0);
 }
 
+/// sin and cos of the phase 2 pi unit_open(b): unit_open keeps 24 bits k, and
+/// 2 pi (k + 1/2) / 2^24 = a + c with a from the top 12 bits, c from the low
+/// 12 (and the half): two 4096-entry tables and the angle-addition formula,
+/// within a few ulp of sincos.
+struct PhaseTables {
+  struct SinCos {
+    double s, c;
+  };
+  std::array<SinCos, 4096> coarse, fine;
+  PhaseTables() {
+    for (std::size_t i = 0; i < 4096; ++i) {
+      ::sincos(2.0 * kPi * static_cast<double>(i) / 4096.0, &coarse[i].s, &coarse[i].c);
+      ::sincos(2.0 * kPi * (static_cast<double>(i) + 0.5) / 16777216.0, &fine[i].s, &fine[i].c);
+    }
+  }
+};
+
+inline void sincos_of_phase(std::uint32_t b, double& s, double& c) {
+  static const PhaseTables tables;
+  const std::uint32_t k = b >> 8;
+  const auto& a = tables.coarse[k >> 12];
+  const auto& f = tables.fine[k & 4095u];
+  s = a.s * f.c + a.c * f.s;
+  c = a.c * f.c - a.s * f.s;
+}
+
 /// Two independent standard normals (Box-Muller).
 inline std::array<double, 2> normal_pair(std::uint32_t a, std::uint32_t b) {
   const double r = std::sqrt(-2.0 * std::log(unit_open(a)));
   double sin_phase = 0, cos_phase = 0;
-  ::sincos(2.0 * kPi * unit_open(b), &sin_phase, &cos_phase);
+  sincos_of_phase(b, sin_phase, cos_phase);
   return {r * cos_phase, r * sin_phase};
 }
 
@@ -204,9 +234,14 @@ class SpreadEchoTable {
   }
   [[nodiscard]] double peak(At a) const { return mix(a, peaks_); }
   [[nodiscard]] double peak_time_ns(At a) const { return mix(a, peak_times_); }
-  /// First upcrossing / following downcrossing of x (level over amplitude).
-  [[nodiscard]] double rise_ns(At a, double x) const { return cross(a, x, 0); }
-  [[nodiscard]] double fall_ns(At a, double x) const { return cross(a, x, kLow + kHigh); }
+  /// Peak of a row (the level y of a row is x / row_peak).
+  [[nodiscard]] double row_peak(std::size_t row) const { return peaks_[row]; }
+  /// First upcrossing / following downcrossing of the levels y0 = x / P_row and
+  /// y1 = x / P_row+1 (x: level over amplitude), interpolated between the rows.
+  [[nodiscard]] double rise_ns(At a, double y0, double y1) const { return cross(a, y0, y1, 0); }
+  [[nodiscard]] double fall_ns(At a, double y0, double y1) const {
+    return cross(a, y0, y1, kLow + kHigh);
+  }
 
  private:
   static double low_level(std::size_t j) {
@@ -235,10 +270,10 @@ class SpreadEchoTable {
     const double w = f - static_cast<double>(i);
     return t[i] + w * (t[i + 1] - t[i]);
   }
-  [[nodiscard]] double cross(At a, double x, std::size_t branch) const {
-    const double t0 = row_cross(a.row, x / peaks_[a.row], branch);
+  [[nodiscard]] double cross(At a, double y0, double y1, std::size_t branch) const {
+    const double t0 = row_cross(a.row, y0, branch);
     if (a.w <= 0) return t0;
-    return t0 + a.w * (row_cross(a.row + 1, x / peaks_[a.row + 1], branch) - t0);
+    return t0 + a.w * (row_cross(a.row + 1, y1, branch) - t0);
   }
 
   double step_ns_ = 0, inv_step_ = 0, high_scale_ = 0, max_spread_ns_ = 0;
@@ -284,6 +319,7 @@ struct MeasurementSetup {
   bool fast = false;
   double amplitude_v = 0, delay_ns = 0;
   SpreadEchoTable::At spread{};
+  double inv_row_peak_v[2] = {0, 0};  // 1 / (amplitude x peak) of the two rows
   double noise_at_threshold_v = 0;
   double noise_floor_var_v2 = 0;  // noise variance without signal
   double shot_var_per_v = 0;      // signal shot noise variance per volt of signal
@@ -297,12 +333,11 @@ struct MeasurementSetup {
   double turn_on_start_ms = 0;
   // Noise alone crossing the threshold before the echo (false alarms).
   double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
-  double false_alarm_width_ns = 0;     // mean time above threshold of such an excursion
+  double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
   double record_begin_ns = 0;          // waveform mode samples from here on
   double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
 };
-
 
 /// One surface's echo: amplitude, delay and the round-trip spread over half the
 /// footprint's depth (0 when below 1e-4 ns: a point echo).
@@ -364,8 +399,15 @@ struct VirtualRangefinder::Impl {
       ConditionState state;
     };
     thread_local Cache cache;
-    if (cache.device == id && cache.ambient_c == cond.ambient_c &&
-        cache.minutes == cond.minutes_since_power_on)
+    // Warmed up (every exp(-t / tau) of the thermal model underflows to 0):
+    // all such times give the same state, bit for bit.
+    const auto& thermal = config.thermal;
+    const double settled_min =
+        800.0 * std::max(thermal.warmup_time_constant_min, thermal.sensor_lag_min);
+    const double minutes = cond.minutes_since_power_on > settled_min
+                               ? std::numeric_limits<double>::infinity()
+                               : cond.minutes_since_power_on;
+    if (cache.device == id && cache.ambient_c == cond.ambient_c && cache.minutes == minutes)
       return cache.state;
     const auto& th = config.thermal;
     const auto& rx = config.link.receiver;
@@ -408,7 +450,7 @@ struct VirtualRangefinder::Impl {
                        rx.bandwidth_mhz * 1e6 * z_ohm;
     cache.device = id;
     cache.ambient_c = cond.ambient_c;
-    cache.minutes = cond.minutes_since_power_on;
+    cache.minutes = minutes;
     return c;
   }
 
@@ -426,7 +468,8 @@ struct VirtualRangefinder::Impl {
     out.amplitude_v = power_w * c.volts_per_watt;
     // The comparator is re-armed at every pulse: an echo later than the pulse
     // period arrives after a later pulse and is timed from that one (ambiguity).
-    out.delay_ns = std::fmod(2.0 * s.distance_m / c.c_m_per_ns, pulse_period_ns);
+    out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;
+    if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
     // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
     // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
     const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
@@ -475,12 +518,12 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] double rise_at(const MeasurementSetup& m, double level) const {
     if (!m.fast) return table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level);
     const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
-    return m.delay_ns + shapes->rise_ns(m.spread, l / m.amplitude_v);
+    return m.delay_ns + shapes->rise_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1]);
   }
   [[nodiscard]] double fall_at(const MeasurementSetup& m, double level) const {
     if (!m.fast) return table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level);
     const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
-    return m.delay_ns + shapes->fall_ns(m.spread, l / m.amplitude_v);
+    return m.delay_ns + shapes->fall_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1]);
   }
 
   [[nodiscard]] MeasurementSetup setup(const Target& target, const Conditions& cond) const {
@@ -499,9 +542,7 @@ struct VirtualRangefinder::Impl {
       const double tau_p = pulse.pole_time_constant_ns();
       m.false_alarm_rate_per_ns = std::exp(-0.5 * u * u) / (2.0 * kPi * tau_p);
       // Mean excursion length above the level: P(X > u) / nu.
-      m.false_alarm_width_ns = m.false_alarm_rate_per_ns > 0
-                                   ? 0.5 * std::erfc(u / std::sqrt(2.0)) / m.false_alarm_rate_per_ns
-                                   : 0.0;
+      m.threshold_over_noise = u;  // the excursion width is worked out when one occurs
     }
     m.fixed_delay_ns = c.fixed_delay_ns;
     m.tdc_bin_scale = c.tdc_bin_scale;
@@ -535,6 +576,9 @@ struct VirtualRangefinder::Impl {
         m.amplitude_v = e.amplitude_v;
         m.delay_ns = e.delay_ns;
         m.spread = shapes->at(e.spread_ns);
+        m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
+        m.inv_row_peak_v[1] =
+            m.spread.w > 0 ? 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row + 1)) : 0.0;
         m.peak_v = e.amplitude_v * shapes->peak(m.spread);
         m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
         m.level_top_v = m.peak_v;
@@ -781,22 +825,44 @@ struct VirtualRangefinder::Impl {
   /// (stream i starts i measurement periods after power-on).
   [[nodiscard]] double slow_offset_ns(const CounterRng& rng, std::uint64_t stream) const {
     const auto& mc = config.measurement;
-    const auto power_on = rng.draw(kPowerOnStream, 0, 0);
-    const double offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
-    if (mc.flicker_delay_ps <= 0.0) return offset;
+    // The run's draws (power-on offset, the octaves' phases) depend on the seed
+    // only: worked out once per thread and seed.
+    struct Run {
+      std::uint64_t device = 0, seed = 0;
+      double offset = 0;
+      std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
+    };
+    thread_local Run run;
+    if (run.device != id || run.seed != rng.seed()) {
+      const auto power_on = rng.draw(kPowerOnStream, 0, 0);
+      run.offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
+      for (int k = 0; k < kFlickerOctaves; k += 4) {
+        const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
+        for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
+          const auto o = static_cast<std::size_t>(k + j);
+          ::sincos(2.0 * kPi * unit_open(r[static_cast<std::size_t>(j)]), &run.sin_phase[o],
+                   &run.cos_phase[o]);
+        }
+      }
+      run.device = id;
+      run.seed = rng.seed();
+    }
+    if (mc.flicker_delay_ps <= 0.0) return run.offset;
     // 1/f noise has equal power per octave: one sinusoid of random phase per
     // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
+    // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
     const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
     const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
+    double sin_a = 0, cos_a = 0;
+    ::sincos(2.0 * kPi * kFlickerLowestHz * t_s, &sin_a, &cos_a);
     double wander = 0;
-    for (int k = 0; k < kFlickerOctaves; k += 4) {
-      const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
-      for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
-        const double f_hz = kFlickerLowestHz * std::ldexp(1.0, k + j);
-        wander += amplitude * std::sin(2.0 * kPi * (f_hz * t_s + unit_open(r[j])));
-      }
+    for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
+      wander += sin_a * run.cos_phase[k] + cos_a * run.sin_phase[k];  // sin(a + phase)
+      const double s2 = 2.0 * sin_a * cos_a;
+      cos_a = (cos_a - sin_a) * (cos_a + sin_a);
+      sin_a = s2;
     }
-    return offset + wander;
+    return run.offset + amplitude * wander;
   }
 
   [[nodiscard]] bool shot(const MeasurementSetup& m, const CounterRng& rng, std::uint64_t stream,
@@ -811,7 +877,9 @@ struct VirtualRangefinder::Impl {
     if (u_false < m.false_alarm_probability) {
       // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
       rise = -std::log1p(-u_false) / m.false_alarm_rate_per_ns;
-      fall = rise + m.false_alarm_width_ns;
+      // Mean excursion length above the level: P(X > u) / nu.
+      fall = rise +
+             0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
       echo = true;
     } else if (mode == SimulationMode::kAnalytic) {
       const auto z = normal_pair(r[0], r[1]);
