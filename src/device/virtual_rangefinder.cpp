@@ -146,7 +146,8 @@ class SpreadEchoTable {
   static constexpr std::size_t kHigh = 257;                       // y in [1/2, 1]
   static constexpr std::size_t kRowSize = 2 * (kLow + kHigh);
   static constexpr std::size_t kMaxRows = 256;
-  static constexpr double kSampleNs = 0.005;  // the template's own step
+  static constexpr double kSampleNs = 0.005;      // the template's own step
+  static constexpr double kMaxEvaluations = 3e7;  // pulse evaluations to build the rows
 
   explicit SpreadEchoTable(const physics::PulseTemplate& pulse) {
     const auto& nodes = footprint_nodes();
@@ -162,12 +163,14 @@ class SpreadEchoTable {
       const double s = sqrt_half * (1.0 - static_cast<double>(j) / static_cast<double>(kHigh - 1));
       levels[kLow + j] = j + 1 == kHigh ? 1.0 : 1.0 - s * s;
     }
-    for (std::size_t r = 0; r < kMaxRows; ++r) {
+    double evaluations = 0;  // build cost: long templates get fewer rows
+    for (std::size_t r = 0; r < kMaxRows && evaluations < kMaxEvaluations; ++r) {
       const double h = static_cast<double>(r) * step_ns_;
       const double t0 = pulse.begin_ns() - h - kSampleNs;
       const auto n =
           static_cast<std::size_t>((pulse.end_ns() + h + kSampleNs - t0) / kSampleNs) + 2;
       g.assign(n, 0.0);
+      evaluations += static_cast<double>(n * nodes.u.size());
       for (std::size_t i = 0; i < n; ++i) {
         const double t = t0 + static_cast<double>(i) * kSampleNs;
         double v = 0;
@@ -335,6 +338,8 @@ struct MeasurementSetup {
   double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
   double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
   double record_begin_ns = 0;          // waveform mode samples from here on
+  double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
+  double record_end_ns = 0;            // waveform mode samples up to here
   double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
 };
@@ -555,6 +560,11 @@ struct VirtualRangefinder::Impl {
     const double level_hi = threshold + kLevelSpanSigma * sigma;
     m.level_begin_v = level_lo;
     m.level_end_v = level_hi;
+    m.blanking_ns = config.discriminator.blanking_ns;
+    // Optical crosstalk from the emitter into the receiver: a copy of the pulse
+    // at zero range (the same receive chain as the echoes); optical, so it
+    // follows the laser power and the APD gain.
+    const double crosstalk_v = rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
 
     // Fast path: one surface whose echo has a single peak, analytic mode.
     if (shapes) {
@@ -567,11 +577,15 @@ struct VirtualRangefinder::Impl {
           ++surfaces;
         }
       }
-      if (surfaces == 0) {
+      if (surfaces == 0 && crosstalk_v <= 0.0) {
         set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
         return m;
       }
-      if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns()) {
+      // (No crosstalk, and the echo starts after any blanking.)
+      const bool after_blanking =
+          m.blanking_ns <= 0.0 || m.blanking_ns <= e.delay_ns + pulse.begin_ns() - e.spread_ns;
+      if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns() && crosstalk_v <= 0.0 &&
+          after_blanking) {
         m.fast = true;
         m.amplitude_v = e.amplitude_v;
         m.delay_ns = e.delay_ns;
@@ -598,6 +612,7 @@ struct VirtualRangefinder::Impl {
 
     thread_local std::vector<EchoComponent> comps;
     components(target, c, comps);
+    if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
       set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
       return m;
@@ -619,7 +634,19 @@ struct VirtualRangefinder::Impl {
         m.composite[i] += comp.amplitude_v * pulse(t - comp.delay_ns);
       }
     }
-    const auto peak_it = std::max_element(m.composite.begin(), m.composite.end());
+    // The comparator (and the peak detector) are blanked before blanking_ns.
+    const bool gated = m.blanking_ns > 0.0 && m.blanking_ns > m.grid_begin_ns;
+    const std::size_t i_gate =
+        gated ? std::min(n, static_cast<std::size_t>(
+                                std::ceil((m.blanking_ns - m.grid_begin_ns) / kCompositeStepNs)))
+              : 0;
+    if (i_gate >= n) {
+      set_false_alarm_window(m, pulse_period_ns);  // everything blanked
+      m.composite.clear();
+      return m;
+    }
+    const auto peak_it = std::max_element(m.composite.begin() + static_cast<std::ptrdiff_t>(i_gate),
+                                          m.composite.end());
     m.peak_v = *peak_it;
     m.peak_time_ns =
         m.grid_begin_ns + static_cast<double>(peak_it - m.composite.begin()) * kCompositeStepNs;
@@ -634,50 +661,106 @@ struct VirtualRangefinder::Impl {
     const double level_step = (level_hi - level_lo) / static_cast<double>(kLevels - 1);
     m.inv_level_step = 1.0 / level_step;
     m.level_top_v = 0;
-    // The first upcrossing index never decreases with the level: one forward pointer.
-    // The downcrossing after it is found with a coarse stride (echo features span
-    // hundreds of grid steps), then refined step by step.
-    constexpr std::size_t kStride = 8;
-    std::size_t i_rise = 1;
-    for (std::size_t j = 0; j < kLevels; ++j) {
-      const double level = level_lo + static_cast<double>(j) * level_step;
-      double rise = m.peak_time_ns, fall = m.peak_time_ns;
-      while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
-      if (i_rise < n) {
-        m.level_top_v = level;
-        const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
-        rise = m.grid_begin_ns +
-               (static_cast<double>(i_rise - 1) + (level - a) / (b - a)) * kCompositeStepNs;
-        std::size_t i = i_rise;
-        while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
-        while (i < n && m.composite[i] >= level) ++i;
-        if (i < n) {
-          const double c0 = m.composite[i - 1], d = m.composite[i];
-          fall = m.grid_begin_ns +
-                 (static_cast<double>(i - 1) + (c0 - level) / (c0 - d)) * kCompositeStepNs;
+    auto time_at = [&](std::size_t i, double frac) {
+      return m.grid_begin_ns + (static_cast<double>(i) + frac) * kCompositeStepNs;
+    };
+    if (gated) {
+      // Blanked: the first upcrossing after the blanking (NaN: none; a level
+      // already exceeded when the comparator is released is not a crossing),
+      // and the first downcrossing after it (or after the blanking).
+      for (std::size_t j = 0; j < kLevels; ++j) {
+        const double level = level_lo + static_cast<double>(j) * level_step;
+        double rise = std::numeric_limits<double>::quiet_NaN(), fall = m.peak_time_ns;
+        std::size_t i = std::max<std::size_t>(i_gate, 1);
+        for (; i < n; ++i) {
+          const double a = m.composite[i - 1], b = m.composite[i];
+          if (a < level && b >= level) {
+            const double t = time_at(i - 1, (level - a) / (b - a));
+            if (t >= m.blanking_ns) {
+              rise = t;
+              break;
+            }
+          }
         }
+        std::size_t k = i < n ? i : std::max<std::size_t>(i_gate, 1);
+        for (; k < n; ++k) {
+          const double a = m.composite[k - 1], b = m.composite[k];
+          if (a >= level && b < level) {
+            fall = time_at(k - 1, (a - level) / (a - b));
+            break;
+          }
+        }
+        if (!std::isnan(rise)) {
+          m.level_top_v = level;
+          fall = std::max(fall, rise);
+        }
+        m.rise_ns[j] = rise;
+        m.fall_ns[j] = fall;
       }
-      m.rise_ns[j] = rise;
-      m.fall_ns[j] = std::max(fall, rise);
+    } else {
+      // The first upcrossing index never decreases with the level: one forward pointer.
+      // The downcrossing after it is found with a coarse stride (echo features span
+      // hundreds of grid steps), then refined step by step.
+      constexpr std::size_t kStride = 8;
+      std::size_t i_rise = 1;
+      for (std::size_t j = 0; j < kLevels; ++j) {
+        const double level = level_lo + static_cast<double>(j) * level_step;
+        double rise = m.peak_time_ns, fall = m.peak_time_ns;
+        while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
+        if (i_rise < n) {
+          m.level_top_v = level;
+          const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
+          rise = time_at(i_rise - 1, (level - a) / (b - a));
+          std::size_t i = i_rise;
+          while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
+          while (i < n && m.composite[i] >= level) ++i;
+          if (i < n) {
+            const double c0 = m.composite[i - 1], d = m.composite[i];
+            fall = time_at(i - 1, (c0 - level) / (c0 - d));
+          }
+        }
+        m.rise_ns[j] = rise;
+        m.fall_ns[j] = std::max(fall, rise);
+      }
     }
     // Noise at the two crossings is correlated through the receiver bandwidth.
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
-    m.edge_correlation = pulse.noise_correlation(fall0 - rise0);
+    m.edge_correlation = std::isnan(rise0) ? 1.0 : pulse.noise_correlation(fall0 - rise0);
     const double tau = pulse.pole_time_constant_ns();
-    m.record_begin_ns = std::min(m.rise_ns[kLevels - 1] - 4.0 - 6.0 * tau, m.rise_ns[0] - 4.0);
+    // Earliest and latest rising crossing over the levels (the first and last
+    // level's without blanking, where the crossing time grows with the level).
+    double first_rise = m.rise_ns[0], last_rise = m.rise_ns[kLevels - 1];
+    if (gated) {
+      first_rise = last_rise = m.peak_time_ns;
+      bool any = false;
+      for (const double r : m.rise_ns) {
+        if (std::isnan(r)) continue;
+        first_rise = any ? std::min(first_rise, r) : r;
+        last_rise = any ? std::max(last_rise, r) : r;
+        any = true;
+      }
+      first_rise = std::max(first_rise, m.blanking_ns);
+    }
+    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
+    // Waveform record's end: past the first fall, or the whole echo when gated
+    // (crosstalk or blanking may end the first excursion before the echo).
+    m.record_end_ns = m.fall_ns[0] + m.recovery_ns + 4.0;
+    if (gated || crosstalk_v > 0.0)
+      m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
     if (mode == SimulationMode::kWaveform) {
       m.noise_sigma.resize(n);
       for (std::size_t i = 0; i < n; ++i)
         m.noise_sigma[i] =
             std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
-    set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? m.rise_ns[0] : m.record_begin_ns);
+    set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
     return m;
   }
 
-  static void set_false_alarm_window(MeasurementSetup& m, double window_ns) {
-    m.false_alarm_window_ns = std::max(window_ns, 0.0);
+  /// Noise crossings count from the end of the blanking to `end_ns`.
+  static void set_false_alarm_window(MeasurementSetup& m, double end_ns) {
+    m.false_alarm_window_ns = std::max(end_ns - m.blanking_ns, 0.0);
     m.false_alarm_probability = -std::expm1(-m.false_alarm_rate_per_ns * m.false_alarm_window_ns);
   }
 
@@ -715,6 +798,7 @@ struct VirtualRangefinder::Impl {
                           std::sqrt(1.0 - m.edge_correlation * m.edge_correlation) * z_fall_ind;
     const double level_fall = crossing_level(m, threshold, z_fall);
     rise = rise_at(m, level_rise);
+    if (std::isnan(rise)) return false;  // blanked: no crossing after the comparator is released
     fall = level_fall >= m.level_top_v ? m.peak_time_ns : fall_at(m, level_fall);
     fall = std::max(fall, rise) + m.recovery_ns;
     return true;
@@ -737,7 +821,7 @@ struct VirtualRangefinder::Impl {
         var_white * std::pow(1.0 - a, 4) * (1.0 + a * a) / std::pow(1.0 - a * a, 3);
     const double norm = 1.0 / std::sqrt(filtered_var);
     // Record from before the earliest possible rise to after the latest fall.
-    const double t_end = m.fall_ns[0] + m.recovery_ns + 4.0;
+    const double t_end = m.record_end_ns;
     const double t0 = m.record_begin_ns + phase_u * dt;
     const auto burn_in = static_cast<std::size_t>(std::ceil(6.0 * tau / dt));
     const auto n = static_cast<std::size_t>((t_end - t0) / dt) + 1;
@@ -796,7 +880,7 @@ struct VirtualRangefinder::Impl {
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          above = true;
+          above = rise >= m.blanking_ns;  // a blanked crossing is not seen
         } else if (above) {
           if (v > rx.saturation_v) {
             clipped = true;
@@ -876,7 +960,7 @@ struct VirtualRangefinder::Impl {
     const double u_false = unit_open(r[3]);
     if (u_false < m.false_alarm_probability) {
       // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-      rise = -std::log1p(-u_false) / m.false_alarm_rate_per_ns;
+      rise = m.blanking_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
       // Mean excursion length above the level: P(X > u) / nu.
       fall = rise +
              0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
@@ -998,7 +1082,8 @@ EchoShape VirtualRangefinder::echo(const Target& target, const Conditions& condi
   e.saturated = m.saturated;
   e.noise_at_rise_v = m.noise_at_threshold_v;
   const double threshold = impl_->config.discriminator.threshold_v;
-  e.detected = (m.fast || !m.composite.empty()) && m.peak_v >= threshold;
+  e.detected = (m.fast || !m.composite.empty()) && m.peak_v >= threshold &&
+               !std::isnan(impl_->rise_at(m, threshold));
   if (!e.detected) return e;
   e.rise_crossing_ns = impl_->rise_at(m, threshold);
   e.fall_crossing_ns = impl_->fall_at(m, threshold) + m.recovery_ns;
