@@ -375,6 +375,7 @@ struct VirtualRangefinder::Impl {
   double pulse_period_ns;            // 1 / f_rep
   std::uint64_t id;                  // tags the per-thread caches of this device
   std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
+  bool background_free = false;  // no sun, no sky: no background light on any surface
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -393,6 +394,8 @@ struct VirtualRangefinder::Impl {
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
     if (mode == SimulationMode::kAnalytic)
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
+    // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
+    background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
   }
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
@@ -535,19 +538,33 @@ struct VirtualRangefinder::Impl {
     const auto& rx = config.link.receiver;
     const ConditionState& c = condition_state(cond);
     MeasurementSetup m;
-    const double background_w = background_power_w(target);
+    const double background_w = background_free ? 0.0 : background_power_w(target);
     const double threshold = config.discriminator.threshold_v;
     m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
-    m.noise_at_threshold_v = std::sqrt(m.noise_floor_var_v2 + c.shot_var_per_v * threshold);
     m.shot_var_per_v = c.shot_var_per_v;
     {
-      // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
-      // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
-      const double u = threshold / std::sqrt(m.noise_floor_var_v2);
-      const double tau_p = pulse.pole_time_constant_ns();
-      m.false_alarm_rate_per_ns = std::exp(-0.5 * u * u) / (2.0 * kPi * tau_p);
-      // Mean excursion length above the level: P(X > u) / nu.
-      m.threshold_over_noise = u;  // the excursion width is worked out when one occurs
+      // Noise at the threshold and Rice's rate, cached per thread on the noise
+      // (the same for every target without background light).
+      struct NoiseCache {
+        std::uint64_t device = 0;
+        double floor_var = -1, shot_var = -1, at_threshold = 0, u = 0, rate = 0;
+      };
+      thread_local NoiseCache cache;
+      if (cache.device != id || cache.floor_var != m.noise_floor_var_v2 ||
+          cache.shot_var != m.shot_var_per_v) {
+        cache.at_threshold = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * threshold);
+        // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
+        // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
+        cache.u = threshold / std::sqrt(m.noise_floor_var_v2);
+        const double tau_p = pulse.pole_time_constant_ns();
+        cache.rate = std::exp(-0.5 * cache.u * cache.u) / (2.0 * kPi * tau_p);
+        cache.device = id;
+        cache.floor_var = m.noise_floor_var_v2;
+        cache.shot_var = m.shot_var_per_v;
+      }
+      m.noise_at_threshold_v = cache.at_threshold;
+      m.false_alarm_rate_per_ns = cache.rate;
+      m.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
     }
     m.fixed_delay_ns = c.fixed_delay_ns;
     m.tdc_bin_scale = c.tdc_bin_scale;
@@ -605,7 +622,13 @@ struct VirtualRangefinder::Impl {
         } else {
           m.edge_correlation = 1.0;  // no crossing at the threshold: the tables' flat top
         }
-        set_false_alarm_window(m, level_lo <= m.peak_v ? rise_at(m, level_lo) : m.peak_time_ns);
+        // A shot's alarm needs its 24-bit uniform below the probability, so one
+        // below 2^-26 never fires: the window need not be worked out.
+        const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
+        if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
+          m.false_alarm_probability = 0.0;
+        else
+          set_false_alarm_window(m, level_lo <= m.peak_v ? rise_at(m, level_lo) : m.peak_time_ns);
         return m;
       }
     }
