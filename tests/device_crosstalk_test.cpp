@@ -7,6 +7,7 @@
 #include <cmath>
 #include <string>
 
+#include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 
 using namespace tofkit;
@@ -103,4 +104,15 @@ TEST(DeviceCrosstalk, BadKeysAreRejectedNamingThem) {
   EXPECT_TRUE(names_key(validate(cfg), "discriminator.blanking_ns"));
   cfg.discriminator.blanking_ns = 10.0;
   EXPECT_TRUE(validate(cfg).empty());
+  // With crosstalk the composite echo spans a pulse period: a slow laser is
+  // refused naming both keys.
+  cfg = preset("paper");
+  cfg.link.receiver.crosstalk_v = 0.5;
+  EXPECT_TRUE(check_config_limits(cfg).empty());
+  cfg.link.laser.repetition_hz = 1e3;  // 1 ms period: 1e8 samples of 10 ps
+  const auto limits = check_config_limits(cfg);
+  ASSERT_EQ(limits.size(), 1u);
+  EXPECT_EQ(limits[0].keys.front(), "receiver.crosstalk_v");
+  cfg.link.receiver.crosstalk_v = 0.0;
+  EXPECT_TRUE(check_config_limits(cfg).empty());
 }

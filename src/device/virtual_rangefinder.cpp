@@ -652,7 +652,13 @@ struct VirtualRangefinder::Impl {
     const auto n = static_cast<std::size_t>((grid_end - m.grid_begin_ns) / kCompositeStepNs) + 2;
     m.composite.assign(n, 0.0);
     for (const auto& comp : comps) {
-      for (std::size_t i = 0; i < n; ++i) {
+      // Only over the component's support (zero outside): far-apart components,
+      // such as the crosstalk and a far echo, cost their spans, not the gap.
+      const double lo = (comp.delay_ns + pulse.begin_ns() - m.grid_begin_ns) / kCompositeStepNs;
+      const double hi = (comp.delay_ns + pulse.end_ns() - m.grid_begin_ns) / kCompositeStepNs;
+      const auto i_lo = static_cast<std::size_t>(std::max(std::floor(lo), 0.0));
+      const auto i_hi = std::min(n, static_cast<std::size_t>(std::max(std::ceil(hi) + 1.0, 0.0)));
+      for (std::size_t i = i_lo; i < i_hi; ++i) {
         const double t = m.grid_begin_ns + static_cast<double>(i) * kCompositeStepNs;
         m.composite[i] += comp.amplitude_v * pulse(t - comp.delay_ns);
       }
@@ -691,10 +697,14 @@ struct VirtualRangefinder::Impl {
       // Blanked: the first upcrossing after the blanking (NaN: none; a level
       // already exceeded when the comparator is released is not a crossing),
       // and the first downcrossing after it (or after the blanking).
+      // No level's upcrossing comes before the first sample at or above the
+      // lowest level after the gate: every search starts there.
+      std::size_t i_first = std::max<std::size_t>(i_gate, 1);
+      while (i_first < n && m.composite[i_first] < level_lo) ++i_first;
       for (std::size_t j = 0; j < kLevels; ++j) {
         const double level = level_lo + static_cast<double>(j) * level_step;
         double rise = std::numeric_limits<double>::quiet_NaN(), fall = m.peak_time_ns;
-        std::size_t i = std::max<std::size_t>(i_gate, 1);
+        std::size_t i = i_first;
         for (; i < n; ++i) {
           const double a = m.composite[i - 1], b = m.composite[i];
           if (a < level && b >= level) {
