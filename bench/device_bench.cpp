@@ -45,6 +45,29 @@ void BM_WaveformShots(benchmark::State& state) {
   run(state, SimulationMode::kWaveform, 100);
 }
 
+/// One shot per measurement over varied one-surface targets (a scan's device
+/// side without the ray casting): measurements per second.
+void BM_AnalyticOneShotMeasurements(benchmark::State& state) {
+  const auto threads = static_cast<std::size_t>(state.range(0));
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+  const VirtualRangefinder dev(preset("paper"), SimulationMode::kAnalytic);
+  std::vector<MeasureRequest> requests;
+  constexpr int kCount = 1 << 16;
+  for (int i = 0; i < kCount; ++i) {
+    const double f = static_cast<double>((static_cast<std::int64_t>(i) * 40503) % kCount) / kCount;
+    requests.push_back(
+        {Target::plate(0.5 + 20.0 * i / kCount, 0.05 + 0.9 * f, 80.0 * (1.0 - f)), {}, 1});
+  }
+  std::vector<tofkit::ranging::RawMeasurement> out(requests.size());
+  std::uint64_t seed = 1;
+  for (auto _ : state) {
+    dev.measure_batch(requests, seed++, out);
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(requests.size()));
+  state.counters["threads"] = static_cast<double>(threads);
+}
+
 /// Baseline: the random numbers a shot needs, and nothing else.
 void BM_BaselinePhiloxNormalPair(benchmark::State& state) {
   const r123::Philox4x32::key_type key{{1, 2}};
@@ -69,6 +92,11 @@ int all_threads() {
 
 BENCHMARK(BM_BaselinePhiloxNormalPair);
 BENCHMARK(BM_AnalyticShots)
+    ->Arg(1)
+    ->Arg(all_threads())
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_AnalyticOneShotMeasurements)
     ->Arg(1)
     ->Arg(all_threads())
     ->UseRealTime()

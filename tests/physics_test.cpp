@@ -34,12 +34,18 @@ TEST(LinkBudget, ExtendedTargetScalesAsRhoCosPhiOverRSquared) {
 }
 
 TEST(LinkBudget, SmallTargetFormWithExtendedCrossSectionIsEq6) {
-  // The paper derives Eq. 6 from Eq. 4 with sigma = 4 rho R^2 theta_t^2 cos(phi).
+  // Eq. 6 is Eq. 4 for a target filling the footprint. The laser-radar cross
+  // section of a Lambertian area A is 4 rho A cos^2(phi); the footprint on a
+  // plane tilted by phi has A = pi R^2 theta_t^2 / cos(phi), so
+  // sigma = 4 pi rho R^2 theta_t^2 cos(phi) (the paper's sigma lacks the pi of
+  // the footprint's area, and its Eq. 4 a pi with it).
   const auto link = paper_link();
   const double theta_t = 0.5 * link.laser.beam_divergence_mrad * 1e-3;
   for (double r : {1.0, 4.0, 9.0}) {
     const double rho = 0.4, phi = 20.0;
-    const double sigma = 4.0 * rho * r * r * theta_t * theta_t * std::cos(deg_to_rad(phi));
+    const double cos_phi = std::cos(deg_to_rad(phi));
+    const double area = kPi * r * r * theta_t * theta_t / cos_phi;
+    const double sigma = 4.0 * rho * area * cos_phi * cos_phi;
     EXPECT_NEAR(
         received_power_small_w(link, r, sigma) / received_power_extended_w(link, r, rho, phi), 1.0,
         1e-12);

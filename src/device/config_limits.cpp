@@ -57,6 +57,20 @@ std::vector<LimitViolation> check_config_limits(const DeviceConfig& config) {
                 " ns); raise the bandwidth or shorten the pulse";
     out.push_back(v);
   }
+  // Crosstalk is an echo at zero range: with it, the composite echo spans from
+  // emission to the farthest (aliased) echo, up to a pulse period.
+  const double period_ns = 1e9 / config.link.laser.repetition_hz;
+  const double crosstalk_samples = (period_ns + template_span_ns(config)) / kEchoStepNs;
+  if (config.link.receiver.crosstalk_v > 0 && !(crosstalk_samples <= kMaxEchoSamples)) {
+    LimitViolation v;
+    v.keys = {"receiver.crosstalk_v", "laser.repetition_hz"};
+    v.message = "receiver.crosstalk_v = " + number(config.link.receiver.crosstalk_v) +
+                " (with laser.repetition_hz = " + number(config.link.laser.repetition_hz) +
+                ") spans echoes over a pulse period of " + number(period_ns) +
+                " ns: " + number(crosstalk_samples) + " samples of 10 ps, more than " +
+                number(kMaxEchoSamples) + "; raise the repetition rate or set no crosstalk";
+    out.push_back(v);
+  }
   return out;
 }
 

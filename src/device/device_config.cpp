@@ -126,6 +126,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             kClosed, "residual of the APD bias loop: margin changes by -error per C. Assumption"),
       field("receiver.amplitude_clip_v", &rx.amplitude_clip_v, 0, 1000, kOpen,
             "ceiling of the amplitude (peak) reading, where its stage clips. Assumption"),
+      field("receiver.crosstalk_v", &rx.crosstalk_v, 0, 1000, kClosed,
+            "emitter-receiver optical crosstalk: its peak at the comparator (a pulse at zero "
+            "range; follows laser power and APD gain). 0: none"),
       field("receiver.axis_offset_mm", &rx.axis_offset_mm, 0, 1000, kClosed,
             "emitter-receiver axis offset (biaxial optics; sets the near blind zone). Assumption"),
 
@@ -148,6 +151,8 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       // discriminator, TDC
       field("discriminator.threshold_v", &disc.threshold_v, 0, 100, kOpen,
             "comparator threshold. Assumption: rho = 0.1 echoes fade out past 8 m (paper: 8.08 m)"),
+      field("discriminator.blanking_ns", &disc.blanking_ns, 0, 1e5, kClosed,
+            "comparator blanked this long after emission: earlier crossings ignored. 0: none"),
       field("tdc.lsb_ps", &tdc.lsb_ps, 0, 1e6, kOpen,
             "fine interpolator LSB (FPGA carry-chain TDC). Assumption"),
       field("tdc.coarse_clock_mhz", &tdc.coarse_clock_mhz, 0, 1e5, kOpen,
@@ -260,6 +265,11 @@ std::vector<std::string> validate(const DeviceConfig& config) {
       laser.pulse_width_ns * 1e-9 * laser.repetition_hz >= 1.0) {
     messages.push_back("laser.pulse_width_ns = " + number_text(laser.pulse_width_ns) +
                        " is not shorter than the pulse period 1 / laser.repetition_hz");
+  }
+  if (laser.repetition_hz > 0 && config.discriminator.blanking_ns >= 1e9 / laser.repetition_hz) {
+    messages.push_back(
+        "discriminator.blanking_ns = " + number_text(config.discriminator.blanking_ns) +
+        " is not shorter than the pulse period 1 / laser.repetition_hz");
   }
   const auto& m = config.measurement;
   if (m.window_ns > 0 && m.sample_period_ps > 0 && m.window_ns * 1e3 / m.sample_period_ps > 1e7) {

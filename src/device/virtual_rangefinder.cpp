@@ -5,7 +5,13 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <bit>
 #include <cmath>
+#include <limits>
+#include <map>
+#include <memory>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -36,7 +42,9 @@ constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place
 class CounterRng {
  public:
   explicit CounterRng(std::uint64_t seed)
-      : key_{{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32)}} {}
+      : seed_(seed),
+        key_{{static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32)}} {}
+  [[nodiscard]] std::uint64_t seed() const { return seed_; }
   [[nodiscard]] std::array<std::uint32_t, 4> draw(std::uint64_t stream, std::uint32_t shot,
                                                   std::uint32_t block) const {
     const r123::Philox4x32::ctr_type ctr{{shot, block, static_cast<std::uint32_t>(stream),
@@ -46,6 +54,7 @@ class CounterRng {
   }
 
  private:
+  std::uint64_t seed_;
   r123::Philox4x32::key_type key_;
 };
 
@@ -54,11 +63,37 @@ inline double unit_open(std::uint32_t u) {
   return (static_cast<double>(u >> 8) + 0.5) * (1.0 / 16777216.0);
 }
 
+/// sin and cos of the phase 2 pi unit_open(b): unit_open keeps 24 bits k, and
+/// 2 pi (k + 1/2) / 2^24 = a + c with a from the top 12 bits, c from the low
+/// 12 (and the half): two 4096-entry tables and the angle-addition formula,
+/// within a few ulp of sincos.
+struct PhaseTables {
+  struct SinCos {
+    double s, c;
+  };
+  std::array<SinCos, 4096> coarse, fine;
+  PhaseTables() {
+    for (std::size_t i = 0; i < 4096; ++i) {
+      ::sincos(2.0 * kPi * static_cast<double>(i) / 4096.0, &coarse[i].s, &coarse[i].c);
+      ::sincos(2.0 * kPi * (static_cast<double>(i) + 0.5) / 16777216.0, &fine[i].s, &fine[i].c);
+    }
+  }
+};
+
+inline void sincos_of_phase(std::uint32_t b, double& s, double& c) {
+  static const PhaseTables tables;
+  const std::uint32_t k = b >> 8;
+  const auto& a = tables.coarse[k >> 12];
+  const auto& f = tables.fine[k & 4095u];
+  s = a.s * f.c + a.c * f.s;
+  c = a.c * f.c - a.s * f.s;
+}
+
 /// Two independent standard normals (Box-Muller).
 inline std::array<double, 2> normal_pair(std::uint32_t a, std::uint32_t b) {
   const double r = std::sqrt(-2.0 * std::log(unit_open(a)));
   double sin_phase = 0, cos_phase = 0;
-  ::sincos(2.0 * kPi * unit_open(b), &sin_phase, &cos_phase);
+  sincos_of_phase(b, sin_phase, cos_phase);
   return {r * cos_phase, r * sin_phase};
 }
 
@@ -69,6 +104,198 @@ inline double table_at(const std::array<double, kLevels>& y, double x0, double i
   const auto i = static_cast<std::size_t>(f);
   const double w = f - static_cast<double>(i);
   return y[i] + w * (y[i + 1] - y[i]);
+}
+
+/// Gauss-Chebyshev nodes across a tilted footprint (uniform disk -> semicircle
+/// weights): offsets u_k (in units of the half depth) and normalized weights.
+struct FootprintNodes {
+  std::array<double, kFootprintNodes> u{}, w{};
+  FootprintNodes() {
+    double weight_sum = 0;
+    for (int k = 0; k < kFootprintNodes; ++k) {
+      const double x = kPi * (k + 1) / (kFootprintNodes + 1);
+      u[static_cast<std::size_t>(k)] = std::cos(x);
+      w[static_cast<std::size_t>(k)] = std::sin(x) * std::sin(x);
+      weight_sum += w[static_cast<std::size_t>(k)];
+    }
+    for (auto& v : w) v /= weight_sum;
+  }
+};
+
+const FootprintNodes& footprint_nodes() {
+  static const FootprintNodes nodes;
+  return nodes;
+}
+
+/// The echo of one surface, tabulated once per pulse shape in normalized form.
+/// A surface at delay d, amplitude A and footprint spread h (ns of round trip
+/// over the half depth) gives the echo A g_h(t - d) with
+/// g_h(t) = sum_k w_k p(t - u_k h), p the pulse template. Its crossings of a
+/// level L are d + rise_h(L / A) and d + fall_h(L / A). Rows hold g_h for
+/// h = 0, dh, 2 dh, ... as long as g_h has a single peak (then the first
+/// upcrossing and the next downcrossing are the two branches of its inverse);
+/// each row holds the peak P_h, its time and both branches over the level
+/// y = x / P_h: log-spaced below 1/2 (pseudo-log2 of the double's bits, 32
+/// per octave, down to 2^-32) and uniform in sqrt(1 - y) above (the peak is
+/// parabolic there). Between rows the times are interpolated linearly in h.
+class SpreadEchoTable {
+ public:
+  static constexpr int kLowestExponent = -32;  // y below 2^-32: the first entry
+  static constexpr int kOctaves = 31;
+  static constexpr int kPerOctave = 32;
+  static constexpr std::size_t kLow = kOctaves * kPerOctave + 1;  // y in [2^-32, 1/2]
+  static constexpr std::size_t kHigh = 257;                       // y in [1/2, 1]
+  static constexpr std::size_t kRowSize = 2 * (kLow + kHigh);
+  static constexpr std::size_t kMaxRows = 256;
+  static constexpr double kSampleNs = 0.005;      // the template's own step
+  static constexpr double kMaxEvaluations = 3e7;  // pulse evaluations to build the rows
+
+  explicit SpreadEchoTable(const physics::PulseTemplate& pulse) {
+    const auto& nodes = footprint_nodes();
+    // Spread step: a small fraction of the echo's half-maximum width.
+    step_ns_ = pulse.width_at_level_ns(0.5) / 64.0;
+    inv_step_ = 1.0 / step_ns_;
+    const double sqrt_half = std::sqrt(0.5);
+    high_scale_ = static_cast<double>(kHigh - 1) / sqrt_half;
+    std::vector<double> g;
+    std::vector<double> levels(kLow + kHigh);
+    for (std::size_t j = 0; j < kLow; ++j) levels[j] = low_level(j);
+    for (std::size_t j = 0; j < kHigh; ++j) {
+      const double s = sqrt_half * (1.0 - static_cast<double>(j) / static_cast<double>(kHigh - 1));
+      levels[kLow + j] = j + 1 == kHigh ? 1.0 : 1.0 - s * s;
+    }
+    double evaluations = 0;  // build cost: long templates get fewer rows
+    for (std::size_t r = 0; r < kMaxRows && evaluations < kMaxEvaluations; ++r) {
+      const double h = static_cast<double>(r) * step_ns_;
+      const double t0 = pulse.begin_ns() - h - kSampleNs;
+      const auto n =
+          static_cast<std::size_t>((pulse.end_ns() + h + kSampleNs - t0) / kSampleNs) + 2;
+      g.assign(n, 0.0);
+      evaluations += static_cast<double>(n * nodes.u.size());
+      for (std::size_t i = 0; i < n; ++i) {
+        const double t = t0 + static_cast<double>(i) * kSampleNs;
+        double v = 0;
+        for (std::size_t k = 0; k < nodes.u.size(); ++k)
+          v += nodes.w[k] * pulse(t - (r == 0 ? 0.0 : nodes.u[k] * h));
+        g[i] = v;
+      }
+      const auto peak_i =
+          static_cast<std::size_t>(std::max_element(g.begin(), g.end()) - g.begin());
+      // One peak: non-decreasing before it, non-increasing after.
+      bool single = peak_i > 0 && peak_i + 1 < n;
+      for (std::size_t i = 1; single && i <= peak_i; ++i) single = g[i] >= g[i - 1];
+      for (std::size_t i = peak_i + 1; single && i < n; ++i) single = g[i] <= g[i - 1];
+      if (!single) break;
+      // Peak between samples: the parabola through the three around the largest.
+      const double a = g[peak_i - 1], b = g[peak_i], c = g[peak_i + 1];
+      const double den = a - 2.0 * b + c;
+      const double off = den < 0 ? std::clamp(0.5 * (a - c) / den, -0.5, 0.5) : 0.0;
+      const double peak = b - 0.25 * (a - c) * off;
+      const double peak_t = t0 + (static_cast<double>(peak_i) + off) * kSampleNs;
+      peaks_.push_back(peak);
+      peak_times_.push_back(peak_t);
+      const std::size_t base = times_.size();
+      times_.resize(base + kRowSize);
+      double* rise = &times_[base];
+      double* fall = rise + (kLow + kHigh);
+      std::size_t i_rise = 1, i_fall = n - 2;
+      for (std::size_t j = 0; j < kLow + kHigh; ++j) {
+        const double level = levels[j] * peak;
+        if (levels[j] >= 1.0) {
+          rise[j] = fall[j] = peak_t;
+          continue;
+        }
+        while (i_rise < peak_i && g[i_rise] < level) ++i_rise;
+        const double ra = g[i_rise - 1], rb = g[i_rise];
+        rise[j] =
+            rb > ra ? t0 + (static_cast<double>(i_rise - 1) + (level - ra) / (rb - ra)) * kSampleNs
+                    : t0 + static_cast<double>(i_rise) * kSampleNs;
+        while (i_fall > peak_i && g[i_fall] < level) --i_fall;
+        const double fa = g[i_fall], fb = g[i_fall + 1];
+        fall[j] = fa > fb
+                      ? t0 + (static_cast<double>(i_fall) + (fa - level) / (fa - fb)) * kSampleNs
+                      : t0 + static_cast<double>(i_fall) * kSampleNs;
+        rise[j] = std::min(rise[j], peak_t);
+        fall[j] = std::max(fall[j], peak_t);
+      }
+    }
+    max_spread_ns_ = static_cast<double>(peaks_.size() - 1) * step_ns_;
+  }
+
+  /// Largest spread covered (ns); beyond it the echo may have several peaks.
+  [[nodiscard]] double max_spread_ns() const { return max_spread_ns_; }
+
+  struct At {
+    std::size_t row = 0;
+    double w = 0;  // weight of row + 1
+  };
+  [[nodiscard]] At at(double spread_ns) const {
+    const double f = spread_ns * inv_step_;
+    At a;
+    a.row = std::min(static_cast<std::size_t>(f), peaks_.size() - 1);
+    a.w = a.row + 1 < peaks_.size() ? f - static_cast<double>(a.row) : 0.0;
+    return a;
+  }
+  [[nodiscard]] double peak(At a) const { return mix(a, peaks_); }
+  [[nodiscard]] double peak_time_ns(At a) const { return mix(a, peak_times_); }
+  /// Peak of a row (the level y of a row is x / row_peak).
+  [[nodiscard]] double row_peak(std::size_t row) const { return peaks_[row]; }
+  /// First upcrossing / following downcrossing of the levels y0 = x / P_row and
+  /// y1 = x / P_row+1 (x: level over amplitude), interpolated between the rows.
+  [[nodiscard]] double rise_ns(At a, double y0, double y1) const { return cross(a, y0, y1, 0); }
+  [[nodiscard]] double fall_ns(At a, double y0, double y1) const {
+    return cross(a, y0, y1, kLow + kHigh);
+  }
+
+ private:
+  static double low_level(std::size_t j) {
+    const double pl = kLowestExponent + static_cast<double>(j) / kPerOctave;
+    const double e = std::floor(pl);
+    return std::ldexp(1.0 + (pl - e), static_cast<int>(e));
+  }
+  static double mix(At a, const std::vector<double>& v) {
+    return a.w > 0 ? v[a.row] + a.w * (v[a.row + 1] - v[a.row]) : v[a.row];
+  }
+  [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
+    const double* t = &times_[row * kRowSize + branch];
+    double f = 0;
+    if (y >= 0.5) {
+      if (y >= 1.0) return peak_times_[row];
+      f = static_cast<double>(kLow) + std::sqrt(0.5) * high_scale_ -
+          std::sqrt(1.0 - y) * high_scale_;
+    } else {
+      // (bits(y) - bits(2^-32)) / 2^52 is log2(y) + 32, piecewise linear in y.
+      constexpr auto kBase = std::bit_cast<std::int64_t>(0x1p-32);
+      const auto bits = std::bit_cast<std::int64_t>(y) - kBase;
+      if (bits <= 0) return t[0];
+      f = static_cast<double>(bits) * (kPerOctave * 0x1p-52);
+    }
+    const auto i = std::min(static_cast<std::size_t>(f), kLow + kHigh - 2);
+    const double w = f - static_cast<double>(i);
+    return t[i] + w * (t[i + 1] - t[i]);
+  }
+  [[nodiscard]] double cross(At a, double y0, double y1, std::size_t branch) const {
+    const double t0 = row_cross(a.row, y0, branch);
+    if (a.w <= 0) return t0;
+    return t0 + a.w * (row_cross(a.row + 1, y1, branch) - t0);
+  }
+
+  double step_ns_ = 0, inv_step_ = 0, high_scale_ = 0, max_spread_ns_ = 0;
+  std::vector<double> peaks_, peak_times_, times_;
+};
+
+/// Tables shared by devices with the same pulse (a few kept; the key is exact).
+std::shared_ptr<const SpreadEchoTable> spread_table(const physics::PulseTemplate& pulse,
+                                                    double fwhm_ns, double bandwidth_mhz) {
+  static std::mutex mutex;
+  static std::map<std::pair<double, double>, std::shared_ptr<const SpreadEchoTable>> cache;
+  const std::lock_guard lock(mutex);
+  const std::pair key{fwhm_ns, bandwidth_mhz};
+  if (const auto it = cache.find(key); it != cache.end()) return it->second;
+  if (cache.size() >= 8) cache.clear();  // devices keep their own reference
+  auto table = std::make_shared<const SpreadEchoTable>(pulse);
+  cache.emplace(key, table);
+  return table;
 }
 
 /// One delayed, scaled copy of the pulse template in the receiver.
@@ -87,8 +314,16 @@ struct MeasurementSetup {
   double peak_time_ns = 0;
   // Threshold-crossing tables over levels threshold +- 6 sigma (level-shift noise model).
   double level_begin_v = 0, inv_level_step = 0;
-  std::array<double, kLevels> rise_ns{}, fall_ns{};
+  // (Filled only on the exact path; not value-initialized: 2 kB per measurement.)
+  double level_end_v = 0;
+  std::array<double, kLevels> rise_ns, fall_ns;
   double level_top_v = 0;  // largest level that is crossed at all
+  // Fast path (one surface, analytic mode): the echo is amplitude_v g_h(t - delay_ns)
+  // with g_h the device's tabulated normalized echo at spread h.
+  bool fast = false;
+  double amplitude_v = 0, delay_ns = 0;
+  SpreadEchoTable::At spread{};
+  double inv_row_peak_v[2] = {0, 0};  // 1 / (amplitude x peak) of the two rows
   double noise_at_threshold_v = 0;
   double noise_floor_var_v2 = 0;  // noise variance without signal
   double shot_var_per_v = 0;      // signal shot noise variance per volt of signal
@@ -102,11 +337,32 @@ struct MeasurementSetup {
   double turn_on_start_ms = 0;
   // Noise alone crossing the threshold before the echo (false alarms).
   double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
-  double false_alarm_width_ns = 0;     // mean time above threshold of such an excursion
+  double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
   double record_begin_ns = 0;          // waveform mode samples from here on
+  double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
+  double record_end_ns = 0;            // waveform mode samples up to here
   double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
 };
+
+/// One surface's echo: amplitude, delay and the round-trip spread over half the
+/// footprint's depth (0 when below 1e-4 ns: a point echo).
+struct SurfaceEcho {
+  double amplitude_v = 0, delay_ns = 0, spread_ns = 0;
+};
+
+/// Everything that depends on the operating conditions only.
+struct ConditionState {
+  double internal_c = 0, board_c = 0, gain = 0, power_scale = 0;
+  double c_m_per_ns = 0;      // speed of light in air at the ambient temperature
+  double volts_per_watt = 0;  // at the comparator, for this gain and laser power
+  double fixed_delay_ns = 0, tdc_bin_scale = 1, temperature_reading_c = 0;
+  double floor_var_v2 = 0;     // noise floor without background light
+  double floor_var_per_w = 0;  // ... and its growth per watt of background
+  double shot_var_per_v = 0;   // signal shot noise variance per volt of signal
+};
+
+std::atomic<std::uint64_t> next_device_id{1};
 
 }  // namespace
 
@@ -118,12 +374,16 @@ struct VirtualRangefinder::Impl {
   double volts_per_watt_unity_gain;  // responsivity x transimpedance x bandwidth peak loss
   double c_nominal_m_per_ns;         // the device's assumed speed of light in air
   double pulse_period_ns;            // 1 / f_rep
+  std::uint64_t id;                  // tags the per-thread caches of this device
+  std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
+  bool background_free = false;  // no sun, no sky: no background light on any surface
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
         mode(m),
         pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz),
-        tdc(config.tdc) {
+        tdc(config.tdc),
+        id(next_device_id.fetch_add(1)) {
     const auto& rx = config.link.receiver;
     volts_per_watt_unity_gain =
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
@@ -133,67 +393,124 @@ struct VirtualRangefinder::Impl {
     c_nominal_m_per_ns =
         physics::speed_of_light_in_air_m_per_s(config.link.laser.wavelength_nm, air) * 1e-9;
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
+    if (mode == SimulationMode::kAnalytic)
+      shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
+    // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
+    background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
   }
 
-  [[nodiscard]] std::vector<EchoComponent> components(const Target& target, double ambient_c,
-                                                      double gain, double power_scale) const {
+  /// The conditions' share of a measurement's setup, cached per thread (a scan
+  /// or a batch has few distinct conditions).
+  [[nodiscard]] const ConditionState& condition_state(const Conditions& cond) const {
+    struct Cache {
+      std::uint64_t device = 0;
+      double ambient_c = 0, minutes = 0;
+      ConditionState state;
+    };
+    thread_local Cache cache;
+    // Warmed up (every exp(-t / tau) of the thermal model underflows to 0):
+    // all such times give the same state, bit for bit.
+    const auto& thermal = config.thermal;
+    const double settled_min =
+        800.0 * std::max(thermal.warmup_time_constant_min, thermal.sensor_lag_min);
+    const double minutes = cond.minutes_since_power_on > settled_min
+                               ? std::numeric_limits<double>::infinity()
+                               : cond.minutes_since_power_on;
+    if (cache.device == id && cache.ambient_c == cond.ambient_c && cache.minutes == minutes)
+      return cache.state;
+    const auto& th = config.thermal;
+    const auto& rx = config.link.receiver;
     const auto& link = config.link;
-    physics::AirConditions air{ambient_c, link.environment.pressure_hpa,
+    ConditionState& c = cache.state;
+    c.internal_c = internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
+    // behind its heater; the APD's gain follows the board's temperature through
+    // the bias loop's residual.
+    c.board_c = timing_board_temperature_c(th, c.internal_c);
+    c.gain = physics::apd_gain_at(rx, c.board_c);
+    c.power_scale = std::max(
+        0.0, 1.0 + link.laser.power_temp_coeff_per_c * (c.internal_c - rx.nominal_temperature_c));
+    physics::AirConditions air{cond.ambient_c, link.environment.pressure_hpa,
                                link.environment.relative_humidity_pct};
-    const double c_m_per_ns =
-        physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
-    const double volts_per_watt = volts_per_watt_unity_gain * gain * power_scale;
-    std::vector<EchoComponent> out;
+    c.c_m_per_ns = physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
+    c.volts_per_watt = volts_per_watt_unity_gain * c.gain * c.power_scale;
+    // Delays: fixed chain delay plus the timing board's delay tempco and the
+    // unseen warm-up gradient, as extra round-trip time.
+    const double board_dt = c.board_c - rx.nominal_temperature_c;
+    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
+    c.fixed_delay_ns = config.measurement.fixed_delay_ns +
+                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
+                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
+    c.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
+    c.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+    // Noise floor: amplifier, dark and background shot noise (Eq. 8 terms); the
+    // variances add, so the floor is linear in the background power.
+    const double z_ohm = rx.transimpedance_kohm * 1e3;
+    auto floor_var = [&](double background_w) {
+      const auto n = physics::noise_currents(rx, 0.0, background_w, c.gain);
+      return z_ohm * z_ohm *
+             (n.background_shot_a * n.background_shot_a + n.dark_shot_a * n.dark_shot_a +
+              n.thermal_a * n.thermal_a);
+    };
+    c.floor_var_v2 = floor_var(0.0);
+    c.floor_var_per_w = floor_var(1.0) - c.floor_var_v2;
+    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
+    c.shot_var_per_v = 2.0 * physics::kElementaryCharge_c * c.gain * rx.excess_noise_factor *
+                       rx.bandwidth_mhz * 1e6 * z_ohm;
+    cache.device = id;
+    cache.ambient_c = cond.ambient_c;
+    cache.minutes = minutes;
+    return c;
+  }
+
+  /// One surface's echo; false when it returns nothing.
+  [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
+                                  SurfaceEcho& out) const {
+    const auto& link = config.link;
+    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) return false;
+    // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
+    // Biaxial optics: only the share of the footprint inside the receiver's field.
+    const double power_w =
+        s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
+        physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
+    if (power_w <= 0.0) return false;
+    out.amplitude_v = power_w * c.volts_per_watt;
+    // The comparator is re-armed at every pulse: an echo later than the pulse
+    // period arrives after a later pulse and is timed from that one (ambiguity).
+    out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;
+    if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
+    // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
+    // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
+    const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
+                                std::tan(physics::deg_to_rad(s.angle_deg));
+    out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
+    if (out.spread_ns < 1e-4) out.spread_ns = 0.0;
+    return true;
+  }
+
+  /// All echo components: one per surface, or one per footprint node if spread.
+  void components(const Target& target, const ConditionState& c,
+                  std::vector<EchoComponent>& out) const {
+    const auto& nodes = footprint_nodes();
+    out.clear();
     for (const auto& s : target.surfaces) {
-      if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) continue;
-      // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-      // Biaxial optics: only the share of the footprint inside the receiver's field.
-      const double power_w =
-          s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-          physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
-      if (power_w <= 0.0) continue;
-      const double amplitude = power_w * volts_per_watt;
-      // The comparator is re-armed at every pulse: an echo later than the pulse
-      // period arrives after a later pulse and is timed from that one (ambiguity).
-      const double delay = std::fmod(2.0 * s.distance_m / c_m_per_ns, pulse_period_ns);
-      // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
-      // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-      const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
-                                  std::tan(physics::deg_to_rad(s.angle_deg));
-      if (half_depth_m * 2.0 / c_m_per_ns < 1e-4) {
-        out.push_back({amplitude, delay});
+      SurfaceEcho e;
+      if (!surface_echo(s, c, e)) continue;
+      if (e.spread_ns == 0.0) {
+        out.push_back({e.amplitude_v, e.delay_ns});
         continue;
       }
-      double weight_sum = 0;
-      std::array<double, kFootprintNodes> w{};
-      for (int k = 0; k < kFootprintNodes; ++k) {
-        const double x = kPi * (k + 1) / (kFootprintNodes + 1);
-        w[static_cast<std::size_t>(k)] = std::sin(x) * std::sin(x);
-        weight_sum += w[static_cast<std::size_t>(k)];
-      }
-      for (int k = 0; k < kFootprintNodes; ++k) {
-        const double u = std::cos(kPi * (k + 1) / (kFootprintNodes + 1));
-        out.push_back({amplitude * w[static_cast<std::size_t>(k)] / weight_sum,
-                       delay + 2.0 * u * half_depth_m / c_m_per_ns});
-      }
+      for (std::size_t k = 0; k < nodes.u.size(); ++k)
+        out.push_back({e.amplitude_v * nodes.w[k], e.delay_ns + nodes.u[k] * e.spread_ns});
     }
-    return out;
   }
 
   /// Noise variance (V^2) at a signal level: amplifier/background/dark floor
   /// plus signal shot noise proportional to the instantaneous signal (Eq. 8 terms).
-  [[nodiscard]] double noise_variance(double signal_v, double gain, double background_w) const {
-    const auto& rx = config.link.receiver;
-    const double z_ohm = rx.transimpedance_kohm * 1e3;
-    const auto floor = physics::noise_currents(rx, 0.0, background_w, gain);
-    const double floor_v2 =
-        z_ohm * z_ohm *
-        (floor.background_shot_a * floor.background_shot_a + floor.dark_shot_a * floor.dark_shot_a +
-         floor.thermal_a * floor.thermal_a);
-    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
-    const double shot_v_per_v = 2.0 * physics::kElementaryCharge_c * gain * rx.excess_noise_factor *
-                                rx.bandwidth_mhz * 1e6 * z_ohm;
-    return floor_v2 + shot_v_per_v * std::max(signal_v, 0.0);
+  [[nodiscard]] static double noise_variance(const ConditionState& c, double signal_v,
+                                             double background_w) {
+    return c.floor_var_v2 + c.floor_var_per_w * background_w +
+           c.shot_var_per_v * std::max(signal_v, 0.0);
   }
 
   /// Sunlight scattered by the surfaces into the receiver (paper Eq. 9).
@@ -205,70 +522,161 @@ struct VirtualRangefinder::Impl {
     return w;
   }
 
-  [[nodiscard]] MeasurementSetup setup(const Target& target, const Conditions& cond) const {
-    const auto& th = config.thermal;
-    const auto& rx = config.link.receiver;
-    MeasurementSetup m;
-    const double internal_c =
-        internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
-    // behind its heater; the APD's gain follows the board's temperature through
-    // the bias loop's residual.
-    const double board_c = timing_board_temperature_c(th, internal_c);
-    const double gain = physics::apd_gain_at(rx, board_c);
-    const double power_scale = std::max(0.0, 1.0 + config.link.laser.power_temp_coeff_per_c *
-                                                       (internal_c - rx.nominal_temperature_c));
-    const auto comps = components(target, cond.ambient_c, gain, power_scale);
-    const double background_w = background_power_w(target);
-    const double threshold = config.discriminator.threshold_v;
-    m.noise_at_threshold_v = std::sqrt(noise_variance(threshold, gain, background_w));
-    m.noise_floor_var_v2 = noise_variance(0.0, gain, background_w);
-    m.shot_var_per_v = noise_variance(1.0, gain, background_w) - m.noise_floor_var_v2;
-    {
-      // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
-      // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
-      const double u = threshold / std::sqrt(noise_variance(0.0, gain, background_w));
-      const double tau_p = pulse.pole_time_constant_ns();
-      m.false_alarm_rate_per_ns = std::exp(-0.5 * u * u) / (2.0 * kPi * tau_p);
-      // Mean excursion length above the level: P(X > u) / nu.
-      m.false_alarm_width_ns = m.false_alarm_rate_per_ns > 0
-                                   ? 0.5 * std::erfc(u / std::sqrt(2.0)) / m.false_alarm_rate_per_ns
-                                   : 0.0;
-    }
+  /// Crossing times of a comparator level (clamped to the tabulated span
+  /// threshold +- 6 sigma), from emission.
+  [[nodiscard]] double rise_at(const MeasurementSetup& m, double level) const {
+    if (!m.fast) return table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level);
+    const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
+    return m.delay_ns + shapes->rise_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1]);
+  }
+  [[nodiscard]] double fall_at(const MeasurementSetup& m, double level) const {
+    if (!m.fast) return table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level);
+    const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
+    return m.delay_ns + shapes->fall_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1]);
+  }
 
-    // Delays: fixed chain delay plus the timing board's delay tempco and the
-    // unseen warm-up gradient, as extra round-trip time.
-    const double board_dt = board_c - rx.nominal_temperature_c;
-    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
-    m.fixed_delay_ns = config.measurement.fixed_delay_ns +
-                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
-                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
-    m.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
-    m.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
+  [[nodiscard]] MeasurementSetup setup(const Target& target, const Conditions& cond) const {
+    const auto& rx = config.link.receiver;
+    const ConditionState& c = condition_state(cond);
+    MeasurementSetup m;
+    const double background_w = background_free ? 0.0 : background_power_w(target);
+    const double threshold = config.discriminator.threshold_v;
+    m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
+    m.shot_var_per_v = c.shot_var_per_v;
+    {
+      // Noise at the threshold and Rice's rate, cached per thread on the noise
+      // (the same for every target without background light).
+      struct NoiseCache {
+        std::uint64_t device = 0;
+        double floor_var = -1, shot_var = -1, at_threshold = 0, u = 0, rate = 0;
+      };
+      thread_local NoiseCache cache;
+      if (cache.device != id || cache.floor_var != m.noise_floor_var_v2 ||
+          cache.shot_var != m.shot_var_per_v) {
+        cache.at_threshold = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * threshold);
+        // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
+        // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
+        cache.u = threshold / std::sqrt(m.noise_floor_var_v2);
+        const double tau_p = pulse.pole_time_constant_ns();
+        cache.rate = std::exp(-0.5 * cache.u * cache.u) / (2.0 * kPi * tau_p);
+        cache.device = id;
+        cache.floor_var = m.noise_floor_var_v2;
+        cache.shot_var = m.shot_var_per_v;
+      }
+      m.noise_at_threshold_v = cache.at_threshold;
+      m.false_alarm_rate_per_ns = cache.rate;
+      m.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
+    }
+    m.fixed_delay_ns = c.fixed_delay_ns;
+    m.tdc_bin_scale = c.tdc_bin_scale;
+    m.temperature_reading_c = c.temperature_reading_c;
     m.amplitude_noise_rel = rx.amplitude_noise_rel;
     m.turn_on_start_ms = cond.ms_since_laser_on;
+    // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
+    const double sigma = m.noise_at_threshold_v;
+    const double level_lo = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
+    const double level_hi = threshold + kLevelSpanSigma * sigma;
+    m.level_begin_v = level_lo;
+    m.level_end_v = level_hi;
+    m.blanking_ns = config.discriminator.blanking_ns;
+    // Optical crosstalk from the emitter into the receiver: a copy of the pulse
+    // at zero range (the same receive chain as the echoes); optical, so it
+    // follows the laser power and the APD gain.
+    const double crosstalk_v = rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
+
+    // Fast path: one surface whose echo has a single peak, analytic mode.
+    if (shapes) {
+      int surfaces = 0;
+      SurfaceEcho e;
+      for (const auto& s : target.surfaces) {
+        SurfaceEcho one;
+        if (surface_echo(s, c, one)) {
+          e = one;
+          ++surfaces;
+        }
+      }
+      if (surfaces == 0 && crosstalk_v <= 0.0) {
+        set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
+        return m;
+      }
+      // (No crosstalk, and the echo starts after any blanking.)
+      const bool after_blanking =
+          m.blanking_ns <= 0.0 || m.blanking_ns <= e.delay_ns + pulse.begin_ns() - e.spread_ns;
+      if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns() && crosstalk_v <= 0.0 &&
+          after_blanking) {
+        m.fast = true;
+        m.amplitude_v = e.amplitude_v;
+        m.delay_ns = e.delay_ns;
+        m.spread = shapes->at(e.spread_ns);
+        m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
+        m.inv_row_peak_v[1] =
+            m.spread.w > 0 ? 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row + 1)) : 0.0;
+        m.peak_v = e.amplitude_v * shapes->peak(m.spread);
+        m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
+        m.level_top_v = m.peak_v;
+        m.saturated = m.peak_v > rx.saturation_v;
+        m.recovery_ns =
+            m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+        if (m.peak_v >= threshold) {
+          m.edge_correlation =
+              pulse.noise_correlation(fall_at(m, threshold) - rise_at(m, threshold));
+        } else {
+          m.edge_correlation = 1.0;  // no crossing at the threshold: the tables' flat top
+        }
+        // A shot's alarm needs its 24-bit uniform below the probability, so one
+        // below 2^-26 never fires: the window need not be worked out.
+        const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
+        if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
+          m.false_alarm_probability = 0.0;
+        else
+          set_false_alarm_window(m, level_lo <= m.peak_v ? rise_at(m, level_lo) : m.peak_time_ns);
+        return m;
+      }
+    }
+
+    thread_local std::vector<EchoComponent> comps;
+    components(target, c, comps);
+    if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
-      set_false_alarm_window(m, 1e9 / config.link.laser.repetition_hz);  // armed until next pulse
+      set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
       return m;
     }
 
     // Noise-free composite echo on a fine grid.
     double first = comps.front().delay_ns, last = first;
-    for (const auto& c : comps) {
-      first = std::min(first, c.delay_ns);
-      last = std::max(last, c.delay_ns);
+    for (const auto& comp : comps) {
+      first = std::min(first, comp.delay_ns);
+      last = std::max(last, comp.delay_ns);
     }
     m.grid_begin_ns = first + pulse.begin_ns();
     const double grid_end = last + pulse.end_ns();
     const auto n = static_cast<std::size_t>((grid_end - m.grid_begin_ns) / kCompositeStepNs) + 2;
     m.composite.assign(n, 0.0);
-    for (const auto& c : comps) {
-      for (std::size_t i = 0; i < n; ++i) {
+    for (const auto& comp : comps) {
+      // Only over the component's support (zero outside): far-apart components,
+      // such as the crosstalk and a far echo, cost their spans, not the gap.
+      const double lo = (comp.delay_ns + pulse.begin_ns() - m.grid_begin_ns) / kCompositeStepNs;
+      const double hi = (comp.delay_ns + pulse.end_ns() - m.grid_begin_ns) / kCompositeStepNs;
+      const auto i_lo = static_cast<std::size_t>(std::max(std::floor(lo), 0.0));
+      const auto i_hi = std::min(n, static_cast<std::size_t>(std::max(std::ceil(hi) + 1.0, 0.0)));
+      for (std::size_t i = i_lo; i < i_hi; ++i) {
         const double t = m.grid_begin_ns + static_cast<double>(i) * kCompositeStepNs;
-        m.composite[i] += c.amplitude_v * pulse(t - c.delay_ns);
+        m.composite[i] += comp.amplitude_v * pulse(t - comp.delay_ns);
       }
     }
-    const auto peak_it = std::max_element(m.composite.begin(), m.composite.end());
+    // The comparator (and the peak detector) are blanked before blanking_ns.
+    const bool gated = m.blanking_ns > 0.0 && m.blanking_ns > m.grid_begin_ns;
+    const std::size_t i_gate =
+        gated ? std::min(n, static_cast<std::size_t>(
+                                std::ceil((m.blanking_ns - m.grid_begin_ns) / kCompositeStepNs)))
+              : 0;
+    if (i_gate >= n) {
+      set_false_alarm_window(m, pulse_period_ns);  // everything blanked
+      m.composite.clear();
+      return m;
+    }
+    const auto peak_it = std::max_element(m.composite.begin() + static_cast<std::ptrdiff_t>(i_gate),
+                                          m.composite.end());
     m.peak_v = *peak_it;
     m.peak_time_ns =
         m.grid_begin_ns + static_cast<double>(peak_it - m.composite.begin()) * kCompositeStepNs;
@@ -280,56 +688,113 @@ struct VirtualRangefinder::Impl {
 
     // Crossing tables: for each comparator level L (threshold shifted by the
     // noise), the first upcrossing and the following downcrossing of the echo.
-    const double sigma = m.noise_at_threshold_v;
-    const double level_lo = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
-    const double level_hi = threshold + kLevelSpanSigma * sigma;
     const double level_step = (level_hi - level_lo) / static_cast<double>(kLevels - 1);
-    m.level_begin_v = level_lo;
     m.inv_level_step = 1.0 / level_step;
     m.level_top_v = 0;
-    // The first upcrossing index never decreases with the level: one forward pointer.
-    // The downcrossing after it is found with a coarse stride (echo features span
-    // hundreds of grid steps), then refined step by step.
-    constexpr std::size_t kStride = 8;
-    std::size_t i_rise = 1;
-    for (std::size_t j = 0; j < kLevels; ++j) {
-      const double level = level_lo + static_cast<double>(j) * level_step;
-      double rise = m.peak_time_ns, fall = m.peak_time_ns;
-      while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
-      if (i_rise < n) {
-        m.level_top_v = level;
-        const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
-        rise = m.grid_begin_ns +
-               (static_cast<double>(i_rise - 1) + (level - a) / (b - a)) * kCompositeStepNs;
-        std::size_t i = i_rise;
-        while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
-        while (i < n && m.composite[i] >= level) ++i;
-        if (i < n) {
-          const double c = m.composite[i - 1], d = m.composite[i];
-          fall = m.grid_begin_ns +
-                 (static_cast<double>(i - 1) + (c - level) / (c - d)) * kCompositeStepNs;
+    auto time_at = [&](std::size_t i, double frac) {
+      return m.grid_begin_ns + (static_cast<double>(i) + frac) * kCompositeStepNs;
+    };
+    if (gated) {
+      // Blanked: the first upcrossing after the blanking (NaN: none; a level
+      // already exceeded when the comparator is released is not a crossing),
+      // and the first downcrossing after it (or after the blanking).
+      // No level's upcrossing comes before the first sample at or above the
+      // lowest level after the gate: every search starts there.
+      std::size_t i_first = std::max<std::size_t>(i_gate, 1);
+      while (i_first < n && m.composite[i_first] < level_lo) ++i_first;
+      for (std::size_t j = 0; j < kLevels; ++j) {
+        const double level = level_lo + static_cast<double>(j) * level_step;
+        double rise = std::numeric_limits<double>::quiet_NaN(), fall = m.peak_time_ns;
+        std::size_t i = i_first;
+        for (; i < n; ++i) {
+          const double a = m.composite[i - 1], b = m.composite[i];
+          if (a < level && b >= level) {
+            const double t = time_at(i - 1, (level - a) / (b - a));
+            if (t >= m.blanking_ns) {
+              rise = t;
+              break;
+            }
+          }
         }
+        std::size_t k = i < n ? i : std::max<std::size_t>(i_gate, 1);
+        for (; k < n; ++k) {
+          const double a = m.composite[k - 1], b = m.composite[k];
+          if (a >= level && b < level) {
+            fall = time_at(k - 1, (a - level) / (a - b));
+            break;
+          }
+        }
+        if (!std::isnan(rise)) {
+          m.level_top_v = level;
+          fall = std::max(fall, rise);
+        }
+        m.rise_ns[j] = rise;
+        m.fall_ns[j] = fall;
       }
-      m.rise_ns[j] = rise;
-      m.fall_ns[j] = std::max(fall, rise);
+    } else {
+      // The first upcrossing index never decreases with the level: one forward pointer.
+      // The downcrossing after it is found with a coarse stride (echo features span
+      // hundreds of grid steps), then refined step by step.
+      constexpr std::size_t kStride = 8;
+      std::size_t i_rise = 1;
+      for (std::size_t j = 0; j < kLevels; ++j) {
+        const double level = level_lo + static_cast<double>(j) * level_step;
+        double rise = m.peak_time_ns, fall = m.peak_time_ns;
+        while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
+        if (i_rise < n) {
+          m.level_top_v = level;
+          const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
+          rise = time_at(i_rise - 1, (level - a) / (b - a));
+          std::size_t i = i_rise;
+          while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
+          while (i < n && m.composite[i] >= level) ++i;
+          if (i < n) {
+            const double c0 = m.composite[i - 1], d = m.composite[i];
+            fall = time_at(i - 1, (c0 - level) / (c0 - d));
+          }
+        }
+        m.rise_ns[j] = rise;
+        m.fall_ns[j] = std::max(fall, rise);
+      }
     }
     // Noise at the two crossings is correlated through the receiver bandwidth.
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
-    m.edge_correlation = pulse.noise_correlation(fall0 - rise0);
+    m.edge_correlation = std::isnan(rise0) ? 1.0 : pulse.noise_correlation(fall0 - rise0);
     const double tau = pulse.pole_time_constant_ns();
-    m.record_begin_ns = std::min(m.rise_ns[kLevels - 1] - 4.0 - 6.0 * tau, m.rise_ns[0] - 4.0);
+    // Earliest and latest rising crossing over the levels (the first and last
+    // level's without blanking, where the crossing time grows with the level).
+    double first_rise = m.rise_ns[0], last_rise = m.rise_ns[kLevels - 1];
+    if (gated) {
+      first_rise = last_rise = m.peak_time_ns;
+      bool any = false;
+      for (const double r : m.rise_ns) {
+        if (std::isnan(r)) continue;
+        first_rise = any ? std::min(first_rise, r) : r;
+        last_rise = any ? std::max(last_rise, r) : r;
+        any = true;
+      }
+      first_rise = std::max(first_rise, m.blanking_ns);
+    }
+    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
+    // Waveform record's end: past the first fall, or the whole echo when gated
+    // (crosstalk or blanking may end the first excursion before the echo).
+    m.record_end_ns = m.fall_ns[0] + m.recovery_ns + 4.0;
+    if (gated || crosstalk_v > 0.0)
+      m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
     if (mode == SimulationMode::kWaveform) {
       m.noise_sigma.resize(n);
       for (std::size_t i = 0; i < n; ++i)
-        m.noise_sigma[i] = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * m.composite[i]);
+        m.noise_sigma[i] =
+            std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
-    set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? m.rise_ns[0] : m.record_begin_ns);
+    set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
     return m;
   }
 
-  static void set_false_alarm_window(MeasurementSetup& m, double window_ns) {
-    m.false_alarm_window_ns = std::max(window_ns, 0.0);
+  /// Noise crossings count from the end of the blanking to `end_ns`.
+  static void set_false_alarm_window(MeasurementSetup& m, double end_ns) {
+    m.false_alarm_window_ns = std::max(end_ns - m.blanking_ns, 0.0);
     m.false_alarm_probability = -std::expm1(-m.false_alarm_rate_per_ns * m.false_alarm_window_ns);
   }
 
@@ -361,14 +826,14 @@ struct VirtualRangefinder::Impl {
                                         double& rise, double& fall) const {
     const double threshold = config.discriminator.threshold_v;
     const double level_rise = crossing_level(m, threshold, z_rise);
-    if (m.composite.empty() || level_rise > m.peak_v || level_rise > m.level_top_v) return false;
+    if ((!m.fast && m.composite.empty()) || level_rise > m.peak_v || level_rise > m.level_top_v)
+      return false;
     const double z_fall = m.edge_correlation * z_rise +
                           std::sqrt(1.0 - m.edge_correlation * m.edge_correlation) * z_fall_ind;
     const double level_fall = crossing_level(m, threshold, z_fall);
-    rise = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level_rise);
-    fall = level_fall >= m.level_top_v
-               ? m.peak_time_ns
-               : table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level_fall);
+    rise = rise_at(m, level_rise);
+    if (std::isnan(rise)) return false;  // blanked: no crossing after the comparator is released
+    fall = level_fall >= m.level_top_v ? m.peak_time_ns : fall_at(m, level_fall);
     fall = std::max(fall, rise) + m.recovery_ns;
     return true;
   }
@@ -390,7 +855,7 @@ struct VirtualRangefinder::Impl {
         var_white * std::pow(1.0 - a, 4) * (1.0 + a * a) / std::pow(1.0 - a * a, 3);
     const double norm = 1.0 / std::sqrt(filtered_var);
     // Record from before the earliest possible rise to after the latest fall.
-    const double t_end = m.fall_ns[0] + m.recovery_ns + 4.0;
+    const double t_end = m.record_end_ns;
     const double t0 = m.record_begin_ns + phase_u * dt;
     const auto burn_in = static_cast<std::size_t>(std::ceil(6.0 * tau / dt));
     const auto n = static_cast<std::size_t>((t_end - t0) / dt) + 1;
@@ -449,7 +914,7 @@ struct VirtualRangefinder::Impl {
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          above = true;
+          above = rise >= m.blanking_ns;  // a blanked crossing is not seen
         } else if (above) {
           if (v > rx.saturation_v) {
             clipped = true;
@@ -478,22 +943,44 @@ struct VirtualRangefinder::Impl {
   /// (stream i starts i measurement periods after power-on).
   [[nodiscard]] double slow_offset_ns(const CounterRng& rng, std::uint64_t stream) const {
     const auto& mc = config.measurement;
-    const auto power_on = rng.draw(kPowerOnStream, 0, 0);
-    const double offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
-    if (mc.flicker_delay_ps <= 0.0) return offset;
+    // The run's draws (power-on offset, the octaves' phases) depend on the seed
+    // only: worked out once per thread and seed.
+    struct Run {
+      std::uint64_t device = 0, seed = 0;
+      double offset = 0;
+      std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
+    };
+    thread_local Run run;
+    if (run.device != id || run.seed != rng.seed()) {
+      const auto power_on = rng.draw(kPowerOnStream, 0, 0);
+      run.offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
+      for (int k = 0; k < kFlickerOctaves; k += 4) {
+        const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
+        for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
+          const auto o = static_cast<std::size_t>(k + j);
+          ::sincos(2.0 * kPi * unit_open(r[static_cast<std::size_t>(j)]), &run.sin_phase[o],
+                   &run.cos_phase[o]);
+        }
+      }
+      run.device = id;
+      run.seed = rng.seed();
+    }
+    if (mc.flicker_delay_ps <= 0.0) return run.offset;
     // 1/f noise has equal power per octave: one sinusoid of random phase per
     // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
+    // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
     const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
     const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
+    double sin_a = 0, cos_a = 0;
+    ::sincos(2.0 * kPi * kFlickerLowestHz * t_s, &sin_a, &cos_a);
     double wander = 0;
-    for (int k = 0; k < kFlickerOctaves; k += 4) {
-      const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
-      for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
-        const double f_hz = kFlickerLowestHz * std::ldexp(1.0, k + j);
-        wander += amplitude * std::sin(2.0 * kPi * (f_hz * t_s + unit_open(r[j])));
-      }
+    for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
+      wander += sin_a * run.cos_phase[k] + cos_a * run.sin_phase[k];  // sin(a + phase)
+      const double s2 = 2.0 * sin_a * cos_a;
+      cos_a = (cos_a - sin_a) * (cos_a + sin_a);
+      sin_a = s2;
     }
-    return offset + wander;
+    return run.offset + amplitude * wander;
   }
 
   [[nodiscard]] bool shot(const MeasurementSetup& m, const CounterRng& rng, std::uint64_t stream,
@@ -507,8 +994,10 @@ struct VirtualRangefinder::Impl {
     const double u_false = unit_open(r[3]);
     if (u_false < m.false_alarm_probability) {
       // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-      rise = -std::log1p(-u_false) / m.false_alarm_rate_per_ns;
-      fall = rise + m.false_alarm_width_ns;
+      rise = m.blanking_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
+      // Mean excursion length above the level: P(X > u) / nu.
+      fall = rise +
+             0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
       echo = true;
     } else if (mode == SimulationMode::kAnalytic) {
       const auto z = normal_pair(r[0], r[1]);
@@ -629,15 +1118,14 @@ EchoShape VirtualRangefinder::echo(const Target& target, const Conditions& condi
   e.saturated = m.saturated;
   e.noise_at_rise_v = m.noise_at_threshold_v;
   const double threshold = impl_->config.discriminator.threshold_v;
-  e.detected = !m.composite.empty() && m.peak_v >= threshold;
+  e.detected = (m.fast || !m.composite.empty()) && m.peak_v >= threshold &&
+               !std::isnan(impl_->rise_at(m, threshold));
   if (!e.detected) return e;
-  e.rise_crossing_ns = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
-  e.fall_crossing_ns =
-      table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold) + m.recovery_ns;
+  e.rise_crossing_ns = impl_->rise_at(m, threshold);
+  e.fall_crossing_ns = impl_->fall_at(m, threshold) + m.recovery_ns;
   // Slope from two nearby levels of the crossing table.
   const double dl = 0.01 * m.noise_at_threshold_v;
-  const double dt = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold + dl) -
-                    table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold - dl);
+  const double dt = impl_->rise_at(m, threshold + dl) - impl_->rise_at(m, threshold - dl);
   e.rise_slope_v_per_ns = dt > 0 ? 2.0 * dl / dt : 0.0;
   return e;
 }

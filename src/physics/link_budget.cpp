@@ -39,11 +39,16 @@ double received_power_extended_w(const LinkConfig& link, double distance_m, doub
 }
 
 double received_power_small_w(const LinkConfig& link, double distance_m, double cross_section_m2) {
-  // Small target, paper Eq. 4 (theta_t: half-angle divergence).
+  // Small target, paper Eq. 4 with sigma the laser-radar cross-section
+  // (theta_t: half-angle divergence). The footprint pi R^2 theta_t^2 spreads
+  // the power; the target returns sigma / (4 pi) of it per steradian, so the
+  // aperture at R receives Pt sigma Ar / (pi R^2 theta_t^2 4 pi R^2): pi^2 in
+  // the denominator. (As printed, 4 pi: sigma there is this sigma / pi, which
+  // a Lambertian footprint's 4 pi rho R^2 theta_t^2 cos(phi) would not match.)
   const double theta_t = 0.5 * link.laser.beam_divergence_mrad * 1e-3;
   const double r2 = distance_m * distance_m;
   return link.laser.peak_power_w * aperture_area_m2(link.receiver) * cross_section_m2 /
-         (4.0 * kPi * theta_t * theta_t * r2 * r2) * optics_and_atmosphere(link);
+         (4.0 * kPi * kPi * theta_t * theta_t * r2 * r2) * optics_and_atmosphere(link);
 }
 
 double background_power_w(const LinkConfig& link, double reflectance, double angle_deg) {

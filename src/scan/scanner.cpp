@@ -4,12 +4,34 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
+
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 namespace tofkit::scan {
 namespace {
 
 constexpr std::size_t kProgressBlock = 1 << 16;
+
+/// Reserves room for n elements and has the kernel map its pages in one call
+/// (MADV_POPULATE_WRITE, Linux 5.14+): a megabeam scan's results are ~250 MB,
+/// and faulting them in page by page on first touch took about as long as the
+/// device's measurements. Elsewhere (or on error) the pages fault in as usual.
+template <typename T>
+void reserve_populated(std::vector<T>& v, std::size_t n) {
+  v.reserve(n);
+#if defined(__linux__) && defined(MADV_POPULATE_WRITE)
+  constexpr std::uintptr_t kPage = 4096;
+  const auto begin = reinterpret_cast<std::uintptr_t>(v.data());
+  const std::uintptr_t first = (begin + kPage - 1) & ~(kPage - 1);
+  const std::uintptr_t last = (begin + n * sizeof(T)) & ~(kPage - 1);
+  if (last > first)
+    (void)::madvise(reinterpret_cast<void*>(first), last - first, MADV_POPULATE_WRITE);
+#endif
+}
 
 struct Accumulator {
   std::vector<double> weight, range, intensity, sigma, truth, truth_weight;
@@ -36,10 +58,12 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                     const device::VirtualRangefinder& device, const BeamPattern& pattern,
                     const ScanOptions& options) {
   ScanResult result;
-  result.pattern = pattern;
+  reserve_populated(result.pattern.beams, pattern.beams.size());
+  result.pattern = pattern;  // the beams' copy reuses the reserved storage
   result.sensor = caster.scene().sensor;
   const auto& pose = result.sensor;
   const std::size_t n = pattern.beams.size();
+  reserve_populated(result.beams, n);
   result.beams.resize(n);
   const int base_shots = options.shots > 0 ? options.shots : device.config().measurement.shots;
   const int shots = base_shots * pattern.shots_multiplier;

@@ -16,6 +16,9 @@ struct DiscriminatorConfig {
   double threshold_v = 0.04;  ///< comparator threshold. Assumption, set so that echoes from
                               ///< rho = 0.1 fade out past 8 m (paper: 8.08 m achieved) while
                               ///< staying 19 x above the noise floor (no false alarms).
+  double blanking_ns = 0.0;   ///< comparator blanked for this long after emission (echo time,
+                              ///< before the chain's fixed delay): crossings, false alarms and
+                              ///< the peak detector before it are ignored. 0: none.
 };
 
 /// Time-to-digital converter: coarse counter plus fine interpolator.

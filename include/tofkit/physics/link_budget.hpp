@@ -28,9 +28,13 @@ struct LinkConfig {
 [[nodiscard]] double received_power_extended_w(const LinkConfig& link, double distance_m,
                                                double reflectance, double angle_deg);
 
-/// Received peak power from a target smaller than the footprint, paper Eq. 4:
-/// Pr = Pt Ar sigma / (4 pi theta_t^2 R^4) Tt Tr Ta^2 with theta_t the half-angle
-/// divergence and sigma the target's optical cross-section.
+/// Received peak power from a target smaller than the footprint, paper Eq. 4
+/// with its pi right: Pr = Pt Ar sigma / (4 pi^2 theta_t^2 R^4) Tt Tr Ta^2 with
+/// theta_t the half-angle divergence and sigma the laser-radar cross-section
+/// (4 rho A cos^2(phi) for a Lambertian area A; a corner cube's
+/// 4 pi A^2 / lambda^2). The paper prints 4 pi, which matches its Eq. 6 only
+/// with its sigma = 4 rho R^2 theta_t^2 cos(phi): the footprint's area without
+/// its pi (the footprint's cross-section is 4 pi rho R^2 theta_t^2 cos(phi)).
 [[nodiscard]] double received_power_small_w(const LinkConfig& link, double distance_m,
                                             double cross_section_m2);
 

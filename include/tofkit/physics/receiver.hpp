@@ -40,6 +40,9 @@ struct ReceiverConfig {
                                   ///< it taps clips here (0.05 m and 0.3 m at rho 0.99 read alike).
                                   ///< Assumption: the paper's peak detector follows the amplifier
                                   ///< (= saturation_v).
+  double crosstalk_v = 0.0;       ///< emitter-to-receiver optical crosstalk: peak at the
+                                  ///< comparator (nominal gain and laser power) of a copy of the
+                                  ///< pulse at zero range. 0: none.
   double axis_offset_mm = 15.0;   ///< biaxial optics: distance between the emitter's and the
                                   ///< receiver's optical axes. The receiver's field (aperture plus
                                   ///< field angle) overlaps the beam only past a blind zone.
