@@ -27,9 +27,6 @@ def model_core(j):
     return {k: v for k, v in j.items() if k != "fit"}
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (issue 11 open): the CLI's fit now chooses B-spline "
-                   "knots by grouped k-fold CV and records knot_search_rows; the Python fitters repeat "
-                   "cmd_fit's older logic instead of sharing one function")
 def test_fit_chain_equals_tofkit_fit(cli, tmp_path, calibration):
     path, records = calibration
     cli_model = tmp_path / "cli.json"
@@ -43,9 +40,6 @@ def test_fit_chain_equals_tofkit_fit(cli, tmp_path, calibration):
     assert "chain fit" in model.report
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (issue 11 open): the CLI's fit now chooses B-spline "
-                   "knots by grouped k-fold CV and records knot_search_rows; the Python fitters repeat "
-                   "cmd_fit's older logic instead of sharing one function")
 def test_fit_surface_equals_tofkit_fit(cli, tmp_path, calibration):
     path, records = calibration
     cli_model = tmp_path / "cli.json"

@@ -1,0 +1,322 @@
+#include "tofkit/calib/model_fit.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+namespace tofkit::calib {
+namespace {
+
+using GroupKey = std::tuple<double, double, double, double>;
+
+/// Identical truth (distance_true_m, reflectance, angle_deg, ambient_c); NaN
+/// compares unequal to itself, so it maps to a sentinel and groups.
+GroupKey key_of(const ranging::GroundTruth& t) {
+  const auto v = [](double x) { return std::isnan(x) ? -1e300 : x; };
+  return {v(t.distance_m), v(t.reflectance), v(t.angle_deg), v(t.ambient_c)};
+}
+
+/// Group of every record, numbered in order of first appearance.
+std::vector<std::size_t> truth_groups(std::span<const ranging::Record> records,
+                                      std::size_t& groups) {
+  std::map<GroupKey, std::size_t> group_of;
+  std::vector<std::size_t> group;
+  group.reserve(records.size());
+  for (const ranging::Record& r : records) {
+    group.push_back(group_of.emplace(key_of(r.truth), group_of.size()).first->second);
+  }
+  groups = group_of.size();
+  return group;
+}
+
+std::string format(const char* fmt, auto... args) {
+  char buffer[512];
+  std::snprintf(buffer, sizeof buffer, fmt, args...);
+  return buffer;
+}
+
+/// A surface over range needs calibration plates at two or more true distances.
+void require_two_distances(std::span<const ranging::Record> records) {
+  double first = ranging::kNaN;
+  for (const auto& r : records) {
+    if (!std::isfinite(r.truth.distance_m)) continue;
+    if (std::isnan(first)) first = r.truth.distance_m;
+    if (r.truth.distance_m != first) return;
+  }
+  throw std::invalid_argument(
+      format("surface bspline: range axis undetermined: every row has distance_true_m = %g m (one "
+             "distinct distance); measure plates at two or more distances, or fit a chain only",
+             first));
+}
+
+/// Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
+struct SurfaceRows {
+  std::vector<double> range, amplitude, temperature, error;
+  std::vector<std::uint32_t> group;  ///< truth group (cross-validation over whole targets)
+};
+
+SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
+                         std::span<const ranging::Record> records, bool use_temperature) {
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(records.size());
+  for (const auto& r : records) raw.push_back(r.raw);
+  std::vector<ranging::Range> before(raw.size());
+  pipeline.apply(raw, before);
+  SurfaceRows rows;
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group = truth_groups(records, groups);
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const double d = before[i].distance_m;
+    const double truth = records[i].truth.distance_m;
+    const double a = records[i].raw.amplitude;
+    const double t = records[i].raw.temperature_c;
+    if (!std::isfinite(d) || !std::isfinite(truth) || !std::isfinite(a) ||
+        (use_temperature && !std::isfinite(t))) {
+      continue;
+    }
+    rows.range.push_back(d);
+    rows.amplitude.push_back(a);
+    rows.temperature.push_back(t);
+    rows.error.push_back(truth - d);  // C = true - measured (thesis Section 4.6)
+    rows.group.push_back(static_cast<std::uint32_t>(group[i]));
+  }
+  return rows;
+}
+
+/// The correction (base or chain, then the surface on its residual) fitted on
+/// `rows`; the summary and report only when given (the model that is kept).
+ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
+                                 ModelFitSummary* summary, std::string* report) {
+  ranging::Pipeline pipeline = o.base ? *o.base : ranging::Pipeline(o.time_to_distance);
+  if (o.chain) {
+    ChainFitOptions chain_options = o.chain_options;
+    chain_options.steps = *o.chain;
+    chain_options.time_to_distance = o.time_to_distance;
+    ChainFitResult chain = fit_chain(rows, chain_options);
+    pipeline = chain.pipeline;
+    if (report) *report += chain.summary();
+    if (summary) {
+      summary->chain_steps = to_string(*o.chain);
+      summary->chain = std::move(chain);
+    }
+  }
+  if (o.surface.kind != SurfaceKind::none) {
+    const SurfaceRows input = surface_rows(pipeline, rows, o.surface_temperature);
+    const SurfaceFitData data{{input.range, input.amplitude,
+                               o.surface_temperature ? std::span<const double>(input.temperature)
+                                                     : std::span<const double>()},
+                              input.error,
+                              input.group};
+    SurfaceFitResult surface;
+    if (o.surface.kind == SurfaceKind::polynomial) {
+      PolynomialFitOptions poly = o.polynomial;
+      poly.order = o.surface.order;
+      poly.use_temperature = o.surface_temperature;
+      surface = fit_polynomial_surface(data, poly);
+    } else {
+      require_two_distances(rows);
+      BSplineFitOptions bspline = o.bspline;
+      bspline.use_temperature = o.surface_temperature;
+      surface = fit_bspline_surface(data, bspline);
+    }
+    ranging::Step step = ranging::make_surface_step(surface.surface);
+    step.fit.rows = surface.rows;
+    step.fit.residual_rms_m = surface.residual_rms_m;
+    pipeline.add_step(std::move(step));
+    pipeline.set_residual_rms_m(surface.residual_rms_m);
+    if (report) *report += surface.summary() + "\n";
+    if (summary) {
+      summary->surface_spec = to_string(o.surface);
+      summary->surface_temperature = o.surface_temperature;
+      summary->surface_error_before = error_stats(input.error);
+      summary->surface = std::move(surface);
+    }
+  }
+  return pipeline;
+}
+
+/// Residuals of a model on rows it was not fitted on.
+struct Residuals {
+  std::vector<double> range, amplitude, residual;
+
+  void add(const ranging::Pipeline& model, std::span<const ranging::Record> rows) {
+    std::vector<ranging::RawMeasurement> raw;
+    raw.reserve(rows.size());
+    for (const auto& r : rows) raw.push_back(r.raw);
+    std::vector<ranging::Range> corrected(raw.size());
+    model.apply(raw, corrected);
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      const double e = rows[i].truth.distance_m - corrected[i].distance_m;
+      // Out-of-domain rows would teach the in-domain sigma the extrapolation error.
+      if (!std::isfinite(e) || !std::isfinite(raw[i].amplitude) ||
+          (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+        continue;
+      }
+      range.push_back(corrected[i].distance_m);
+      amplitude.push_back(raw[i].amplitude);
+      residual.push_back(e);
+    }
+  }
+};
+
+}  // namespace
+
+SurfaceSpec parse_surface_spec(std::string_view spec) {
+  if (spec == "bspline") return {SurfaceKind::bspline, 0};
+  if (spec.rfind("poly:", 0) == 0) {
+    const std::string n(spec.substr(5));
+    std::size_t used = 0;
+    int order = -1;
+    try {
+      order = std::stoi(n, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == n.size() && order >= 1 && order <= 12) return {SurfaceKind::polynomial, order};
+  }
+  throw std::invalid_argument("expected poly:N (N = 1..12) or bspline");
+}
+
+std::string to_string(const SurfaceSpec& spec) {
+  switch (spec.kind) {
+    case SurfaceKind::polynomial:
+      return "poly:" + std::to_string(spec.order);
+    case SurfaceKind::bspline:
+      return "bspline";
+    case SurfaceKind::none:
+      break;
+  }
+  return "";
+}
+
+ConfidenceKind parse_confidence_kind(std::string_view kind) {
+  if (kind == "none") return ConfidenceKind::none;
+  if (kind == "calibrated") return ConfidenceKind::calibrated;
+  if (kind == "thesis") return ConfidenceKind::thesis;
+  throw std::invalid_argument("confidence " + std::string(kind) +
+                              ": expected none, calibrated or thesis");
+}
+
+std::string to_string(ConfidenceKind kind) {
+  switch (kind) {
+    case ConfidenceKind::calibrated:
+      return "calibrated";
+    case ConfidenceKind::thesis:
+      return "thesis";
+    case ConfidenceKind::none:
+      break;
+  }
+  return "none";
+}
+
+void ModelFitOptions::validate() const {
+  if (!chain && surface.kind == SurfaceKind::none) {
+    throw std::invalid_argument("nothing to fit: give chain steps and/or a surface");
+  }
+  if (chain && base) throw std::invalid_argument("a base pipeline and a chain are exclusive");
+  if (!(confidence_hold_out_fraction >= 0 && confidence_hold_out_fraction <= 0.5)) {
+    throw std::invalid_argument("confidence_hold_out_fraction must be in (0, 0.5] (0: none)");
+  }
+  if (confidence_folds < 2) throw std::invalid_argument("confidence_folds must be >= 2");
+  if (surface.kind == SurfaceKind::polynomial) polynomial.validate();
+  if (surface.kind == SurfaceKind::bspline) bspline.validate();
+}
+
+ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFitOptions& o) {
+  o.validate();
+  ModelFitResult result;
+  ModelFitSummary& summary = result.summary;
+  std::string& report = result.report;
+  summary.rows = records.size();
+
+  const bool hold_out = o.confidence != ConfidenceKind::none && o.confidence_hold_out_fraction > 0;
+  std::vector<ranging::Record> fit_part, confidence_part;
+  std::size_t groups = 0;
+  long every_kth = 0;
+  if (hold_out) {
+    // Deterministic hold-out: every k-th truth group (the k-th, 2k-th, ...)
+    // goes to the confidence part, the rest to the correction fit. Whole
+    // groups are held out, so the confidence sees targets the correction did not.
+    every_kth = std::lround(1.0 / o.confidence_hold_out_fraction);
+    const auto k = static_cast<std::size_t>(every_kth);
+    const std::vector<std::size_t> group = truth_groups(records, groups);
+    for (std::size_t i = 0; i < records.size(); ++i) {
+      ((group[i] % k) == k - 1 ? confidence_part : fit_part).push_back(records[i]);
+    }
+    if (confidence_part.empty() || fit_part.empty()) {
+      throw std::invalid_argument(
+          format("confidence %s holds out every %ld-th group of identical truth, but the data "
+                 "have %zu group(s): it needs at least %ld groups (distances / plates / "
+                 "temperatures)",
+                 to_string(o.confidence).c_str(), every_kth, groups, every_kth));
+    }
+  }
+  const std::span<const ranging::Record> fit_rows =
+      hold_out ? std::span<const ranging::Record>(fit_part) : records;
+  summary.rows_fit = fit_rows.size();
+
+  result.pipeline = fit_correction(fit_rows, o, &summary, &report);
+
+  Residuals residuals;
+  bool fit_confidence = o.confidence != ConfidenceKind::none;
+  std::string note;
+  if (fit_confidence && hold_out) {
+    residuals.add(result.pipeline, confidence_part);
+    note = format("%zu held-out rows (every %ld-th of %zu truth groups)", residuals.residual.size(),
+                  every_kth, groups);
+  } else if (fit_confidence) {
+    // Cross-fitting: every truth group's residual comes from a correction
+    // fitted without it (K folds of whole groups), so the confidence learns
+    // the error on targets the correction never saw; the model kept is fitted
+    // on all rows.
+    const std::vector<std::size_t> group = truth_groups(records, groups);
+    const auto folds = static_cast<std::size_t>(o.confidence_folds);
+    try {
+      if (groups < folds) {
+        throw std::invalid_argument(
+            format("confidence_folds %zu needs at least %zu groups of identical truth "
+                   "(distances / plates / temperatures), the data have %zu",
+                   folds, folds, groups));
+      }
+      for (std::size_t k = 0; k < folds; ++k) {
+        std::vector<ranging::Record> train, test;
+        for (std::size_t i = 0; i < records.size(); ++i) {
+          (group[i] % folds == k ? test : train).push_back(records[i]);
+        }
+        residuals.add(fit_correction(train, o, nullptr, nullptr), test);
+      }
+    } catch (const std::invalid_argument& e) {
+      if (o.confidence_required) throw;
+      // Data too small to cross-fit: sigma stays the residual RMS.
+      fit_confidence = false;
+      report += std::string("confidence: none (cross-fitting impossible: ") + e.what() + ")\n";
+    }
+    note = format("%zu out-of-fold rows (%zu folds of %zu truth groups)", residuals.residual.size(),
+                  folds, groups);
+  }
+  if (fit_confidence) {
+    const ConfidenceFitData data{residuals.range, residuals.amplitude, residuals.residual};
+    result.pipeline.set_confidence(o.confidence == ConfidenceKind::thesis
+                                       ? fit_thesis_confidence(data)
+                                       : fit_calibrated_confidence(data));
+    ModelFitSummary::Confidence c;
+    c.kind = o.confidence;
+    c.rows = residuals.residual.size();
+    c.groups = groups;
+    c.folds = hold_out ? 0 : o.confidence_folds;
+    c.every_kth_group = hold_out ? every_kth : 0;
+    c.held_out = error_stats(residuals.residual);
+    report += format("confidence: %s model fitted on %s; held-out RMS %.3f mm\n",
+                     to_string(o.confidence).c_str(), note.c_str(), c.held_out.rms_m * 1e3);
+    summary.confidence = c;
+  }
+  summary.residual_rms_m = result.pipeline.residual_rms_m();
+  return result;
+}
+
+}  // namespace tofkit::calib
