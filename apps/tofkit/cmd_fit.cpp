@@ -30,6 +30,7 @@ struct FitOptions {
   std::string surface;  // "poly:N" or "bspline"
   double rcond = 1e-2;  // thesis: 1e-2
   bool surface_temperature = false;
+  bool refine_walk = false;
   std::string confidence = "calibrated";
   bool confidence_given = false;
   double confidence_fraction = 0.25;
@@ -138,6 +139,15 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   if (o.rcond_given && o.surface.rfind("poly:", 0) != 0) {
     throw std::invalid_argument("--rcond applies to --surface poly:N only");
   }
+  if (o.refine_walk && o.chain.find("grayvalue") == std::string::npos) {
+    throw std::invalid_argument(
+        "--refine-walk refines the chain's grayvalue step: give --chain "
+        "...,grayvalue");
+  }
+  if (o.refine_walk && !o.firmware.empty()) {
+    throw std::invalid_argument(
+        "--refine-walk makes a dense grayvalue table; --firmware exports the paper's chain only");
+  }
   if (o.surface_temperature && o.surface.empty()) {
     throw std::invalid_argument(
         "--temperature adds a temperature axis to a --surface; the chain's temperature step is "
@@ -164,6 +174,7 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     }
   }
   options.surface_temperature = o.surface_temperature;
+  options.refine_walk = o.refine_walk;
   options.polynomial.rcond = o.rcond;
   if (options.surface.kind == calib::SurfaceKind::bspline) options.bspline = bspline_options(o);
   options.confidence = calib::parse_confidence_kind(o.confidence);
@@ -224,6 +235,9 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
           ->check(CLI::Range(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
+  sub.add_flag("--refine-walk", o->refine_walk,
+               "chain: refine the grayvalue step by a dense penalized piecewise-linear correction "
+               "in pulse width (nodes at quantiles; count and smoothing by grouped 5-fold CV)");
   sub.add_option("--knots", o->knots,
                  "bspline: knot intervals per axis, RxA[xT], or auto (chosen by generalized "
                  "cross-validation)")

@@ -250,6 +250,12 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
     if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
     j["chain"] = c;
   }
+  if (s.walk) {
+    j["walk_refinement"] = {{"nodes", s.walk->nodes},
+                            {"smoothing", s.walk->smoothing},
+                            {"cv_rms_m", s.walk->cv_rms_m},
+                            {"cv_rms_without_m", s.walk->cv_rms_without_m}};
+  }
   if (s.surface) {
     const calib::SurfaceFitResult& surface = *s.surface;
     j["surface"] = {

@@ -52,6 +52,13 @@ struct ModelFitOptions {
   std::optional<ChainSteps> chain;
   /// Chain fit settings (steps and time_to_distance are set from the fields above).
   ChainFitOptions chain_options;
+  /// After the chain, refine its grayvalue step by a dense penalized
+  /// piecewise-linear correction in pulse width: nodes at quantiles of the
+  /// pulse widths, a second-difference penalty, the node count and the
+  /// smoothing chosen by 5-fold cross-validation over whole truth groups (no
+  /// refinement when it does not lower the cross-validated error). The
+  /// hinge's few knots cannot follow a walk curve that bends everywhere.
+  bool refine_walk = false;
   /// Start from this already fitted pipeline instead of fitting a chain (the
   /// surface then fits its residual); exclusive with `chain`. It stays fixed
   /// in every cross-fitting fold.
@@ -82,6 +89,15 @@ struct ModelFitSummary {
   std::size_t rows_fit = 0;  ///< records the correction was fitted on
   std::optional<ChainFitResult> chain;
   std::string chain_steps;  ///< to_string of the steps (when a chain was fitted)
+  /// refine_walk: the nodes chosen (0: no refinement), the smoothing, and the
+  /// cross-validated RMS with and without it.
+  struct WalkRefinement {
+    int nodes = 0;
+    double smoothing = 0;
+    double cv_rms_m = 0;
+    double cv_rms_without_m = 0;
+  };
+  std::optional<WalkRefinement> walk;
   std::optional<SurfaceFitResult> surface;
   std::string surface_spec;
   bool surface_temperature = false;
