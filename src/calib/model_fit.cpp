@@ -199,11 +199,11 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
   without = std::sqrt(without / static_cast<double>(r.size()));
   double best = without, best_lambda = 0;
   int best_nodes = 0;
-  for (int count : {6, 10, 16, 24, 32, 48, 64, 96}) {
+  for (int count : {6, 10, 16, 24, 32, 48, 64, 96, 128}) {
     if (static_cast<std::size_t>(count) * 3 > sorted.size()) break;
     const std::vector<double> t = nodes_at(count);
     if (t.size() < 3) continue;
-    for (double lambda = 1e-4; lambda <= 1e3; lambda *= 10) {
+    for (double lambda = 1e-5; lambda <= 1e3; lambda *= std::sqrt(10.0)) {
       double sse = 0;
       std::vector<char> use(x.size());
       for (std::size_t fold = 0; fold < kFolds; ++fold) {
