@@ -492,7 +492,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     const ConfidenceFitData data{residuals.range, residuals.amplitude, residuals.residual};
     result.pipeline.set_confidence(o.confidence == ConfidenceKind::thesis
                                        ? fit_thesis_confidence(data)
-                                       : fit_calibrated_confidence(data));
+                                       : fit_calibrated_confidence(data, o.calibrated_confidence));
     ModelFitSummary::Confidence c;
     c.kind = o.confidence;
     c.rows = residuals.residual.size();

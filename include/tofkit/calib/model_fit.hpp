@@ -70,6 +70,7 @@ struct ModelFitOptions {
   /// cross-validation over whole truth groups. use_temperature is set from above.
   BSplineFitOptions bspline = auto_bspline_options();
   ConfidenceKind confidence = ConfidenceKind::calibrated;
+  CalibratedConfidenceOptions calibrated_confidence;  ///< settings of the calibrated kind
   /// false: when cross-fitting is impossible (too few truth groups) the model
   /// gets no confidence model (sigma = residual RMS) and the report says why;
   /// true: that is an error.
