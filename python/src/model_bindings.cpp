@@ -147,13 +147,20 @@ calib::ConfidenceKind confidence_kind(const std::string& confidence) {
 }
 
 Model fit_chain(const py::tuple& columns, const std::string& steps_text,
-                const device::DeviceConfig& config, const std::string& confidence) {
+                const device::DeviceConfig& config, const std::string& confidence,
+                bool refine_walk) {
   calib::ModelFitOptions options;
   try {
     options.chain = calib::parse_chain_steps(steps_text);
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument("steps " + steps_text + ": " + e.what());
   }
+  if (refine_walk && !options.chain->grayvalue) {
+    throw std::invalid_argument(
+        "refine_walk refines the chain's grayvalue step: steps needs "
+        "grayvalue");
+  }
+  options.refine_walk = refine_walk;
   options.time_to_distance = time_to_distance_of(config);
   options.confidence = confidence_kind(confidence);
   options.confidence_required = true;
@@ -243,7 +250,7 @@ void bind_model(py::module_& m) {
                              [](const Model& model) { return model.pipeline.residual_rms_m(); })
       .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none());
   m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"),
-        py::arg("confidence"));
+        py::arg("confidence"), py::arg("refine_walk"));
   m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("columns"),
         py::arg("spec"), py::arg("temperature"), py::arg("rcond"), py::arg("confidence"));
   py::class_<CppBaseline>(m, "_CppBaseline")

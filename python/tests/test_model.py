@@ -58,6 +58,19 @@ def test_fit_surface_equals_tofkit_fit(cli, tmp_path, calibration):
     assert model_core(spline.to_json()) == model_core(json.loads(cli_model.read_text()))
 
 
+def test_refined_walk_and_confidence_equal_tofkit_fit(cli, tmp_path, calibration):
+    path, records = calibration
+    cli_model = tmp_path / "cli.json"
+    cli("fit", "--in", path, "--chain", "offset,grayvalue,temperature", "--refine-walk", "--out",
+        cli_model)
+    model = tofkit.fit_chain(records, confidence="calibrated", refine_walk=True)
+    theirs = json.loads(cli_model.read_text())
+    assert model_core(model.to_json()) == model_core(theirs)
+    assert "walk_refinement" in theirs["fit"] and "confidence" in theirs
+    with pytest.raises(ValueError, match="refine_walk refines"):
+        tofkit.fit_chain(records, steps="offset,temperature", refine_walk=True)
+
+
 def test_apply_equals_tofkit_correct(cli, tmp_path, calibration):
     path, records = calibration
     model_path = tmp_path / "model.json"

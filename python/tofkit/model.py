@@ -88,16 +88,21 @@ def _config(config):
     return DeviceConfig() if config is None else config
 
 
-def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confidence="none"):
+def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confidence="none",
+              refine_walk=False):
     """Fit the paper's correction chain, as ``tofkit fit --chain STEPS
-    --confidence CONFIDENCE`` (the same C++ function, calib::fit_model).
+    --confidence CONFIDENCE [--refine-walk]`` (the same C++ function,
+    calib::fit_model).
 
     records: measurements with truth (measure(), read_raw(), or a mapping of
     columns with distance_true_m). config: the device (its wavelength and
     reference air set c_air; None: the paper's). confidence: "none",
     "calibrated" (sigma fitted on out-of-fold residuals) or "thesis".
+    refine_walk: add a dense penalized correction in pulse width to the
+    grayvalue step (nodes and smoothing by grouped cross-validation).
     """
-    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config), confidence))
+    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config), confidence,
+                                    bool(refine_walk)))
 
 
 def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=None,
