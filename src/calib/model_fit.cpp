@@ -4,10 +4,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <map>
+#include <functional>
 #include <stdexcept>
 #include <string>
 #include <tuple>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -24,9 +25,20 @@ GroupKey key_of(const ranging::GroundTruth& t) {
 }
 
 /// Group of every record, numbered in order of first appearance.
+struct GroupKeyHash {
+  std::size_t operator()(const GroupKey& k) const {
+    std::size_t h = 0;
+    for (double v : {std::get<0>(k), std::get<1>(k), std::get<2>(k), std::get<3>(k)}) {
+      h ^= std::hash<double>{}(v) + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
+    }
+    return h;
+  }
+};
+
 std::vector<std::size_t> truth_groups(std::span<const ranging::Record> records,
                                       std::size_t& groups) {
-  std::map<GroupKey, std::size_t> group_of;
+  std::unordered_map<GroupKey, std::size_t, GroupKeyHash> group_of;
+  group_of.reserve(records.size());
   std::vector<std::size_t> group;
   group.reserve(records.size());
   for (const ranging::Record& r : records) {
@@ -115,26 +127,39 @@ void hat_row(const std::vector<double>& t, double x, std::size_t& j, double& w) 
   w = (x - t[j]) / (t[j + 1] - t[j]);  // weight of node j + 1 (linear beyond the ends)
 }
 
-/// Penalized node values: min |A v - r|^2 + lambda |D2 v|^2.
-Eigen::VectorXd fit_nodes(const std::vector<double>& t, const std::vector<double>& x,
-                          const std::vector<double>& r, const std::vector<char>& use,
-                          double lambda_rel) {
-  const auto k = static_cast<Eigen::Index>(t.size());
-  Eigen::MatrixXd normal = Eigen::MatrixXd::Zero(k, k);
-  Eigen::VectorXd rhs = Eigen::VectorXd::Zero(k);
-  for (std::size_t i = 0; i < x.size(); ++i) {
+/// Normal equations of the hat-function design (rows with use[i]).
+struct NormalEquations {
+  Eigen::MatrixXd normal;
+  Eigen::VectorXd rhs;
+};
+
+struct Hat {
+  std::size_t j = 0;  ///< left node
+  double w = 0;       ///< weight of node j + 1
+};
+
+NormalEquations accumulate(std::size_t nodes, const std::vector<Hat>& hats,
+                           const std::vector<double>& r, const std::vector<char>& use) {
+  const auto k = static_cast<Eigen::Index>(nodes);
+  NormalEquations eq{Eigen::MatrixXd::Zero(k, k), Eigen::VectorXd::Zero(k)};
+  for (std::size_t i = 0; i < hats.size(); ++i) {
     if (!use[i]) continue;
-    std::size_t j = 0;
-    double w = 0;
-    hat_row(t, x[i], j, w);
-    const auto a = static_cast<Eigen::Index>(j), b = a + 1;
-    normal(a, a) += (1 - w) * (1 - w);
-    normal(a, b) += (1 - w) * w;
-    normal(b, a) += (1 - w) * w;
-    normal(b, b) += w * w;
-    rhs(a) += (1 - w) * r[i];
-    rhs(b) += w * r[i];
+    const double w = hats[i].w;
+    const auto a = static_cast<Eigen::Index>(hats[i].j), b = a + 1;
+    eq.normal(a, a) += (1 - w) * (1 - w);
+    eq.normal(a, b) += (1 - w) * w;
+    eq.normal(b, a) += (1 - w) * w;
+    eq.normal(b, b) += w * w;
+    eq.rhs(a) += (1 - w) * r[i];
+    eq.rhs(b) += w * r[i];
   }
+  return eq;
+}
+
+/// Penalized node values: min |A v - r|^2 + lambda s |D2 v|^2, s = trace(A^T A) / nodes.
+Eigen::VectorXd solve_nodes(const NormalEquations& eq, double lambda_rel) {
+  Eigen::MatrixXd normal = eq.normal;
+  const Eigen::Index k = normal.rows();
   const double scale = normal.trace() / static_cast<double>(k);
   for (Eigen::Index j = 0; j + 2 < k; ++j) {
     const double d[3] = {1, -2, 1};
@@ -142,7 +167,18 @@ Eigen::VectorXd fit_nodes(const std::vector<double>& t, const std::vector<double
       for (int q = 0; q < 3; ++q) normal(j + p, j + q) += lambda_rel * scale * d[p] * d[q];
   }
   normal.diagonal().array() += 1e-12 * scale;
-  return normal.ldlt().solve(rhs);
+  return normal.ldlt().solve(eq.rhs);
+}
+
+std::vector<Hat> hats_of(const std::vector<double>& t, const std::vector<double>& x) {
+  std::vector<Hat> hats(x.size());
+  for (std::size_t i = 0; i < x.size(); ++i) hat_row(t, x[i], hats[i].j, hats[i].w);
+  return hats;
+}
+
+double hat_value(const Hat& h, const Eigen::VectorXd& v) {
+  return (1 - h.w) * v(static_cast<Eigen::Index>(h.j)) +
+         h.w * v(static_cast<Eigen::Index>(h.j + 1));
 }
 
 double node_value(const std::vector<double>& t, const Eigen::VectorXd& v, double x) {
@@ -214,15 +250,22 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     if (static_cast<std::size_t>(count) * 3 > sorted.size()) break;
     const std::vector<double> t = nodes_at(count);
     if (t.size() < 3) continue;
-    for (double lambda = 1e-5; lambda <= 1e3; lambda *= std::sqrt(10.0)) {
+    // The normal equations of each fold do not depend on the smoothing.
+    const std::vector<Hat> hats = hats_of(t, cx);
+    std::vector<NormalEquations> fold_eq;
+    std::vector<char> use(cx.size());
+    for (std::size_t fold = 0; fold < kFolds; ++fold) {
+      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = cgroup[i] % kFolds != fold;
+      fold_eq.push_back(accumulate(t.size(), hats, cr, use));
+    }
+    for (int decade_half = -10; decade_half <= 6; ++decade_half) {
+      const double lambda = std::pow(10.0, 0.5 * decade_half);
       double sse = 0;
-      std::vector<char> use(cx.size());
       for (std::size_t fold = 0; fold < kFolds; ++fold) {
-        for (std::size_t i = 0; i < cx.size(); ++i) use[i] = cgroup[i] % kFolds != fold;
-        const Eigen::VectorXd v = fit_nodes(t, cx, cr, use, lambda);
+        const Eigen::VectorXd v = solve_nodes(fold_eq[fold], lambda);
         for (std::size_t i = 0; i < cx.size(); ++i) {
-          if (use[i]) continue;
-          const double e = cr[i] - node_value(t, v, cx[i]);
+          if (cgroup[i] % kFolds != fold) continue;
+          const double e = cr[i] - hat_value(hats[i], v);
           sse += e * e;
         }
       }
@@ -237,7 +280,8 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
   if (info) *info = {0, 0, best, without};
   if (best_nodes == 0) return chain;
   const std::vector<double> t = nodes_at(best_nodes);
-  const Eigen::VectorXd v = fit_nodes(t, x, r, std::vector<char>(x.size(), 1), best_lambda);
+  const Eigen::VectorXd v = solve_nodes(
+      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1)), best_lambda);
   if (info) *info = {static_cast<int>(t.size()), best_lambda, best, without};
   // g + d as one piecewise-linear function: nodes at the union of both knot sets.
   const ranging::Step& old = chain.steps()[grayvalue];
