@@ -31,6 +31,7 @@ struct FitOptions {
   double rcond = 1e-2;  // thesis: 1e-2
   bool surface_temperature = false;
   bool refine_walk = false;
+  std::string intensity = "auto";  // bspline: auto (CV) | amplitude | pulse-width
   std::string confidence = "calibrated";
   bool confidence_given = false;
   double confidence_fraction = 0.25;
@@ -175,6 +176,14 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   }
   options.surface_temperature = o.surface_temperature;
   options.refine_walk = o.refine_walk;
+  try {
+    options.surface_intensity = calib::parse_surface_intensity(o.intensity);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("--intensity " + o.intensity + ": " + e.what());
+  }
+  if (o.intensity != "auto" && options.surface.kind != calib::SurfaceKind::bspline) {
+    throw std::invalid_argument("--intensity applies to --surface bspline only");
+  }
   options.polynomial.rcond = o.rcond;
   if (options.surface.kind == calib::SurfaceKind::bspline) options.bspline = bspline_options(o);
   options.confidence = calib::parse_confidence_kind(o.confidence);
@@ -235,6 +244,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
           ->check(CLI::Range(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
+  sub.add_option("--intensity", o->intensity,
+                 "bspline: intensity axis, amplitude (log scale), pulse-width, or auto (the one "
+                 "with the lower grouped cross-validated RMS)")
+      ->capture_default_str();
   sub.add_flag("--refine-walk", o->refine_walk,
                "chain: refine the grayvalue step by a dense penalized piecewise-linear correction "
                "in pulse width (nodes at quantiles; count and smoothing by grouped 5-fold CV)");

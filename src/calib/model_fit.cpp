@@ -75,7 +75,8 @@ struct SurfaceRows {
 };
 
 SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
-                         std::span<const ranging::Record> records, bool use_temperature) {
+                         std::span<const ranging::Record> records, bool use_temperature,
+                         bool pulse_width) {
   std::vector<ranging::RawMeasurement> raw;
   raw.reserve(records.size());
   for (const auto& r : records) raw.push_back(r.raw);
@@ -87,7 +88,7 @@ SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
   for (std::size_t i = 0; i < records.size(); ++i) {
     const double d = before[i].distance_m;
     const double truth = records[i].truth.distance_m;
-    const double a = records[i].raw.amplitude;
+    const double a = pulse_width ? records[i].raw.pulse_width_ns : records[i].raw.amplitude;
     const double t = records[i].raw.temperature_c;
     if (!std::isfinite(d) || !std::isfinite(truth) || !std::isfinite(a) ||
         (use_temperature && !std::isfinite(t))) {
@@ -350,33 +351,75 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
     }
   }
   if (o.surface.kind != SurfaceKind::none) {
-    const SurfaceRows input = surface_rows(pipeline, rows, o.surface_temperature);
-    const SurfaceFitData data{{input.range, input.amplitude,
-                               o.surface_temperature ? std::span<const double>(input.temperature)
-                                                     : std::span<const double>()},
-                              input.error,
-                              input.group};
-    SurfaceFitResult surface;
-    if (o.surface.kind == SurfaceKind::polynomial) {
-      PolynomialFitOptions poly = o.polynomial;
-      poly.order = o.surface.order;
-      poly.use_temperature = o.surface_temperature;
-      surface = fit_polynomial_surface(data, poly);
-    } else {
+    const auto fit_on = [&](bool pulse_width, SurfaceRows& input) {
+      input = surface_rows(pipeline, rows, o.surface_temperature, pulse_width);
+      const SurfaceFitData data{{input.range, input.amplitude,
+                                 o.surface_temperature ? std::span<const double>(input.temperature)
+                                                       : std::span<const double>()},
+                                input.error,
+                                input.group};
+      if (o.surface.kind == SurfaceKind::polynomial) {
+        PolynomialFitOptions poly = o.polynomial;
+        poly.order = o.surface.order;
+        poly.use_temperature = o.surface_temperature;
+        return fit_polynomial_surface(data, poly);
+      }
       require_two_distances(rows);
       BSplineFitOptions bspline = o.bspline;
       bspline.use_temperature = o.surface_temperature;
-      surface = fit_bspline_surface(data, bspline);
+      if (pulse_width) {
+        bspline.log_amplitude = false;
+        bspline.intensity = ranging::IntensityInput::pulse_width;
+      }
+      return fit_bspline_surface(data, bspline);
+    };
+    const bool bspline = o.surface.kind == SurfaceKind::bspline;
+    const bool try_amplitude = !bspline || o.surface_intensity != SurfaceIntensity::pulse_width;
+    const bool try_pulse_width = bspline && o.surface_intensity != SurfaceIntensity::amplitude;
+    SurfaceRows input, other_input;
+    SurfaceFitResult surface;
+    bool pulse_width = false;
+    double other_cv = 0;
+    if (try_amplitude) surface = fit_on(false, input);
+    if (try_pulse_width) {
+      if (!try_amplitude) {
+        surface = fit_on(true, input);
+        pulse_width = true;
+      } else {
+        // choose: the axis with the lower grouped cross-validated RMS; an axis
+        // the data cannot carry (no pulse widths, no spread) is not a candidate.
+        try {
+          SurfaceFitResult by_width = fit_on(true, other_input);
+          if (by_width.cv_rms_m > 0 && by_width.cv_rms_m < surface.cv_rms_m) {
+            other_cv = surface.cv_rms_m;
+            std::swap(surface, by_width);
+            std::swap(input, other_input);
+            pulse_width = true;
+          } else {
+            other_cv = by_width.cv_rms_m;
+          }
+        } catch (const std::invalid_argument&) {
+        }
+      }
     }
     ranging::Step step = ranging::make_surface_step(surface.surface);
     step.fit.rows = surface.rows;
     step.fit.residual_rms_m = surface.residual_rms_m;
     pipeline.add_step(std::move(step));
     pipeline.set_residual_rms_m(surface.residual_rms_m);
-    if (report) *report += surface.summary() + "\n";
+    if (report) {
+      *report += surface.summary() + (pulse_width ? ", intensity axis: pulse width" : "");
+      if (other_cv > 0) {
+        *report += format(" (%s axis: cross-validated RMS %.3f mm)",
+                          pulse_width ? "amplitude" : "pulse-width", other_cv * 1e3);
+      }
+      *report += "\n";
+    }
     if (summary) {
       summary->surface_spec = to_string(o.surface);
       summary->surface_temperature = o.surface_temperature;
+      summary->surface_intensity = pulse_width ? "pulse_width_ns" : "amplitude";
+      summary->surface_cv_rms_other_m = other_cv;
       summary->surface_error_before = error_stats(input.error);
       summary->surface = std::move(surface);
     }
@@ -436,6 +479,13 @@ std::string to_string(const SurfaceSpec& spec) {
       break;
   }
   return "";
+}
+
+SurfaceIntensity parse_surface_intensity(std::string_view text) {
+  if (text == "auto") return SurfaceIntensity::choose;
+  if (text == "amplitude") return SurfaceIntensity::amplitude;
+  if (text == "pulse-width") return SurfaceIntensity::pulse_width;
+  throw std::invalid_argument("expected auto, amplitude or pulse-width");
 }
 
 ConfidenceKind parse_confidence_kind(std::string_view kind) {

@@ -267,8 +267,12 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
          std::vector<int>(surface.intervals, surface.intervals + (s.surface_temperature ? 3 : 2))},
         {"smoothing", surface.smoothing},
         {"cv_rms_m", surface.cv_rms_m},
+        {"intensity", s.surface_intensity},
         {"residual_rms_m", surface.residual_rms_m},
         {"error_before", stats_json(s.surface_error_before)}};
+    if (s.surface_cv_rms_other_m > 0) {
+      j["surface"]["cv_rms_other_intensity_m"] = s.surface_cv_rms_other_m;
+    }
   }
   if (s.confidence) {
     const auto& c = *s.confidence;

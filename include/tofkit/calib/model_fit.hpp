@@ -34,6 +34,13 @@ struct SurfaceSpec {
 
 enum class ConfidenceKind { none, calibrated, thesis };
 
+/// A B-spline surface's intensity axis: the amplitude (log scale), the pulse
+/// width, or (choose) the one with the lower grouped cross-validated RMS.
+enum class SurfaceIntensity { choose, amplitude, pulse_width };
+
+/// "auto", "amplitude" or "pulse-width"; throws std::invalid_argument otherwise.
+[[nodiscard]] SurfaceIntensity parse_surface_intensity(std::string_view text);
+
 /// "none", "calibrated" or "thesis"; throws std::invalid_argument otherwise.
 [[nodiscard]] ConfidenceKind parse_confidence_kind(std::string_view kind);
 [[nodiscard]] std::string to_string(ConfidenceKind kind);
@@ -65,7 +72,9 @@ struct ModelFitOptions {
   std::optional<ranging::Pipeline> base;
   SurfaceSpec surface;
   bool surface_temperature = false;  ///< the surface gets a temperature axis
-  PolynomialFitOptions polynomial;   ///< order and use_temperature are set from above
+  /// B-spline only (a polynomial surface reads the amplitude).
+  SurfaceIntensity surface_intensity = SurfaceIntensity::choose;
+  PolynomialFitOptions polynomial;  ///< order and use_temperature are set from above
   /// B-spline settings; by default knots and smoothing are chosen by
   /// cross-validation over whole truth groups. use_temperature is set from above.
   BSplineFitOptions bspline = auto_bspline_options();
@@ -102,7 +111,9 @@ struct ModelFitSummary {
   std::optional<SurfaceFitResult> surface;
   std::string surface_spec;
   bool surface_temperature = false;
-  ErrorStats surface_error_before;  ///< of the error the surface was fitted to
+  std::string surface_intensity;      ///< "amplitude" or "pulse_width_ns": what the surface reads
+  double surface_cv_rms_other_m = 0;  ///< choose: the other axis's cross-validated RMS (0: none)
+  ErrorStats surface_error_before;    ///< of the error the surface was fitted to
   struct Confidence {
     ConfidenceKind kind = ConfidenceKind::none;
     std::size_t rows = 0;      ///< residuals the confidence was fitted on
