@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "tofkit/calib/chain_fit.hpp"
+#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/time_to_distance.hpp"
 
@@ -86,5 +87,33 @@ void BM_FitChain(benchmark::State& state) {
   state.counters["rms_mm"] = fit.after.rms_m * 1e3;
 }
 BENCHMARK(BM_FitChain)->Arg(250'000)->Arg(1'000'000)->Unit(benchmark::kMillisecond)->Iterations(2);
+
+/// fit --chain ... --refine-walk --confidence none: the chain plus the walk
+/// refinement's grouped cross-validation (on at most 50 k rows) and its fit on all.
+void BM_FitChainRefineWalk(benchmark::State& state) {
+  tbb::global_control one_core(tbb::global_control::max_allowed_parallelism, 1);
+  const auto rows = calibration_rows(static_cast<std::size_t>(state.range(0)));
+  calib::ModelFitOptions options;
+  options.chain = calib::ChainSteps{};
+  options.refine_walk = true;
+  options.confidence = calib::ConfidenceKind::none;
+  double seconds = 0;
+  calib::ModelFitResult fit;
+  for (auto _ : state) {
+    const double start = thread_cpu_s();
+    fit = calib::fit_model(rows, options);
+    seconds += thread_cpu_s() - start;
+  }
+  const double per_fit = seconds / static_cast<double>(state.iterations());
+  state.SetItemsProcessed(static_cast<std::int64_t>(state.iterations()) * state.range(0));
+  state.counters["cpu_s"] = per_fit;
+  state.counters["x_apply"] = per_fit / apply_seconds(rows, fit.pipeline);
+  state.counters["rms_mm"] = fit.pipeline.residual_rms_m() * 1e3;
+}
+BENCHMARK(BM_FitChainRefineWalk)
+    ->Arg(250'000)
+    ->Arg(1'000'000)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(2);
 
 }  // namespace

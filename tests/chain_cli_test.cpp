@@ -214,5 +214,57 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   EXPECT_NE(e.err.find("--by colour: no such column"), std::string::npos) << e.err;
 }
 
+// A walk curve that bends everywhere (a sine in pulse width): the hinge's
+// three knots leave millimetres; --refine-walk (nodes and smoothing by grouped
+// cross-validation) comes down to the noise on other rows, and says so in the
+// model file. Without a grayvalue step the flag is refused, writing nothing.
+TEST_F(ChainCli, RefineWalkFollowsACurvedWalk) {
+  const double k = ranging::metres_per_ns(ranging::TimeToDistance{});
+  const auto curved = [&](std::vector<ranging::Record> records) {
+    for (auto& r : records) {
+      const double pw = r.raw.pulse_width_ns, t = r.raw.temperature_c;
+      const double curved_error =
+          -0.120 + 0.010 * std::sin(2.5 * pw) + (true_error_m(pw, t) - true_error_m(pw, 0.0));
+      const double delta = true_error_m(pw, t) - curved_error;  // measured = d - error + noise
+      r.raw.distance_raw_m += delta;
+      r.raw.tof_ns += delta / k;
+    }
+    return records;
+  };
+  io::write_raw_csv(path("calib.csv"), curved(synthetic_records(3, 11)));
+  io::write_raw_csv(path("test.csv"), curved(synthetic_records(1, 12)));
+  const auto test_rms = [&](const std::string& extra) {
+    const RunResult fit = run("fit --confidence none --in " + path("calib.csv") + " --out " +
+                              path("model.json") + " --chain offset,grayvalue,temperature" + extra);
+    EXPECT_EQ(fit.exit_code, 0) << fit.err;
+    const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+    double sum2 = 0;
+    std::size_t n = 0;
+    for (const auto& r : io::read_raw_csv(path("test.csv"))) {
+      const double e = r.truth.distance_m - model.apply(r.raw).distance_m;
+      if (!std::isfinite(e)) continue;
+      sum2 += e * e;
+      ++n;
+    }
+    return std::sqrt(sum2 / double(n));
+  };
+  const double hinge = test_rms("");
+  const double refined = test_rms(" --refine-walk");
+  std::ifstream in(path("model.json"));
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_GT(j["fit"]["walk_refinement"]["nodes"].get<int>(), 0) << j["fit"].dump();
+  EXPECT_GT(hinge, 2.0 * kNoise_m) << hinge;
+  EXPECT_LT(refined, 1.3 * kNoise_m) << refined << " (hinge " << hinge << ")";
+  std::printf("hinge %.3f mm, refined %.3f mm\n", hinge * 1e3, refined * 1e3);
+
+  fs::remove(path("model.json"));
+  const RunResult bad = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+                            " --chain offset,temperature --refine-walk");
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("--refine-walk refines the chain's grayvalue step"), std::string::npos)
+      << bad.err;
+  EXPECT_FALSE(fs::exists(path("model.json")));
+}
+
 }  // namespace
 }  // namespace tofkit

@@ -482,3 +482,36 @@ TEST(Device, SunlitFalseStopsAreRejectedBeforeAveraging) {
   EXPECT_GT(std::abs(raw.distance_raw_m - indoor.distance_raw_m), 0.02);
   EXPECT_NEAR(gated.distance_raw_m, indoor.distance_raw_m, 3e-3);
 }
+
+// The firmware's code-density calibration (tdc.code_density_hits) replaces the
+// chain's INL by the histogram's counting error: the cumulative count up to a
+// code is binomial, so the residual is a Brownian bridge over the codes with
+// rms bins sqrt(1 / (6 hits)) LSB (mean of F (1 - F) over [0, 1] is 1/6),
+// whatever the chain's own INL; four times the hits halve it.
+TEST(Device, CodeDensityCalibrationLeavesTheCountingErrorOfItsHits) {
+  TdcConfig config;
+  config.lsb_ps = 40.0;
+  config.coarse_clock_mhz = 200.0;
+  config.inl_lsb = 0.5;
+  const auto rms_of = [](const Tdc& tdc) {
+    double s2 = 0;
+    for (double v : tdc.inl_lsb()) s2 += v * v;
+    return std::sqrt(s2 / double(tdc.inl_lsb().size()));
+  };
+  const Tdc raw(config);
+  double peak = 0;
+  for (double v : raw.inl_lsb()) peak = std::max(peak, std::abs(v));
+  EXPECT_NEAR(peak, 0.5, 1e-12);  // uncorrected: the chain's INL as configured
+  const double bins = double(raw.inl_lsb().size());
+  ASSERT_EQ(bins, 125.0);
+  for (int hits : {1 << 16, 1 << 20}) {
+    config.code_density_hits = hits;
+    const double expected = bins * std::sqrt(1.0 / (6.0 * hits));
+    const double rms = rms_of(Tdc(config));
+    EXPECT_GT(rms, 0.5 * expected) << hits;
+    EXPECT_LT(rms, 1.6 * expected) << hits;
+    config.inl_lsb = 5.0;  // a worse chain: the same counting error remains
+    EXPECT_NEAR(rms_of(Tdc(config)), rms, 1e-12) << hits;
+    config.inl_lsb = 0.5;
+  }
+}

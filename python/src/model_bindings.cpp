@@ -17,9 +17,7 @@
 
 #include "bindings.hpp"
 #include "columns.hpp"
-#include "tofkit/calib/chain_fit.hpp"
-#include "tofkit/calib/statistics.hpp"
-#include "tofkit/calib/surface_fit.hpp"
+#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/ranging/pipeline.hpp"
@@ -49,23 +47,6 @@ ranging::TimeToDistance time_to_distance_of(const device::DeviceConfig& config) 
   t.air.pressure_hpa = config.link.environment.pressure_hpa;
   t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
   return t;
-}
-
-json stats_json(const calib::ErrorStats& s) {
-  const auto v = [](double x) { return std::isfinite(x) ? json(x) : json(); };
-  return {{"rows", s.rows},
-          {"bias_m", v(s.bias_m)},
-          {"rms_m", v(s.rms_m)},
-          {"max_abs_m", v(s.max_abs_m)}};
-}
-
-json hinge_json(const calib::HingeFitResult& h) {
-  json bic = json::array();
-  for (double b : h.bic) bic.push_back(std::isfinite(b) ? json(b) : json());
-  return {{"knots", h.knots},
-          {"bic_by_knot_count", bic},
-          {"rows_downweighted", h.rows_downweighted},
-          {"robust_sigma_m", h.robust_scale}};
 }
 
 Model load_model(const fs::path& path) {
@@ -136,109 +117,69 @@ std::vector<ranging::Record> records_of(const py::tuple& columns) {
   return records;
 }
 
-Model fit_chain(const py::tuple& columns, const std::string& steps_text,
-                const device::DeviceConfig& config) {
-  calib::ChainFitOptions options;
-  try {
-    options.steps = calib::parse_chain_steps(steps_text);
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument("steps " + steps_text + ": " + e.what());
-  }
-  options.time_to_distance = time_to_distance_of(config);
-  const std::vector<ranging::Record> records = records_of(columns);
-  std::optional<calib::ChainFitResult> chain;
+/// calib::fit_model on the records, as `tofkit fit` runs it; the GIL is released meanwhile.
+Model fit_model(const std::vector<ranging::Record>& records, const calib::ModelFitOptions& options,
+                const json& base_fit) {
+  std::optional<calib::ModelFitResult> fit;
   {
     py::gil_scoped_release release;
-    chain = calib::fit_chain(records, options);
+    fit = calib::fit_model(records, options);
   }
-  Model model{chain->pipeline, nullptr, chain->summary()};
-  json c = {{"steps", calib::to_string(options.steps)},
-            {"rows", chain->rows},
-            {"rows_skipped", chain->rows_skipped},
-            {"rows_downweighted", chain->rows_downweighted},
-            {"backfit_iterations", chain->backfit_iterations},
-            {"converged", chain->converged},
-            {"before", stats_json(chain->before)},
-            {"after", stats_json(chain->after)}};
-  if (chain->grayvalue) c["grayvalue"] = hinge_json(*chain->grayvalue);
-  if (chain->temperature) c["temperature"] = hinge_json(*chain->temperature);
-  model.fit = {{"command", "fit"},
-               {"input", "python"},
-               {"rows", records.size()},
-               {"rows_fit", records.size()},
-               {"chain", c},
-               {"residual_rms_m", model.pipeline.residual_rms_m()}};
+  Model model{std::move(fit->pipeline), io::fit_summary_json(fit->summary, "python"),
+              std::move(fit->report)};
+  // A surface fitted on a chain Model keeps the chain's statistics.
+  if (base_fit.is_object() && base_fit.contains("chain") && !model.fit.contains("chain")) {
+    model.fit["chain"] = base_fit["chain"];
+  }
   return model;
 }
 
-/// Fits a surface on (range, amplitude[, temperature]) -> error and appends it
-/// to `base` (or to an empty pipeline for `config`), as `tofkit fit --surface` does.
-Model fit_surface(
-    const std::optional<Model>& base, const device::DeviceConfig& config,
-    const py::array_t<double, py::array::c_style | py::array::forcecast>& range_m,
-    const py::array_t<double, py::array::c_style | py::array::forcecast>& amplitude,
-    const std::optional<py::array_t<double, py::array::c_style | py::array::forcecast>>&
-        temperature_c,
-    const py::array_t<double, py::array::c_style | py::array::forcecast>& error_m,
-    const std::string& spec, std::optional<double> rcond) {
-  bool poly = false;
-  int order = 0;
-  if (spec.rfind("poly:", 0) == 0) {
-    const std::string digits = spec.substr(5);
-    std::size_t used = 0;
-    try {
-      order = std::stoi(digits, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    poly = used == digits.size() && order >= 1 && order <= 12;
+calib::ConfidenceKind confidence_kind(const std::string& confidence) {
+  return calib::parse_confidence_kind(confidence);
+}
+
+Model fit_chain(const py::tuple& columns, const std::string& steps_text,
+                const device::DeviceConfig& config, const std::string& confidence,
+                bool refine_walk) {
+  calib::ModelFitOptions options;
+  try {
+    options.chain = calib::parse_chain_steps(steps_text);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("steps " + steps_text + ": " + e.what());
   }
-  if (!poly && spec != "bspline") {
-    throw std::invalid_argument("surface " + spec + ": expected poly:N (N = 1..12) or bspline");
+  if (refine_walk && !options.chain->grayvalue) {
+    throw std::invalid_argument(
+        "refine_walk refines the chain's grayvalue step: steps needs "
+        "grayvalue");
   }
-  if (rcond && !poly) throw std::invalid_argument("rcond applies to surface poly:N only");
-  const auto n = static_cast<std::size_t>(range_m.size());
-  if (static_cast<std::size_t>(amplitude.size()) != n ||
-      static_cast<std::size_t>(error_m.size()) != n ||
-      (temperature_c && static_cast<std::size_t>(temperature_c->size()) != n)) {
-    throw std::invalid_argument("surface inputs differ in length");
+  options.refine_walk = refine_walk;
+  options.time_to_distance = time_to_distance_of(config);
+  options.confidence = confidence_kind(confidence);
+  options.confidence_required = true;
+  return fit_model(records_of(columns), options, nullptr);
+}
+
+/// A surface over (range, amplitude[, temperature]) on the residual of `base`
+/// (or alone for `config`), as `tofkit fit [--chain ...] --surface SPEC` does.
+Model fit_surface(const std::optional<Model>& base, const device::DeviceConfig& config,
+                  const py::tuple& columns, const std::string& spec, bool temperature,
+                  std::optional<double> rcond, const std::string& confidence) {
+  calib::ModelFitOptions options;
+  try {
+    options.surface = calib::parse_surface_spec(spec);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument("surface " + spec + ": " + e.what());
   }
-  const bool use_temperature = temperature_c.has_value();
-  calib::SurfaceFitData data{
-      {std::span(range_m.data(), n), std::span(amplitude.data(), n),
-       use_temperature ? std::span(temperature_c->data(), n) : std::span<const double>()},
-      std::span(error_m.data(), n)};
-  Model model = base ? *base : Model{ranging::Pipeline(time_to_distance_of(config)), nullptr, ""};
-  calib::SurfaceFitResult surface;
-  {
-    py::gil_scoped_release release;
-    if (poly) {
-      calib::PolynomialFitOptions options;
-      options.order = order;
-      if (rcond) options.rcond = *rcond;
-      options.use_temperature = use_temperature;
-      surface = calib::fit_polynomial_surface(data, options);
-    } else {
-      calib::BSplineFitOptions options;
-      options.use_temperature = use_temperature;
-      surface = calib::fit_bspline_surface(data, options);
-    }
+  if (rcond && options.surface.kind != calib::SurfaceKind::polynomial) {
+    throw std::invalid_argument("rcond applies to surface poly:N only");
   }
-  ranging::Step step = ranging::make_surface_step(surface.surface);
-  step.fit.rows = surface.rows;
-  step.fit.residual_rms_m = surface.residual_rms_m;
-  model.pipeline.add_step(std::move(step));
-  model.pipeline.set_residual_rms_m(surface.residual_rms_m);
-  model.report += surface.summary() + "\n";
-  if (!model.fit.is_object()) model.fit = {{"command", "fit"}, {"input", "python"}};
-  model.fit["surface"] = {{"spec", spec},
-                          {"rows", surface.rows},
-                          {"parameters", surface.parameters},
-                          {"rank", surface.rank},
-                          {"residual_rms_m", surface.residual_rms_m},
-                          {"error_before", stats_json(calib::error_stats(data.error_m))}};
-  model.fit["residual_rms_m"] = model.pipeline.residual_rms_m();
-  return model;
+  if (rcond) options.polynomial.rcond = *rcond;
+  options.surface_temperature = temperature;
+  options.time_to_distance = base ? base->pipeline.time_to_distance() : time_to_distance_of(config);
+  if (base) options.base = base->pipeline;
+  options.confidence = confidence_kind(confidence);
+  options.confidence_required = true;
+  return fit_model(records_of(columns), options, base ? base->fit : json());
 }
 
 /// The C++ batch baselines of the benchmark script: Pipeline::apply over a
@@ -310,10 +251,10 @@ void bind_model(py::module_& m) {
       .def_property_readonly("residual_rms_m",
                              [](const Model& model) { return model.pipeline.residual_rms_m(); })
       .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none());
-  m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"));
-  m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("range_m"),
-        py::arg("amplitude"), py::arg("temperature_c"), py::arg("error_m"), py::arg("spec"),
-        py::arg("rcond"));
+  m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"),
+        py::arg("confidence"), py::arg("refine_walk"));
+  m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("columns"),
+        py::arg("spec"), py::arg("temperature"), py::arg("rcond"), py::arg("confidence"));
   py::class_<CppBaseline>(m, "_CppBaseline")
       .def(py::init<const Model&, const py::tuple&>(), py::arg("model"), py::arg("columns"))
       .def("run", &CppBaseline::run, py::arg("allocate"), py::arg("records") = false);

@@ -27,9 +27,6 @@ def model_core(j):
     return {k: v for k, v in j.items() if k != "fit"}
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (issue 11 open): the CLI's fit now chooses B-spline "
-                   "knots by grouped k-fold CV and records knot_search_rows; the Python fitters repeat "
-                   "cmd_fit's older logic instead of sharing one function")
 def test_fit_chain_equals_tofkit_fit(cli, tmp_path, calibration):
     path, records = calibration
     cli_model = tmp_path / "cli.json"
@@ -43,9 +40,6 @@ def test_fit_chain_equals_tofkit_fit(cli, tmp_path, calibration):
     assert "chain fit" in model.report
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (issue 11 open): the CLI's fit now chooses B-spline "
-                   "knots by grouped k-fold CV and records knot_search_rows; the Python fitters repeat "
-                   "cmd_fit's older logic instead of sharing one function")
 def test_fit_surface_equals_tofkit_fit(cli, tmp_path, calibration):
     path, records = calibration
     cli_model = tmp_path / "cli.json"
@@ -62,6 +56,19 @@ def test_fit_surface_equals_tofkit_fit(cli, tmp_path, calibration):
     cli("fit", "--confidence", "none", "--in", path, "--surface", "bspline", "--out", cli_model)
     spline = tofkit.fit_surface(records, "bspline")
     assert model_core(spline.to_json()) == model_core(json.loads(cli_model.read_text()))
+
+
+def test_refined_walk_and_confidence_equal_tofkit_fit(cli, tmp_path, calibration):
+    path, records = calibration
+    cli_model = tmp_path / "cli.json"
+    cli("fit", "--in", path, "--chain", "offset,grayvalue,temperature", "--refine-walk", "--out",
+        cli_model)
+    model = tofkit.fit_chain(records, confidence="calibrated", refine_walk=True)
+    theirs = json.loads(cli_model.read_text())
+    assert model_core(model.to_json()) == model_core(theirs)
+    assert "walk_refinement" in theirs["fit"] and "confidence" in theirs
+    with pytest.raises(ValueError, match="refine_walk refines"):
+        tofkit.fit_chain(records, steps="offset,temperature", refine_walk=True)
 
 
 def test_apply_equals_tofkit_correct(cli, tmp_path, calibration):

@@ -88,40 +88,35 @@ def _config(config):
     return DeviceConfig() if config is None else config
 
 
-def fit_chain(records, steps="offset,grayvalue,temperature", config=None):
-    """Fit the paper's correction chain, as ``tofkit fit --chain STEPS``.
+def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confidence="none",
+              refine_walk=False):
+    """Fit the paper's correction chain, as ``tofkit fit --chain STEPS
+    --confidence CONFIDENCE [--refine-walk]`` (the same C++ function,
+    calib::fit_model).
 
     records: measurements with truth (measure(), read_raw(), or a mapping of
     columns with distance_true_m). config: the device (its wavelength and
-    reference air set c_air; None: the paper's).
+    reference air set c_air; None: the paper's). confidence: "none",
+    "calibrated" (sigma fitted on out-of-fold residuals) or "thesis".
+    refine_walk: add a dense penalized correction in pulse width to the
+    grayvalue step (nodes and smoothing by grouped cross-validation).
     """
-    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config)))
+    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config), confidence,
+                                    bool(refine_walk)))
 
 
 def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=None,
-                config=None):
+                config=None, confidence="none"):
     """Fit a correction surface over (range, amplitude[, temperature]), as
     ``tofkit fit --surface SPEC [--temperature] [--rcond R]``; with ``chain``
     (a Model) the surface fits the chain's residual and is appended to it, as
-    ``--chain ... --surface ...``.
+    ``--chain ... --surface ...``. A B-spline's knots and smoothing are chosen
+    by cross-validation over whole truth groups, as the CLI does.
     """
-    start = chain if chain is not None else Model(_tofkit._Model.uncorrected(_config(config)))
     cols = dict(zip(_COLUMNS, _columns(records)))
     if cols["distance_true_m"] is None:
         raise ValueError("records: a surface fit needs the distance_true_m column")
-    # Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
-    distance, _, _ = start.apply(records)
-    n = len(distance)
-    truth = np.asarray(cols["distance_true_m"], dtype=np.float64)
-    amplitude = (np.asarray(cols["amplitude"], dtype=np.float64)
-                 if cols["amplitude"] is not None else np.full(n, np.nan))
-    t = (np.asarray(cols["temperature_c"], dtype=np.float64)
-         if cols["temperature_c"] is not None else np.full(n, np.nan))
-    keep = np.isfinite(distance) & np.isfinite(truth) & np.isfinite(amplitude)
-    if temperature:
-        keep &= np.isfinite(t)
-    error = truth[keep] - distance[keep]  # C = true - measured (thesis Section 4.6)
     base = chain._model if chain is not None else None
-    return Model(_tofkit._fit_surface(base, _config(config), distance[keep], amplitude[keep],
-                                      t[keep] if temperature else None, error, surface,
-                                      None if rcond is None else float(rcond)))
+    return Model(_tofkit._fit_surface(base, _config(config), _columns(records), surface,
+                                      bool(temperature),
+                                      None if rcond is None else float(rcond), confidence))

@@ -629,6 +629,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   }
   BSplineSurfaceParams p;
   p.use_temperature = options.use_temperature;
+  p.intensity = options.intensity;
   p.domain = c.domain;
   auto make_axis = [](double lo, double hi, int intervals, bool log_scale) {
     BSplineAxis a;

@@ -160,6 +160,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("tdc.inl_lsb", &tdc.inl_lsb, 0, 1000, kClosed,
             "peak integral nonlinearity of the interpolator (code-density style table), LSB. "
             "Assumption"),
+      field("tdc.code_density_hits", &tdc.code_density_hits, 0, 1e8,
+            "firmware code-density calibration: hits histogrammed per fine code (factory); the "
+            "table leaves only their counting error. 0: uncorrected (tdc.inl_lsb stays)"),
       field("tdc.laser_sync", &tdc.laser_sync,
             "laser fires on a TDC clock edge (fixed phase: INL stays); false: asynchronous"),
       field("tdc.bin_tempco_ppm_per_c", &tdc.bin_tempco_ppm_per_c, -1e5, 1e5, kClosed,

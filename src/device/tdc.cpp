@@ -54,6 +54,34 @@ Tdc::Tdc(const TdcConfig& config) {
     peak = std::max(peak, std::abs(v));
   }
   for (auto& v : inl_lsb_) v = peak > 0 ? v * config.inl_lsb / peak : 0.0;
+  if (config.code_density_hits > 0) code_density_correct(config.code_density_hits);
+}
+
+void Tdc::code_density_correct(int hits) {
+  // The code-density test (Wu, IEEE TNS 2008): hits uniform in time over one
+  // coarse period (an asynchronous oscillator) are histogrammed per fine code;
+  // code k's measured centre is (C_{k-1} + c_k / 2) / hits periods, C the
+  // cumulative count, and the firmware reports that centre instead of the
+  // nominal one. Whatever the chain's INL, what remains is the histogram's
+  // counting error, ~ bins sqrt(F (1 - F) / hits) LSB (a Brownian bridge over
+  // the codes). The test runs once, at the factory, with its own fixed
+  // sequence (the table is a property of the unit, stored in its flash).
+  const std::size_t n = inl_lsb_.size();
+  std::vector<double> count(n, 0.0);
+  std::uint64_t state = 0xC0DEDE45u;
+  for (int h = 0; h < hits; ++h) {
+    const double u = static_cast<double>(splitmix64(state) >> 11) * 0x1.0p-53;
+    ++count[std::min(n - 1, static_cast<std::size_t>(u * static_cast<double>(n)))];
+  }
+  // The model's codes are the nominal bins; their true centres k + 0.5 carry
+  // the INL only in the uncorrected reading. Corrected: measured minus true.
+  double cumulative = 0;
+  const double bins_per_hit = static_cast<double>(n) / static_cast<double>(hits);
+  for (std::size_t k = 0; k < n; ++k) {
+    const double centre = (cumulative + 0.5 * count[k]) * bins_per_hit;
+    inl_lsb_[k] = centre - (static_cast<double>(k) + 0.5);
+    cumulative += count[k];
+  }
 }
 
 }  // namespace tofkit::device

@@ -213,4 +213,81 @@ ranging::Pipeline load_pipeline(const std::filesystem::path& path) {
   return pipeline_from_json(j, path.string());
 }
 
+namespace {
+
+json stats_json(const calib::ErrorStats& s) {
+  return {{"rows", s.rows},
+          {"bias_m", finite_or_null(s.bias_m)},
+          {"rms_m", finite_or_null(s.rms_m)},
+          {"max_abs_m", finite_or_null(s.max_abs_m)}};
+}
+
+json hinge_json(const calib::HingeFitResult& h) {
+  json bic = json::array();
+  for (double b : h.bic) bic.push_back(finite_or_null(b));
+  return {{"knots", h.knots},
+          {"bic_by_knot_count", bic},
+          {"rows_downweighted", h.rows_downweighted},
+          {"robust_sigma_m", h.robust_scale}};
+}
+
+}  // namespace
+
+json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input) {
+  json j = {{"command", "fit"}, {"input", input}, {"rows", s.rows}, {"rows_fit", s.rows_fit}};
+  if (s.chain) {
+    const calib::ChainFitResult& chain = *s.chain;
+    json c = {{"steps", s.chain_steps},
+              {"rows", chain.rows},
+              {"rows_skipped", chain.rows_skipped},
+              {"rows_downweighted", chain.rows_downweighted},
+              {"knot_search_rows", chain.knot_search_rows},
+              {"backfit_iterations", chain.backfit_iterations},
+              {"converged", chain.converged},
+              {"before", stats_json(chain.before)},
+              {"after", stats_json(chain.after)}};
+    if (chain.grayvalue) c["grayvalue"] = hinge_json(*chain.grayvalue);
+    if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
+    j["chain"] = c;
+  }
+  if (s.walk) {
+    j["walk_refinement"] = {{"nodes", s.walk->nodes},
+                            {"smoothing", s.walk->smoothing},
+                            {"cv_rms_m", s.walk->cv_rms_m},
+                            {"cv_rms_without_m", s.walk->cv_rms_without_m}};
+  }
+  if (s.surface) {
+    const calib::SurfaceFitResult& surface = *s.surface;
+    j["surface"] = {
+        {"spec", s.surface_spec},
+        {"rows", surface.rows},
+        {"parameters", surface.parameters},
+        {"rank", surface.rank},
+        {"knot_intervals",
+         std::vector<int>(surface.intervals, surface.intervals + (s.surface_temperature ? 3 : 2))},
+        {"smoothing", surface.smoothing},
+        {"cv_rms_m", surface.cv_rms_m},
+        {"intensity", s.surface_intensity},
+        {"residual_rms_m", surface.residual_rms_m},
+        {"error_before", stats_json(s.surface_error_before)}};
+    if (s.surface_cv_rms_other_m > 0) {
+      j["surface"]["cv_rms_other_intensity_m"] = s.surface_cv_rms_other_m;
+    }
+  }
+  if (s.confidence) {
+    const auto& c = *s.confidence;
+    j["confidence"] = {{"kind", calib::to_string(c.kind)},
+                       {"rows", c.rows},
+                       {"groups", c.groups},
+                       {"held_out_residual", stats_json(c.held_out)}};
+    if (c.every_kth_group > 0) {
+      j["confidence"]["held_out_every_kth_group"] = c.every_kth_group;
+    } else {
+      j["confidence"]["folds"] = c.folds;
+    }
+  }
+  j["residual_rms_m"] = s.residual_rms_m;
+  return j;
+}
+
 }  // namespace tofkit::io

@@ -236,15 +236,18 @@ json bspline_json(const calib::BSplineSurface& s) {
     axes["temperature_c"] = axis_json(p.temperature);
     shape.push_back(p.temperature.basis_count());
   }
-  return {{"kind", "bspline"},
-          {"version", kVersion},
-          {"degree", 3},
-          {"use_temperature", p.use_temperature},
-          {"axes", axes},
-          {"shape", shape},
-          {"coefficients", p.coefficients},
-          {"domain", domain_json(p.domain, p.use_temperature)},
-          {"fit", fit_json(p.fit, true)}};
+  json j = {{"kind", "bspline"},
+            {"version", kVersion},
+            {"degree", 3},
+            {"use_temperature", p.use_temperature},
+            {"axes", axes},
+            {"shape", shape},
+            {"coefficients", p.coefficients},
+            {"domain", domain_json(p.domain, p.use_temperature)},
+            {"fit", fit_json(p.fit, true)}};
+  // Absent: amplitude (files written before the pulse-width axis read the same).
+  if (p.intensity == ranging::IntensityInput::pulse_width) j["intensity"] = "pulse_width_ns";
+  return j;
 }
 
 std::shared_ptr<const calib::CorrectionSurface> bspline_from_json(const json& j,
@@ -253,6 +256,14 @@ std::shared_ptr<const calib::CorrectionSurface> bspline_from_json(const json& j,
   if (integer(field(j, "degree", where), where + ".degree") != 3)
     fail(where + ".degree", "only cubic (3) is supported");
   p.use_temperature = boolean(j, "use_temperature", where);
+  if (j.contains("intensity")) {
+    const json& v = j["intensity"];
+    if (v == "pulse_width_ns") {
+      p.intensity = ranging::IntensityInput::pulse_width;
+    } else if (v != "amplitude") {
+      fail(where + ".intensity", "expected \"amplitude\" or \"pulse_width_ns\"");
+    }
+  }
   const json& axes = field(j, "axes", where);
   p.range = read_axis(axes, "range_m", where + ".axes");
   p.amplitude = read_axis(axes, "amplitude", where + ".axes");

@@ -86,15 +86,17 @@ void add_surface(const CorrectionSurface& surface, BlockBuffers& b, std::size_t 
   const double range_mid = midpoint(d.range_min_m, d.range_max_m);
   const double amplitude_mid = midpoint(d.amplitude_min, d.amplitude_max);
   const double temperature_mid = midpoint(d.temperature_min_c, d.temperature_max_c);
-  const bool log_amplitude = d.amplitude_min > 0;
+  const bool pulse_width = surface.intensity_input() == IntensityInput::pulse_width;
+  const double* intensity = pulse_width ? b.pulse_width.data() : b.amplitude.data();
+  const bool log_amplitude = !pulse_width && d.amplitude_min > 0;
   const double log_amplitude_lo = log_amplitude ? std::log(d.amplitude_min) : 0.0;
   const double log_amplitude_hi = log_amplitude ? std::log(d.amplitude_max) : 0.0;
   for (std::size_t i = 0; i < n; ++i) {
-    const bool bad = !std::isfinite(b.distance[i]) || !std::isfinite(b.amplitude[i]) ||
+    const bool bad = !std::isfinite(b.distance[i]) || !std::isfinite(intensity[i]) ||
                      (uses_temperature && !std::isfinite(b.temperature[i]));
     missing[i] = bad ? 1 : 0;
     range[i] = std::isfinite(b.distance[i]) ? b.distance[i] : range_mid;
-    amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : amplitude_mid;
+    amplitude[i] = std::isfinite(intensity[i]) ? intensity[i] : amplitude_mid;
     temperature[i] = std::isfinite(b.temperature[i]) ? b.temperature[i] : temperature_mid;
   }
   SurfaceInputs inputs{

@@ -38,6 +38,9 @@ struct BSplineFitOptions {
   double smoothing = 1e-3;        ///< second-difference penalty weight, relative to the data term
   bool use_temperature = false;
   bool log_amplitude = true;  ///< place amplitude knots on a log scale (intensity spans decades)
+  /// The column the data's amplitude span holds (stored with the surface, so
+  /// that the pipeline feeds the same column); pulse width: use log_amplitude = false.
+  ranging::IntensityInput intensity = ranging::IntensityInput::amplitude;
   /// Pick `smoothing` by generalized cross-validation over decades 1e-7 .. 1e1
   /// (Craven & Wahba 1979), or k-fold over groups when the data carry them,
   /// instead of using the value above.

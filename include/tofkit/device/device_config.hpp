@@ -30,6 +30,12 @@ struct TdcConfig {
                                     ///< errors (DNL), correlated over several bins as in carry
                                     ///< chains, closing over one coarse period. Assumption: 0.5 LSB
                                     ///< (30 ps, 4.5 mm) after the FPGA's code-density calibration.
+  int code_density_hits = 0;        ///< firmware code-density calibration of the fine bins:
+                                    ///< hits (uniform in time) histogrammed per code once at the
+                                    ///< factory; the table then maps each code to its measured
+                                    ///< centre, leaving only the counting error
+                                    ///< (~ bins sqrt(F (1 - F) / hits) LSB). 0: uncorrected, the
+                                    ///< INL above stays
   bool laser_sync = true;           ///< the laser fires on a clock edge (fixed start phase, as the
                                     ///< paper's FPGA: the INL leaves a periodic error every
   ///< c / (2 f_coarse)); false: asynchronous, the INL averages out

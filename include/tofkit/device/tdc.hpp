@@ -29,10 +29,14 @@ class Tdc {
 
   [[nodiscard]] double lsb_ns() const { return lsb_ns_; }  ///< effective LSB
   [[nodiscard]] double period_ns() const { return period_ns_; }
-  /// The INL of each fine code (LSB), as a code-density test would measure it.
+  /// The INL of each fine code (LSB) as the device reports it: the chain's own,
+  /// or after a code-density calibration (tdc.code_density_hits) its residual.
   [[nodiscard]] const std::vector<double>& inl_lsb() const { return inl_lsb_; }
 
  private:
+  /// Replaces the INL table by the residual of a code-density calibration with `hits`.
+  void code_density_correct(int hits);
+
   double lsb_ns_ = 0, inv_lsb_ = 0, period_ns_ = 0, inv_period_ = 0, last_bin_ = 0;
   std::vector<double> inl_lsb_;
 };

@@ -19,6 +19,7 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 
 namespace tofkit::io {
@@ -30,6 +31,11 @@ namespace tofkit::io {
 /// ("model.json: steps[1].function.knots[0]: expected a number").
 [[nodiscard]] ranging::Pipeline pipeline_from_json(const nlohmann::json& j,
                                                    const std::string& context);
+
+/// The "fit" object of a model file written by `tofkit fit` or the Python
+/// fitters: rows, chain / surface / confidence statistics; `input` names the data.
+[[nodiscard]] nlohmann::json fit_summary_json(const calib::ModelFitSummary& summary,
+                                              const std::string& input);
 
 /// Writes the model file atomically (no half-written file on failure).
 void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& pipeline,

@@ -16,6 +16,8 @@ namespace tofkit::ranging {
 struct BSplineSurfaceParams {
   BSplineAxis range, amplitude, temperature;  ///< temperature only with use_temperature
   bool use_temperature = false;
+  /// The intensity axis ("amplitude" above) reads this column.
+  IntensityInput intensity = IntensityInput::amplitude;
   /// Coefficient grid, row-major [range][amplitude][temperature] (temperature
   /// fastest; extent 1 without a temperature axis).
   std::vector<double> coefficients;
@@ -30,6 +32,7 @@ class BSplineSurface final : public CorrectionSurface {
 
   [[nodiscard]] std::string kind() const override { return "bspline"; }
   [[nodiscard]] bool uses_temperature() const override { return params_.use_temperature; }
+  [[nodiscard]] IntensityInput intensity_input() const override { return params_.intensity; }
   [[nodiscard]] const SurfaceDomain& domain() const override { return params_.domain; }
   void evaluate(const SurfaceInputs& inputs, std::span<double> correction_m,
                 std::span<std::uint8_t> out_of_domain) const override;

@@ -49,9 +49,16 @@ struct SurfaceInputs {
   std::span<const double> temperature_c;  ///< may be empty when the surface has no temperature axis
 };
 
+/// What a surface's intensity axis reads: the echo amplitude, or the pulse
+/// width (ns), which keeps growing with the echo where the amplitude reading clips.
+enum class IntensityInput { amplitude, pulse_width };
+
 class CorrectionSurface {
  public:
   virtual ~CorrectionSurface() = default;
+  /// The column the intensity axis (SurfaceInputs::amplitude, the domain's
+  /// amplitude_min/max) reads.
+  [[nodiscard]] virtual IntensityInput intensity_input() const { return IntensityInput::amplitude; }
   /// "poly" or "bspline".
   [[nodiscard]] virtual std::string kind() const = 0;
   [[nodiscard]] virtual bool uses_temperature() const = 0;

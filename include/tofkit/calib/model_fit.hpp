@@ -1,0 +1,140 @@
+#pragma once
+/// \file One fit of a whole ranging model, shared by `tofkit fit` and the
+/// Python fitters: the paper's chain, a correction surface on its residual
+/// (or alone), and a confidence model fitted on residuals the correction
+/// never saw (out-of-fold over whole truth groups, or a held-out share of
+/// the groups).
+
+#include <cstddef>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+
+#include "tofkit/calib/chain_fit.hpp"
+#include "tofkit/calib/confidence_model.hpp"
+#include "tofkit/calib/statistics.hpp"
+#include "tofkit/calib/surface_fit.hpp"
+#include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+
+namespace tofkit::calib {
+
+enum class SurfaceKind { none, polynomial, bspline };
+
+struct SurfaceSpec {
+  SurfaceKind kind = SurfaceKind::none;
+  int order = 0;  ///< polynomial: total degree (1..12)
+};
+
+/// "poly:N" (N = 1..12) or "bspline". Throws std::invalid_argument
+/// ("expected poly:N (N = 1..12) or bspline"); the caller names the option.
+[[nodiscard]] SurfaceSpec parse_surface_spec(std::string_view spec);
+[[nodiscard]] std::string to_string(const SurfaceSpec& spec);
+
+enum class ConfidenceKind { none, calibrated, thesis };
+
+/// A B-spline surface's intensity axis: the amplitude (log scale), the pulse
+/// width, or (choose) the one with the lower grouped cross-validated RMS.
+enum class SurfaceIntensity { choose, amplitude, pulse_width };
+
+/// "auto", "amplitude" or "pulse-width"; throws std::invalid_argument otherwise.
+[[nodiscard]] SurfaceIntensity parse_surface_intensity(std::string_view text);
+
+/// "none", "calibrated" or "thesis"; throws std::invalid_argument otherwise.
+[[nodiscard]] ConfidenceKind parse_confidence_kind(std::string_view kind);
+[[nodiscard]] std::string to_string(ConfidenceKind kind);
+
+/// B-spline options with knots and smoothing chosen by cross-validation.
+[[nodiscard]] inline BSplineFitOptions auto_bspline_options() {
+  BSplineFitOptions b;
+  b.choose_intervals_by_gcv = true;
+  b.choose_smoothing_by_gcv = true;
+  return b;
+}
+
+struct ModelFitOptions {
+  ranging::TimeToDistance time_to_distance;
+  /// The chain's steps; nullopt: no chain.
+  std::optional<ChainSteps> chain;
+  /// Chain fit settings (steps and time_to_distance are set from the fields above).
+  ChainFitOptions chain_options;
+  /// After the chain, refine its grayvalue step by a dense penalized
+  /// piecewise-linear correction in pulse width: nodes at quantiles of the
+  /// pulse widths, a second-difference penalty, the node count and the
+  /// smoothing chosen by 5-fold cross-validation over whole truth groups (no
+  /// refinement when it does not lower the cross-validated error). The
+  /// hinge's few knots cannot follow a walk curve that bends everywhere.
+  bool refine_walk = false;
+  /// Start from this already fitted pipeline instead of fitting a chain (the
+  /// surface then fits its residual); exclusive with `chain`. It stays fixed
+  /// in every cross-fitting fold.
+  std::optional<ranging::Pipeline> base;
+  SurfaceSpec surface;
+  bool surface_temperature = false;  ///< the surface gets a temperature axis
+  /// B-spline only (a polynomial surface reads the amplitude).
+  SurfaceIntensity surface_intensity = SurfaceIntensity::choose;
+  PolynomialFitOptions polynomial;  ///< order and use_temperature are set from above
+  /// B-spline settings; by default knots and smoothing are chosen by
+  /// cross-validation over whole truth groups. use_temperature is set from above.
+  BSplineFitOptions bspline = auto_bspline_options();
+  ConfidenceKind confidence = ConfidenceKind::calibrated;
+  CalibratedConfidenceOptions calibrated_confidence;  ///< settings of the calibrated kind
+  /// false: when cross-fitting is impossible (too few truth groups) the model
+  /// gets no confidence model (sigma = residual RMS) and the report says why;
+  /// true: that is an error.
+  bool confidence_required = false;
+  int confidence_folds = 5;  ///< cross-fitting folds of whole truth groups
+  /// > 0: instead of cross-fitting, every round(1 / fraction)-th truth group
+  /// is held out of the correction fit and used for the confidence fit.
+  double confidence_hold_out_fraction = 0;
+
+  /// Throws std::invalid_argument naming the bad field.
+  void validate() const;
+};
+
+/// What the fit did, for the model file's "fit" object (io::fit_summary_json).
+struct ModelFitSummary {
+  std::size_t rows = 0;      ///< records given
+  std::size_t rows_fit = 0;  ///< records the correction was fitted on
+  std::optional<ChainFitResult> chain;
+  std::string chain_steps;  ///< to_string of the steps (when a chain was fitted)
+  /// refine_walk: the nodes chosen (0: no refinement), the smoothing, and the
+  /// cross-validated RMS with and without it.
+  struct WalkRefinement {
+    int nodes = 0;
+    double smoothing = 0;
+    double cv_rms_m = 0;
+    double cv_rms_without_m = 0;
+  };
+  std::optional<WalkRefinement> walk;
+  std::optional<SurfaceFitResult> surface;
+  std::string surface_spec;
+  bool surface_temperature = false;
+  std::string surface_intensity;      ///< "amplitude" or "pulse_width_ns": what the surface reads
+  double surface_cv_rms_other_m = 0;  ///< choose: the other axis's cross-validated RMS (0: none)
+  ErrorStats surface_error_before;    ///< of the error the surface was fitted to
+  struct Confidence {
+    ConfidenceKind kind = ConfidenceKind::none;
+    std::size_t rows = 0;      ///< residuals the confidence was fitted on
+    std::size_t groups = 0;    ///< truth groups of the data
+    int folds = 0;             ///< cross-fitting folds (0: hold-out)
+    long every_kth_group = 0;  ///< hold-out: every k-th group (0: cross-fitting)
+    ErrorStats held_out;       ///< of the out-of-fold / held-out residuals
+  };
+  std::optional<Confidence> confidence;
+  double residual_rms_m = 0;
+};
+
+struct ModelFitResult {
+  ranging::Pipeline pipeline;
+  ModelFitSummary summary;
+  std::string report;  ///< the fitters' summaries and the confidence line
+};
+
+/// Fits the model. Throws std::invalid_argument naming the problem (too few
+/// rows or groups, an axis without spread, a bad option).
+[[nodiscard]] ModelFitResult fit_model(std::span<const ranging::Record> records,
+                                       const ModelFitOptions& options);
+
+}  // namespace tofkit::calib

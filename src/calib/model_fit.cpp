@@ -1,0 +1,616 @@
+#include "tofkit/calib/model_fit.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+namespace tofkit::calib {
+namespace {
+
+using GroupKey = std::tuple<double, double, double, double>;
+
+/// Identical truth (distance_true_m, reflectance, angle_deg, ambient_c); NaN
+/// compares unequal to itself, so it maps to a sentinel and groups.
+GroupKey key_of(const ranging::GroundTruth& t) {
+  const auto v = [](double x) { return std::isnan(x) ? -1e300 : x; };
+  return {v(t.distance_m), v(t.reflectance), v(t.angle_deg), v(t.ambient_c)};
+}
+
+/// Group of every record, numbered in order of first appearance.
+struct GroupKeyHash {
+  std::size_t operator()(const GroupKey& k) const {
+    std::size_t h = 0;
+    for (double v : {std::get<0>(k), std::get<1>(k), std::get<2>(k), std::get<3>(k)}) {
+      h ^= std::hash<double>{}(v) + 0x9E3779B97F4A7C15ull + (h << 6) + (h >> 2);
+    }
+    return h;
+  }
+};
+
+std::vector<std::size_t> truth_groups(std::span<const ranging::Record> records,
+                                      std::size_t& groups) {
+  std::unordered_map<GroupKey, std::size_t, GroupKeyHash> group_of;
+  group_of.reserve(records.size());
+  std::vector<std::size_t> group;
+  group.reserve(records.size());
+  for (const ranging::Record& r : records) {
+    group.push_back(group_of.emplace(key_of(r.truth), group_of.size()).first->second);
+  }
+  groups = group_of.size();
+  return group;
+}
+
+std::string format(const char* fmt, auto... args) {
+  char buffer[512];
+  std::snprintf(buffer, sizeof buffer, fmt, args...);
+  return buffer;
+}
+
+/// A surface over range needs calibration plates at two or more true distances.
+void require_two_distances(std::span<const ranging::Record> records) {
+  double first = ranging::kNaN;
+  for (const auto& r : records) {
+    if (!std::isfinite(r.truth.distance_m)) continue;
+    if (std::isnan(first)) first = r.truth.distance_m;
+    if (r.truth.distance_m != first) return;
+  }
+  throw std::invalid_argument(
+      format("surface bspline: range axis undetermined: every row has distance_true_m = %g m (one "
+             "distinct distance); measure plates at two or more distances, or fit a chain only",
+             first));
+}
+
+/// Rows a surface can be fitted on: corrected distance, truth, amplitude (and temperature).
+struct SurfaceRows {
+  std::vector<double> range, amplitude, temperature, error;
+  std::vector<std::uint32_t> group;  ///< truth group (cross-validation over whole targets)
+};
+
+SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
+                         std::span<const ranging::Record> records, bool use_temperature,
+                         bool pulse_width) {
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(records.size());
+  for (const auto& r : records) raw.push_back(r.raw);
+  std::vector<ranging::Range> before(raw.size());
+  pipeline.apply(raw, before);
+  SurfaceRows rows;
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group = truth_groups(records, groups);
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const double d = before[i].distance_m;
+    const double truth = records[i].truth.distance_m;
+    const double a = pulse_width ? records[i].raw.pulse_width_ns : records[i].raw.amplitude;
+    const double t = records[i].raw.temperature_c;
+    if (!std::isfinite(d) || !std::isfinite(truth) || !std::isfinite(a) ||
+        (use_temperature && !std::isfinite(t))) {
+      continue;
+    }
+    rows.range.push_back(d);
+    rows.amplitude.push_back(a);
+    rows.temperature.push_back(t);
+    rows.error.push_back(truth - d);  // C = true - measured (thesis Section 4.6)
+    rows.group.push_back(static_cast<std::uint32_t>(group[i]));
+  }
+  return rows;
+}
+
+/// A piecewise-linear function through nodes (u_j, y_j), slope `left` before
+/// the first and `right` after the last.
+ranging::PiecewiseLinear from_nodes(const std::vector<double>& u, const std::vector<double>& y,
+                                    double left, double right) {
+  ranging::PiecewiseLinear f;
+  f.x0 = u.front();
+  f.intercept = y.front();
+  f.slope0 = left;
+  double previous = left;
+  for (std::size_t j = 0; j < u.size(); ++j) {
+    const double next = j + 1 < u.size() ? (y[j + 1] - y[j]) / (u[j + 1] - u[j]) : right;
+    f.knots.push_back(u[j]);
+    f.slopes.push_back(next - previous);
+    previous = next;
+  }
+  return f;
+}
+
+/// Hat-function design: row i interpolates the node values at x_i.
+void hat_row(const std::vector<double>& t, double x, std::size_t& j, double& w) {
+  const auto it = std::upper_bound(t.begin(), t.end(), x);
+  j = std::clamp<std::size_t>(static_cast<std::size_t>(it - t.begin()), 1, t.size() - 1) - 1;
+  w = (x - t[j]) / (t[j + 1] - t[j]);  // weight of node j + 1 (linear beyond the ends)
+}
+
+/// Normal equations of the hat-function design (rows with use[i]).
+struct NormalEquations {
+  Eigen::MatrixXd normal;
+  Eigen::VectorXd rhs;
+};
+
+struct Hat {
+  std::size_t j = 0;  ///< left node
+  double w = 0;       ///< weight of node j + 1
+};
+
+NormalEquations accumulate(std::size_t nodes, const std::vector<Hat>& hats,
+                           const std::vector<double>& r, const std::vector<char>& use) {
+  const auto k = static_cast<Eigen::Index>(nodes);
+  NormalEquations eq{Eigen::MatrixXd::Zero(k, k), Eigen::VectorXd::Zero(k)};
+  for (std::size_t i = 0; i < hats.size(); ++i) {
+    if (!use[i]) continue;
+    const double w = hats[i].w;
+    const auto a = static_cast<Eigen::Index>(hats[i].j), b = a + 1;
+    eq.normal(a, a) += (1 - w) * (1 - w);
+    eq.normal(a, b) += (1 - w) * w;
+    eq.normal(b, a) += (1 - w) * w;
+    eq.normal(b, b) += w * w;
+    eq.rhs(a) += (1 - w) * r[i];
+    eq.rhs(b) += w * r[i];
+  }
+  return eq;
+}
+
+/// Penalized node values: min |A v - r|^2 + lambda s |D2 v|^2, s = trace(A^T A) / nodes.
+Eigen::VectorXd solve_nodes(const NormalEquations& eq, double lambda_rel) {
+  Eigen::MatrixXd normal = eq.normal;
+  const Eigen::Index k = normal.rows();
+  const double scale = normal.trace() / static_cast<double>(k);
+  for (Eigen::Index j = 0; j + 2 < k; ++j) {
+    const double d[3] = {1, -2, 1};
+    for (int p = 0; p < 3; ++p)
+      for (int q = 0; q < 3; ++q) normal(j + p, j + q) += lambda_rel * scale * d[p] * d[q];
+  }
+  normal.diagonal().array() += 1e-12 * scale;
+  return normal.ldlt().solve(eq.rhs);
+}
+
+std::vector<Hat> hats_of(const std::vector<double>& t, const std::vector<double>& x) {
+  std::vector<Hat> hats(x.size());
+  for (std::size_t i = 0; i < x.size(); ++i) hat_row(t, x[i], hats[i].j, hats[i].w);
+  return hats;
+}
+
+double hat_value(const Hat& h, const Eigen::VectorXd& v) {
+  return (1 - h.w) * v(static_cast<Eigen::Index>(h.j)) +
+         h.w * v(static_cast<Eigen::Index>(h.j + 1));
+}
+
+double node_value(const std::vector<double>& t, const Eigen::VectorXd& v, double x) {
+  std::size_t j = 0;
+  double w = 0;
+  hat_row(t, x, j, w);
+  return (1 - w) * v(static_cast<Eigen::Index>(j)) + w * v(static_cast<Eigen::Index>(j + 1));
+}
+
+/// refine_walk: the chain's grayvalue step plus a dense penalized correction
+/// in pulse width, fitted on the chain's residual (see ModelFitOptions).
+ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ranging::Record> rows,
+                              ModelFitSummary::WalkRefinement* info) {
+  std::size_t grayvalue = chain.steps().size();
+  for (std::size_t s = 0; s < chain.steps().size(); ++s) {
+    if (chain.steps()[s].kind == ranging::StepKind::kGrayvalue) grayvalue = s;
+  }
+  if (grayvalue == chain.steps().size()) return chain;
+  std::vector<ranging::RawMeasurement> raw;
+  for (const auto& r : rows) raw.push_back(r.raw);
+  std::vector<ranging::Range> corrected(raw.size());
+  chain.apply(raw, corrected);
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group_of = truth_groups(rows, groups);
+  std::vector<double> x, r;
+  std::vector<std::size_t> group;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const double e = rows[i].truth.distance_m - corrected[i].distance_m;
+    if (!std::isfinite(e) || !std::isfinite(raw[i].pulse_width_ns) ||
+        (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+      continue;
+    }
+    x.push_back(raw[i].pulse_width_ns);
+    r.push_back(e);
+    group.push_back(group_of[i]);
+  }
+  constexpr std::size_t kFolds = 5;
+  if (groups < kFolds || x.size() < 20) return chain;
+  std::vector<double> sorted = x;
+  std::sort(sorted.begin(), sorted.end());
+  sorted.erase(std::unique(sorted.begin(), sorted.end()), sorted.end());
+  const auto nodes_at = [&](int count) {
+    std::vector<double> t;
+    for (int j = 0; j < count; ++j) {
+      const double q =
+          static_cast<double>(j) / (count - 1) * static_cast<double>(sorted.size() - 1);
+      const double v = sorted[static_cast<std::size_t>(std::lround(q))];
+      if (t.empty() || v > t.back()) t.push_back(v);
+    }
+    return t;
+  };
+  // The cross-validation runs on at most kSearchRows rows (every k-th), as the
+  // chain's knot search does; the chosen correction is then fitted on all.
+  constexpr std::size_t kSearchRows = 50000;
+  const std::size_t stride = (x.size() + kSearchRows - 1) / kSearchRows;
+  std::vector<double> cx, cr;
+  std::vector<std::size_t> cgroup;
+  for (std::size_t i = 0; i < x.size(); i += stride) {
+    cx.push_back(x[i]);
+    cr.push_back(r[i]);
+    cgroup.push_back(group[i]);
+  }
+  double without = 0;
+  for (double e : cr) without += e * e;
+  without = std::sqrt(without / static_cast<double>(cr.size()));
+  double best = without, best_lambda = 0;
+  int best_nodes = 0;
+  for (int count : {6, 10, 16, 24, 32, 48, 64, 96, 128}) {
+    if (static_cast<std::size_t>(count) * 3 > sorted.size()) break;
+    const std::vector<double> t = nodes_at(count);
+    if (t.size() < 3) continue;
+    // The normal equations of each fold do not depend on the smoothing.
+    const std::vector<Hat> hats = hats_of(t, cx);
+    std::vector<NormalEquations> fold_eq;
+    std::vector<char> use(cx.size());
+    for (std::size_t fold = 0; fold < kFolds; ++fold) {
+      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = cgroup[i] % kFolds != fold;
+      fold_eq.push_back(accumulate(t.size(), hats, cr, use));
+    }
+    for (int decade_half = -10; decade_half <= 6; ++decade_half) {
+      const double lambda = std::pow(10.0, 0.5 * decade_half);
+      double sse = 0;
+      for (std::size_t fold = 0; fold < kFolds; ++fold) {
+        const Eigen::VectorXd v = solve_nodes(fold_eq[fold], lambda);
+        for (std::size_t i = 0; i < cx.size(); ++i) {
+          if (cgroup[i] % kFolds != fold) continue;
+          const double e = cr[i] - hat_value(hats[i], v);
+          sse += e * e;
+        }
+      }
+      const double cv = std::sqrt(sse / static_cast<double>(cx.size()));
+      if (cv < best) {
+        best = cv;
+        best_lambda = lambda;
+        best_nodes = count;
+      }
+    }
+  }
+  if (info) *info = {0, 0, best, without};
+  if (best_nodes == 0) return chain;
+  const std::vector<double> t = nodes_at(best_nodes);
+  const Eigen::VectorXd v = solve_nodes(
+      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1)), best_lambda);
+  if (info) *info = {static_cast<int>(t.size()), best_lambda, best, without};
+  // g + d as one piecewise-linear function: nodes at the union of both knot sets.
+  const ranging::Step& old = chain.steps()[grayvalue];
+  std::vector<double> u = t;
+  for (double k : old.function.knots) u.push_back(k);
+  std::sort(u.begin(), u.end());
+  u.erase(std::unique(u.begin(), u.end()), u.end());
+  std::vector<double> y;
+  for (double p : u) y.push_back(old.function(p) + node_value(t, v, p));
+  const auto k = static_cast<Eigen::Index>(t.size());
+  const double d_left = (v(1) - v(0)) / (t[1] - t[0]);
+  const double d_right = (v(k - 1) - v(k - 2)) / (t[t.size() - 1] - t[t.size() - 2]);
+  const ranging::PiecewiseLinear g =
+      from_nodes(u, y, old.function.slope_at(u.front() - 1e-9) + d_left,
+                 old.function.slope_at(u.back()) + d_right);
+  ranging::Pipeline refined(chain.time_to_distance());
+  for (std::size_t s = 0; s < chain.steps().size(); ++s) {
+    ranging::Step step = chain.steps()[s];
+    if (s == grayvalue) {
+      ranging::Step walk = ranging::make_grayvalue_step(g, step.domain);
+      walk.fit = step.fit;
+      step = walk;
+    }
+    refined.add_step(std::move(step));
+  }
+  std::vector<ranging::Range> after(raw.size());
+  refined.apply(raw, after);
+  double sse = 0;
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const double e = rows[i].truth.distance_m - after[i].distance_m;
+    if (!std::isfinite(e)) continue;
+    sse += e * e;
+    ++n;
+  }
+  refined.set_residual_rms_m(n ? std::sqrt(sse / static_cast<double>(n)) : chain.residual_rms_m());
+  return refined;
+}
+
+/// The correction (base or chain, then the surface on its residual) fitted on
+/// `rows`; the summary and report only when given (the model that is kept).
+ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
+                                 ModelFitSummary* summary, std::string* report) {
+  ranging::Pipeline pipeline = o.base ? *o.base : ranging::Pipeline(o.time_to_distance);
+  if (o.chain) {
+    ChainFitOptions chain_options = o.chain_options;
+    chain_options.steps = *o.chain;
+    chain_options.time_to_distance = o.time_to_distance;
+    ChainFitResult chain = fit_chain(rows, chain_options);
+    pipeline = chain.pipeline;
+    if (report) *report += chain.summary();
+    if (o.refine_walk) {
+      ModelFitSummary::WalkRefinement walk;
+      pipeline = refine_walk(pipeline, rows, &walk);
+      if (report) {
+        *report += format(
+            "walk refinement: %d nodes in pulse width, smoothing %g, cross-validated RMS %.3f mm "
+            "(chain alone %.3f mm)\n",
+            walk.nodes, walk.smoothing, walk.cv_rms_m * 1e3, walk.cv_rms_without_m * 1e3);
+      }
+      if (summary) summary->walk = walk;
+    }
+    if (summary) {
+      summary->chain_steps = to_string(*o.chain);
+      summary->chain = std::move(chain);
+    }
+  }
+  if (o.surface.kind != SurfaceKind::none) {
+    const auto fit_on = [&](bool pulse_width, SurfaceRows& input) {
+      input = surface_rows(pipeline, rows, o.surface_temperature, pulse_width);
+      const SurfaceFitData data{{input.range, input.amplitude,
+                                 o.surface_temperature ? std::span<const double>(input.temperature)
+                                                       : std::span<const double>()},
+                                input.error,
+                                input.group};
+      if (o.surface.kind == SurfaceKind::polynomial) {
+        PolynomialFitOptions poly = o.polynomial;
+        poly.order = o.surface.order;
+        poly.use_temperature = o.surface_temperature;
+        return fit_polynomial_surface(data, poly);
+      }
+      require_two_distances(rows);
+      BSplineFitOptions bspline = o.bspline;
+      bspline.use_temperature = o.surface_temperature;
+      if (pulse_width) {
+        bspline.log_amplitude = false;
+        bspline.intensity = ranging::IntensityInput::pulse_width;
+      }
+      return fit_bspline_surface(data, bspline);
+    };
+    const bool bspline = o.surface.kind == SurfaceKind::bspline;
+    const bool try_amplitude = !bspline || o.surface_intensity != SurfaceIntensity::pulse_width;
+    const bool try_pulse_width = bspline && o.surface_intensity != SurfaceIntensity::amplitude;
+    SurfaceRows input, other_input;
+    SurfaceFitResult surface;
+    bool pulse_width = false;
+    double other_cv = 0;
+    if (try_amplitude) surface = fit_on(false, input);
+    if (try_pulse_width) {
+      if (!try_amplitude) {
+        surface = fit_on(true, input);
+        pulse_width = true;
+      } else {
+        // choose: the axis with the lower grouped cross-validated RMS; an axis
+        // the data cannot carry (no pulse widths, no spread) is not a candidate.
+        try {
+          SurfaceFitResult by_width = fit_on(true, other_input);
+          if (by_width.cv_rms_m > 0 && by_width.cv_rms_m < surface.cv_rms_m) {
+            other_cv = surface.cv_rms_m;
+            std::swap(surface, by_width);
+            std::swap(input, other_input);
+            pulse_width = true;
+          } else {
+            other_cv = by_width.cv_rms_m;
+          }
+        } catch (const std::invalid_argument&) {
+        }
+      }
+    }
+    ranging::Step step = ranging::make_surface_step(surface.surface);
+    step.fit.rows = surface.rows;
+    step.fit.residual_rms_m = surface.residual_rms_m;
+    pipeline.add_step(std::move(step));
+    pipeline.set_residual_rms_m(surface.residual_rms_m);
+    if (report) {
+      *report += surface.summary() + (pulse_width ? ", intensity axis: pulse width" : "");
+      if (other_cv > 0) {
+        *report += format(" (%s axis: cross-validated RMS %.3f mm)",
+                          pulse_width ? "amplitude" : "pulse-width", other_cv * 1e3);
+      }
+      *report += "\n";
+    }
+    if (summary) {
+      summary->surface_spec = to_string(o.surface);
+      summary->surface_temperature = o.surface_temperature;
+      summary->surface_intensity = pulse_width ? "pulse_width_ns" : "amplitude";
+      summary->surface_cv_rms_other_m = other_cv;
+      summary->surface_error_before = error_stats(input.error);
+      summary->surface = std::move(surface);
+    }
+  }
+  return pipeline;
+}
+
+/// Residuals of a model on rows it was not fitted on.
+struct Residuals {
+  std::vector<double> range, amplitude, residual;
+
+  void add(const ranging::Pipeline& model, std::span<const ranging::Record> rows) {
+    std::vector<ranging::RawMeasurement> raw;
+    raw.reserve(rows.size());
+    for (const auto& r : rows) raw.push_back(r.raw);
+    std::vector<ranging::Range> corrected(raw.size());
+    model.apply(raw, corrected);
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      const double e = rows[i].truth.distance_m - corrected[i].distance_m;
+      // Out-of-domain rows would teach the in-domain sigma the extrapolation error.
+      if (!std::isfinite(e) || !std::isfinite(raw[i].amplitude) ||
+          (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+        continue;
+      }
+      range.push_back(corrected[i].distance_m);
+      amplitude.push_back(raw[i].amplitude);
+      residual.push_back(e);
+    }
+  }
+};
+
+}  // namespace
+
+SurfaceSpec parse_surface_spec(std::string_view spec) {
+  if (spec == "bspline") return {SurfaceKind::bspline, 0};
+  if (spec.rfind("poly:", 0) == 0) {
+    const std::string n(spec.substr(5));
+    std::size_t used = 0;
+    int order = -1;
+    try {
+      order = std::stoi(n, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == n.size() && order >= 1 && order <= 12) return {SurfaceKind::polynomial, order};
+  }
+  throw std::invalid_argument("expected poly:N (N = 1..12) or bspline");
+}
+
+std::string to_string(const SurfaceSpec& spec) {
+  switch (spec.kind) {
+    case SurfaceKind::polynomial:
+      return "poly:" + std::to_string(spec.order);
+    case SurfaceKind::bspline:
+      return "bspline";
+    case SurfaceKind::none:
+      break;
+  }
+  return "";
+}
+
+SurfaceIntensity parse_surface_intensity(std::string_view text) {
+  if (text == "auto") return SurfaceIntensity::choose;
+  if (text == "amplitude") return SurfaceIntensity::amplitude;
+  if (text == "pulse-width") return SurfaceIntensity::pulse_width;
+  throw std::invalid_argument("expected auto, amplitude or pulse-width");
+}
+
+ConfidenceKind parse_confidence_kind(std::string_view kind) {
+  if (kind == "none") return ConfidenceKind::none;
+  if (kind == "calibrated") return ConfidenceKind::calibrated;
+  if (kind == "thesis") return ConfidenceKind::thesis;
+  throw std::invalid_argument("confidence " + std::string(kind) +
+                              ": expected none, calibrated or thesis");
+}
+
+std::string to_string(ConfidenceKind kind) {
+  switch (kind) {
+    case ConfidenceKind::calibrated:
+      return "calibrated";
+    case ConfidenceKind::thesis:
+      return "thesis";
+    case ConfidenceKind::none:
+      break;
+  }
+  return "none";
+}
+
+void ModelFitOptions::validate() const {
+  if (!chain && surface.kind == SurfaceKind::none) {
+    throw std::invalid_argument("nothing to fit: give chain steps and/or a surface");
+  }
+  if (chain && base) throw std::invalid_argument("a base pipeline and a chain are exclusive");
+  if (!(confidence_hold_out_fraction >= 0 && confidence_hold_out_fraction <= 0.5)) {
+    throw std::invalid_argument("confidence_hold_out_fraction must be in (0, 0.5] (0: none)");
+  }
+  if (confidence_folds < 2) throw std::invalid_argument("confidence_folds must be >= 2");
+  if (surface.kind == SurfaceKind::polynomial) polynomial.validate();
+  if (surface.kind == SurfaceKind::bspline) bspline.validate();
+}
+
+ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFitOptions& o) {
+  o.validate();
+  ModelFitResult result;
+  ModelFitSummary& summary = result.summary;
+  std::string& report = result.report;
+  summary.rows = records.size();
+
+  const bool hold_out = o.confidence != ConfidenceKind::none && o.confidence_hold_out_fraction > 0;
+  std::vector<ranging::Record> fit_part, confidence_part;
+  std::size_t groups = 0;
+  long every_kth = 0;
+  if (hold_out) {
+    // Deterministic hold-out: every k-th truth group (the k-th, 2k-th, ...)
+    // goes to the confidence part, the rest to the correction fit. Whole
+    // groups are held out, so the confidence sees targets the correction did not.
+    every_kth = std::lround(1.0 / o.confidence_hold_out_fraction);
+    const auto k = static_cast<std::size_t>(every_kth);
+    const std::vector<std::size_t> group = truth_groups(records, groups);
+    for (std::size_t i = 0; i < records.size(); ++i) {
+      ((group[i] % k) == k - 1 ? confidence_part : fit_part).push_back(records[i]);
+    }
+    if (confidence_part.empty() || fit_part.empty()) {
+      throw std::invalid_argument(
+          format("confidence %s holds out every %ld-th group of identical truth, but the data "
+                 "have %zu group(s): it needs at least %ld groups (distances / plates / "
+                 "temperatures)",
+                 to_string(o.confidence).c_str(), every_kth, groups, every_kth));
+    }
+  }
+  const std::span<const ranging::Record> fit_rows =
+      hold_out ? std::span<const ranging::Record>(fit_part) : records;
+  summary.rows_fit = fit_rows.size();
+
+  result.pipeline = fit_correction(fit_rows, o, &summary, &report);
+
+  Residuals residuals;
+  bool fit_confidence = o.confidence != ConfidenceKind::none;
+  std::string note;
+  if (fit_confidence && hold_out) {
+    residuals.add(result.pipeline, confidence_part);
+    note = format("%zu held-out rows (every %ld-th of %zu truth groups)", residuals.residual.size(),
+                  every_kth, groups);
+  } else if (fit_confidence) {
+    // Cross-fitting: every truth group's residual comes from a correction
+    // fitted without it (K folds of whole groups), so the confidence learns
+    // the error on targets the correction never saw; the model kept is fitted
+    // on all rows.
+    const std::vector<std::size_t> group = truth_groups(records, groups);
+    const auto folds = static_cast<std::size_t>(o.confidence_folds);
+    try {
+      if (groups < folds) {
+        throw std::invalid_argument(
+            format("confidence_folds %zu needs at least %zu groups of identical truth "
+                   "(distances / plates / temperatures), the data have %zu",
+                   folds, folds, groups));
+      }
+      for (std::size_t k = 0; k < folds; ++k) {
+        std::vector<ranging::Record> train, test;
+        for (std::size_t i = 0; i < records.size(); ++i) {
+          (group[i] % folds == k ? test : train).push_back(records[i]);
+        }
+        residuals.add(fit_correction(train, o, nullptr, nullptr), test);
+      }
+    } catch (const std::invalid_argument& e) {
+      if (o.confidence_required) throw;
+      // Data too small to cross-fit: sigma stays the residual RMS.
+      fit_confidence = false;
+      report += std::string("confidence: none (cross-fitting impossible: ") + e.what() + ")\n";
+    }
+    note = format("%zu out-of-fold rows (%zu folds of %zu truth groups)", residuals.residual.size(),
+                  folds, groups);
+  }
+  if (fit_confidence) {
+    const ConfidenceFitData data{residuals.range, residuals.amplitude, residuals.residual};
+    result.pipeline.set_confidence(o.confidence == ConfidenceKind::thesis
+                                       ? fit_thesis_confidence(data)
+                                       : fit_calibrated_confidence(data, o.calibrated_confidence));
+    ModelFitSummary::Confidence c;
+    c.kind = o.confidence;
+    c.rows = residuals.residual.size();
+    c.groups = groups;
+    c.folds = hold_out ? 0 : o.confidence_folds;
+    c.every_kth_group = hold_out ? every_kth : 0;
+    c.held_out = error_stats(residuals.residual);
+    report += format("confidence: %s model fitted on %s; held-out RMS %.3f mm\n",
+                     to_string(o.confidence).c_str(), note.c_str(), c.held_out.rms_m * 1e3);
+    summary.confidence = c;
+  }
+  summary.residual_rms_m = result.pipeline.residual_rms_m();
+  return result;
+}
+
+}  // namespace tofkit::calib
