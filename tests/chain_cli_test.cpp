@@ -234,9 +234,10 @@ TEST_F(ChainCli, RefineWalkFollowsACurvedWalk) {
   io::write_raw_csv(path("calib.csv"), curved(synthetic_records(3, 11)));
   io::write_raw_csv(path("test.csv"), curved(synthetic_records(1, 12)));
   const auto test_rms = [&](const std::string& extra) {
-    const RunResult fit = run("fit --confidence none --in " + path("calib.csv") + " --out " +
-                              path("model.json") + " --chain offset,grayvalue,temperature" + extra);
-    EXPECT_EQ(fit.exit_code, 0) << fit.err;
+    const test::CliResult fit =
+        run("fit --confidence none --in " + path("calib.csv") + " --out " + path("model.json") +
+            " --chain offset,grayvalue,temperature" + extra);
+    EXPECT_EQ(fit.status, 0) << fit.err;
     const ranging::Pipeline model = io::load_pipeline(path("model.json"));
     double sum2 = 0;
     std::size_t n = 0;
@@ -258,9 +259,9 @@ TEST_F(ChainCli, RefineWalkFollowsACurvedWalk) {
   std::printf("hinge %.3f mm, refined %.3f mm\n", hinge * 1e3, refined * 1e3);
 
   fs::remove(path("model.json"));
-  const RunResult bad = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
-                            " --chain offset,temperature --refine-walk");
-  EXPECT_NE(bad.exit_code, 0);
+  const test::CliResult bad = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+                                  " --chain offset,temperature --refine-walk");
+  EXPECT_NE(bad.status, 0);
   EXPECT_NE(bad.err.find("--refine-walk refines the chain's grayvalue step"), std::string::npos)
       << bad.err;
   EXPECT_FALSE(fs::exists(path("model.json")));
