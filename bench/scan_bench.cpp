@@ -5,6 +5,8 @@
 // refinement, no footprint grouping). Stages:
 //   EmbreeBare/R     the R rays of every beam, bare Embree
 //   Footprint/R      tofkit casting + double refinement + grouping into a Target
+//   Measured/R       footprint + the device's measurement (analytic, 1 shot), results
+//                    discarded (the scan without writing its output)
 //   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot)
 // The second argument is the thread count. With 1 thread the CPU column is
 // the whole cost (useful on a shared machine, where real time includes waits).
@@ -156,6 +158,30 @@ void BM_Footprint(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
+void BM_Measured(benchmark::State& state) {
+  const int rays = static_cast<int>(state.range(0));
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  auto& f = fixture();
+  const auto config = config_with(rays);
+  const Footprint fp(config);
+  const device::VirtualRangefinder dev(config, device::SimulationMode::kAnalytic);
+  const device::Conditions conditions;
+  for (auto _ : state) {
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256), [&](const auto& block) {
+          Footprint::Result r;
+          double sum = 0;
+          for (std::size_t i = block.begin(); i != block.end(); ++i) {
+            fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
+            sum += dev.measure(r.target, conditions, 1, i, 1).tof_ns;
+          }
+          benchmark::DoNotOptimize(sum);
+        });
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+}
+
 void BM_Scan(benchmark::State& state) {
   const int rays = static_cast<int>(state.range(0));
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
@@ -185,6 +211,11 @@ BENCHMARK(BM_EmbreeBare)
     ->UseRealTime()
     ->MinTime(1.0);
 BENCHMARK(BM_Footprint)
+    ->Apply(rays_and_threads)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
+BENCHMARK(BM_Measured)
     ->Apply(rays_and_threads)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()

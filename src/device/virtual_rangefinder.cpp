@@ -1024,12 +1024,23 @@ struct VirtualRangefinder::Impl {
                                                 int shots) const {
     const CounterRng rng(seed);
     const auto m = setup(target, cond);
-    const double internal_c = m.temperature_reading_c;
     const int n = shots > 0 ? shots : config.measurement.shots;
     const double offset_ns = slow_offset_ns(rng, stream);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
+    double sum_tof = 0, sum_width = 0;
+    std::uint32_t valid = 0;
+    if (n == 1) {
+      // One stop is its own median: the gate keeps it.
+      double start = 0, rise = 0, fall = 0;
+      if (shot(m, rng, stream, 0, offset_ns, start, rise, fall)) {
+        sum_tof = rise - start;
+        sum_width = fall - rise;
+        valid = 1;
+      }
+      return finish(m, cond, rng, stream, n, sum_tof, sum_width, valid);
+    }
     thread_local std::vector<std::array<double, 2>> stops;
     stops.clear();
     for (int i = 0; i < n; ++i) {
@@ -1038,8 +1049,6 @@ struct VirtualRangefinder::Impl {
         continue;
       stops.push_back({rise - start, fall - rise});
     }
-    double sum_tof = 0, sum_width = 0;
-    std::uint32_t valid = 0;
     const double gate = config.measurement.stop_gate_ns;
     double median = 0;
     if (gate > 0 && !stops.empty()) {
@@ -1056,6 +1065,15 @@ struct VirtualRangefinder::Impl {
       sum_width += st[1];
       ++valid;
     }
+    return finish(m, cond, rng, stream, n, sum_tof, sum_width, valid);
+  }
+
+  /// The measurement from its shots' sums: averages, temperature reading, flags.
+  [[nodiscard]] ranging::RawMeasurement finish(const MeasurementSetup& m, const Conditions& cond,
+                                               const CounterRng& rng, std::uint64_t stream, int n,
+                                               double sum_tof, double sum_width,
+                                               std::uint32_t valid) const {
+    const double internal_c = m.temperature_reading_c;
     ranging::RawMeasurement out;
     const auto extra = rng.draw(stream, kMeasurementCounter, 0);
     const auto z = normal_pair(extra[0], extra[1]);

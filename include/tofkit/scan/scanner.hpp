@@ -27,7 +27,9 @@ struct BeamResult {
 };
 
 struct ScanResult {
-  BeamPattern pattern;  ///< the pattern (its beams in the sensor frame)
+  /// The pattern's description (name, size, line columns); its `beams` are
+  /// left empty: every beam is in `beams` below, in the world frame.
+  BeamPattern pattern;
   Pose sensor;
   std::vector<BeamResult> beams;  ///< in the pattern's (time) order
   bool has_model = false;         ///< ranges filled by a correction model
