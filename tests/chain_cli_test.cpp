@@ -174,6 +174,38 @@ TEST_F(ChainCli, ConfidenceAndFirmwareOutputs) {
   }
 }
 
+TEST_F(ChainCli, SmallCalibrationFitsWithResidualSigmaUnlessConfidenceIsAsked) {
+  // A small calibration of another device in Table 1 sunlight: 4 distances x
+  // 3 plates x 2 repeats, too few out-of-fold rows to calibrate a confidence.
+  const std::string device =
+      "--set receiver.bandwidth_mhz=80 --set laser.pulse_width_ns=2.5 "
+      "--set environment.solar_irradiance_w_per_m2_um=748.5 ";
+  ASSERT_EQ(run(device +
+                "measure --distance 1,2,3,4 --reflectance 0.1,0.4,0.9 --count 2 "
+                "--seed 3 --out " +
+                path("cal.csv"))
+                .status,
+            0);
+  for (const std::string spec : {"--chain offset,grayvalue", "--surface bspline"}) {
+    const test::CliResult fit =
+        run("fit --in " + path("cal.csv") + " --out " + path("model.json") + " " + spec);
+    ASSERT_EQ(fit.status, 0) << spec << "\n" << fit.err;
+    const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+    EXPECT_FALSE(model.confidence()) << spec;  // sigma: the residual RMS
+    EXPECT_GT(model.residual_rms_m(), 0.0) << spec;
+    EXPECT_NE((fit.out + fit.err).find("confidence: none"), std::string::npos) << fit.out;
+    // Sigma is the error on held-out targets, not the (smaller) in-sample residual.
+    EXPECT_NE((fit.out + fit.err).find("sigma = RMS of the"), std::string::npos) << fit.out;
+  }
+  // Asked for explicitly, a confidence that cannot be calibrated is an error.
+  fs::remove(path("model.json"));
+  const test::CliResult asked = run("fit --in " + path("cal.csv") + " --out " + path("model.json") +
+                                    " --surface bspline --confidence calibrated");
+  EXPECT_EQ(asked.status, 1);
+  EXPECT_NE(asked.err.find("cal.csv"), std::string::npos) << asked.err;
+  EXPECT_FALSE(fs::exists(path("model.json")));
+}
+
 TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   const auto expect_failure = [&](const std::vector<ranging::Record>& records,
                                   const std::string& chain, const std::string& message) {

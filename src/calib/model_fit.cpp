@@ -595,9 +595,26 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   }
   if (fit_confidence) {
     const ConfidenceFitData data{residuals.range, residuals.amplitude, residuals.residual};
-    result.pipeline.set_confidence(o.confidence == ConfidenceKind::thesis
-                                       ? fit_thesis_confidence(data)
-                                       : fit_calibrated_confidence(data, o.calibrated_confidence));
+    try {
+      result.pipeline.set_confidence(
+          o.confidence == ConfidenceKind::thesis
+              ? fit_thesis_confidence(data)
+              : fit_calibrated_confidence(data, o.calibrated_confidence));
+    } catch (const std::invalid_argument& e) {
+      if (o.confidence_required) throw;
+      // Too few or too uniform out-of-fold rows for a confidence model: sigma
+      // is their RMS, the error on targets the correction did not see (the
+      // in-sample residual of a flexible fit on few rows would promise less).
+      fit_confidence = false;
+      const double held_out_rms_m = error_stats(residuals.residual).rms_m;
+      if (std::isfinite(held_out_rms_m) && held_out_rms_m > result.pipeline.residual_rms_m())
+        result.pipeline.set_residual_rms_m(held_out_rms_m);
+      report += format("confidence: none (%s); sigma = RMS of the %zu %s, %.3f mm\n", e.what(),
+                       residuals.residual.size(), hold_out ? "held-out rows" : "out-of-fold rows",
+                       result.pipeline.residual_rms_m() * 1e3);
+    }
+  }
+  if (fit_confidence) {
     ModelFitSummary::Confidence c;
     c.kind = o.confidence;
     c.rows = residuals.residual.size();
