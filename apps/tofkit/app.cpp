@@ -33,6 +33,10 @@ const std::map<std::string, CommandSetup>& registered_commands() {
   return registry();
 }
 
+device::SimulationMode simulation_mode(const std::string& mode) {
+  return mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
+}
+
 void require_output_directory(const std::filesystem::path& path, const std::string& option) {
   const std::filesystem::path directory =
       path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();

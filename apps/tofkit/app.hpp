@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "tofkit/device/device_config.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/config_file.hpp"
 
 namespace tofkit::app {
@@ -56,6 +57,9 @@ bool register_command(std::string name, CommandSetup setup);
 /// Throws std::runtime_error if `path`'s directory does not exist (check an
 /// output path before a long computation).
 void require_output_directory(const std::filesystem::path& path, const std::string& option);
+
+/// The --mode option's value (CLI11 checks it is analytic or waveform).
+[[nodiscard]] device::SimulationMode simulation_mode(const std::string& mode);
 
 /// Where a config key's value came from, for messages: "--set key=value",
 /// "dev.toml:7 (key)" or "preset 'paper'".

@@ -66,15 +66,11 @@ void print_split_table(const experiments::PaperStudyResult& r) {
       repeats);
   fmt::print("{:<24} {:>10} {:>12} {:>14} {:>14} {:>14}\n", "test set", "conditions", "noise (mm)",
              "syst. RMS (mm)", "syst. max (mm)", "noise of mean");
-  auto line = [](std::string_view name, const calib::RepeatabilitySplit& s) {
-    fmt::print("{:<24} {:>10} {:>12.2f} {:>14.2f} {:>14.2f} {:>14.2f}\n", name, s.groups,
-               1e3 * s.noise_m, 1e3 * s.systematic_rms_m, 1e3 * s.systematic_max_abs_m,
-               1e3 * s.noise_of_mean_m);
-  };
-  line("gray-value, 2.355 m", r.grayvalue.split);
-  line("temperature, 2.402 m", r.temperature.split);
-  line("Table 2, 1-8 m", r.verification_split);
-  line("held out", r.holdout_split);
+  for (const auto& [name, s] : split_lines(r)) {
+    fmt::print("{:<24} {:>10} {:>12.2f} {:>14.2f} {:>14.2f} {:>14.2f}\n", name, s->groups,
+               1e3 * s->noise_m, 1e3 * s->systematic_rms_m, 1e3 * s->systematic_max_abs_m,
+               1e3 * s->noise_of_mean_m);
+  }
   fmt::print(
       "(noise: std of one measurement about its condition's mean; syst.: error of that mean, "
       "RMS with the mean's own noise removed)\n");

@@ -158,11 +158,6 @@ void send_frames(const EmulateOptions& o, std::uint64_t total, const FrameSource
              unread > 0 ? fmt::format(", {} bytes never read", unread) : "", sink);
 }
 
-device::SimulationMode simulation_mode(const EmulateOptions& o) {
-  return o.mode == "waveform" ? device::SimulationMode::kWaveform
-                              : device::SimulationMode::kAnalytic;
-}
-
 // The plate grid of `tofkit measure`: frame i is request i of measure's order
 // (repeats innermost), on random stream i.
 void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
@@ -170,7 +165,7 @@ void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
       parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures).points();
   const device::DeviceConfig config = ctx.load_config();
   const std::uint64_t total = grid.size() * static_cast<std::uint64_t>(o.count);
-  const device::VirtualRangefinder rangefinder(config, simulation_mode(o));
+  const device::VirtualRangefinder rangefinder(config, simulation_mode(o.mode));
   const auto source = [&](std::uint64_t first, std::span<ranging::RawMeasurement> out) {
     tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t k) {
       const std::uint64_t i = first + k;
@@ -195,7 +190,7 @@ void emulate_scene(const EmulateOptions& o, const AppContext& ctx) {
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
   const auto start = std::chrono::steady_clock::now();
   const scan::ScanResult result =
-      run_scene_scan(o.scan, scene, pattern, config, simulation_mode(o), shots, o.seed);
+      run_scene_scan(o.scan, scene, pattern, config, simulation_mode(o.mode), shots, o.seed);
   const double scan_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

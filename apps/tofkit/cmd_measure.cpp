@@ -107,8 +107,7 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
     }
   }
 
-  const auto mode =
-      o.mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
+  const auto mode = simulation_mode(o.mode);
   const auto start = std::chrono::steady_clock::now();
   const device::VirtualRangefinder rangefinder(config, mode);
   std::vector<ranging::RawMeasurement> raw(requests.size());

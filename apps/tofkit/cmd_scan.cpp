@@ -101,8 +101,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
 
   const auto start = std::chrono::steady_clock::now();
-  const auto mode =
-      o.mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
+  const auto mode = simulation_mode(o.mode);
   scan::ScanResult result =
       run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
   if (pipeline) scan::apply_pipeline(*pipeline, result);

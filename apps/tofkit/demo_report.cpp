@@ -301,6 +301,13 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
   return figures;
 }
 
+std::array<SplitLine, 4> split_lines(const experiments::PaperStudyResult& r) {
+  return {{{"gray-value, 2.355 m", &r.grayvalue.split},
+           {"temperature, 2.402 m", &r.temperature.split},
+           {"Table 2, 1-8 m", &r.verification_split},
+           {"held out", &r.holdout_split}}};
+}
+
 void write_demo_report(const std::filesystem::path& dir, const experiments::PaperStudyResult& r,
                        const nlohmann::json& summary, const std::vector<Figure>& figures,
                        const std::string& thesis_summary, const std::string& extra_html) {
@@ -350,17 +357,13 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
        "removed, and the worst), what a better correction could still remove.</p><table>"
     << "<tr><th>test set</th><th>conditions</th><th>noise (mm)</th><th>systematic RMS (mm)</th>"
     << "<th>systematic worst (mm)</th><th>noise of a mean (mm)</th></tr>\n";
-  auto split_row = [&](const std::string& name, const calib::RepeatabilitySplit& s) {
+  for (const auto& [name, s] : split_lines(r)) {
     h << fmt::format(
         "<tr><td>{}</td><td>{}</td><td>{:.2f}</td><td>{:.2f}</td><td>{:.2f}</td><td>{:.2f}</td>"
         "</tr>\n",
-        html_escape(name), s.groups, 1e3 * s.noise_m, 1e3 * s.systematic_rms_m,
-        1e3 * s.systematic_max_abs_m, 1e3 * s.noise_of_mean_m);
-  };
-  split_row("gray-value, 2.355 m", r.grayvalue.split);
-  split_row("temperature, 2.402 m", r.temperature.split);
-  split_row("Table 2, 1-8 m", r.verification_split);
-  split_row("held out", r.holdout_split);
+        html_escape(std::string(name)), s->groups, 1e3 * s->noise_m, 1e3 * s->systematic_rms_m,
+        1e3 * s->systematic_max_abs_m, 1e3 * s->noise_of_mean_m);
+  }
   h << "</table>\n<h2>Fitted chain</h2><pre>" << html_escape(r.fit.summary()) << "</pre>\n";
   h << "<h2>The thesis's protocol (AccuRange-like preset)</h2>\n"
     << thesis_tables_html(summary) << "<details><summary>full text</summary><pre>"

@@ -2,9 +2,11 @@
 /// \file The demo's outputs beyond the table: model and firmware files, plots
 /// (the paper's Figures 3, 6-10) and the HTML report.
 
+#include <array>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "tofkit/experiments/paper_study.hpp"
@@ -16,6 +18,14 @@ struct Figure {
   std::string file;     ///< PNG (or the gnuplot script when not rendered), relative to the dir
   std::string caption;  ///< what it shows and which paper figure it mirrors
 };
+
+/// One row of the noise vs systematic table (text and HTML): a test set's name
+/// and its split, in the demo's order.
+struct SplitLine {
+  std::string_view label;
+  const calib::RepeatabilitySplit* split;
+};
+[[nodiscard]] std::array<SplitLine, 4> split_lines(const experiments::PaperStudyResult& r);
 
 /// model.json and firmware/ (fixed-point coefficients as JSON and a C header).
 void write_demo_model(const std::filesystem::path& dir,

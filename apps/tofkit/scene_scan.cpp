@@ -7,7 +7,6 @@
 #include <vector>
 
 #include "tofkit/io/value_list.hpp"
-#include "tofkit/scan/ray_caster.hpp"
 
 namespace tofkit::app {
 namespace {

@@ -229,12 +229,6 @@ const ranging::Pipeline& pipeline_of(const py::handle& model) {
 
 void bind_model(py::module_& m) {
   py::class_<Model>(m, "_Model")
-      .def_static(
-          "uncorrected",
-          [](const device::DeviceConfig& config) {
-            return Model{ranging::Pipeline(time_to_distance_of(config)), nullptr, ""};
-          },
-          py::arg("config"))
       .def_static("load", &load_model, py::arg("path"))
       .def(
           "save",

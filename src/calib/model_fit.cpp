@@ -192,7 +192,7 @@ double node_value(const std::vector<double>& t, const Eigen::VectorXd& v, double
 /// refine_walk: the chain's grayvalue step plus a dense penalized correction
 /// in pulse width, fitted on the chain's residual (see ModelFitOptions).
 ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ranging::Record> rows,
-                              ModelFitSummary::WalkRefinement* info) {
+                              std::size_t search_rows, ModelFitSummary::WalkRefinement* info) {
   std::size_t grayvalue = chain.steps().size();
   for (std::size_t s = 0; s < chain.steps().size(); ++s) {
     if (chain.steps()[s].kind == ranging::StepKind::kGrayvalue) grayvalue = s;
@@ -231,10 +231,10 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     }
     return t;
   };
-  // The cross-validation runs on at most kSearchRows rows (every k-th), as the
+  // The cross-validation runs on at most search_rows rows (every k-th), as the
   // chain's knot search does; the chosen correction is then fitted on all.
-  constexpr std::size_t kSearchRows = 50000;
-  const std::size_t stride = (x.size() + kSearchRows - 1) / kSearchRows;
+  const std::size_t cap = std::max<std::size_t>(search_rows, 1);
+  const std::size_t stride = (x.size() + cap - 1) / cap;
   std::vector<double> cx, cr;
   std::vector<std::size_t> cgroup;
   for (std::size_t i = 0; i < x.size(); i += stride) {
@@ -336,7 +336,7 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
     if (report) *report += chain.summary();
     if (o.refine_walk) {
       ModelFitSummary::WalkRefinement walk;
-      pipeline = refine_walk(pipeline, rows, &walk);
+      pipeline = refine_walk(pipeline, rows, chain_options.knot_search_rows, &walk);
       if (report) {
         *report += format(
             "walk refinement: %d nodes in pulse width, smoothing %g, cross-validated RMS %.3f mm "

@@ -4,6 +4,9 @@
 #include <cmath>
 #include <map>
 #include <stdexcept>
+#include <vector>
+
+#include "tofkit/calib/statistics.hpp"
 
 namespace tofkit::calib {
 
@@ -31,21 +34,21 @@ RepeatabilitySplit split_noise_systematic(std::span<const double> error_m,
     const double d = error_m[i] - g.sum / static_cast<double>(g.n);
     g.sum_sq += d * d;
   }
-  double within = 0, mean_sq = 0, mean_sum = 0, max_abs = 0;
+  double within = 0;
   std::size_t dof = 0;
+  std::vector<double> means;
+  means.reserve(groups.size());
   for (const auto& [id, g] : groups) {
-    const double mean = g.sum / static_cast<double>(g.n);
+    means.push_back(g.sum / static_cast<double>(g.n));
     within += g.sum_sq;
     dof += g.n - 1;
-    mean_sq += mean * mean;
-    mean_sum += mean;
-    max_abs = std::max(max_abs, std::abs(mean));
     out.rows += g.n;
   }
   out.groups = groups.size();
   const auto ng = static_cast<double>(out.groups);
-  out.systematic_mean_m = mean_sum / ng;
-  out.systematic_max_abs_m = max_abs;
+  const ErrorStats of_means = error_stats(means);
+  out.systematic_mean_m = of_means.bias_m;
+  out.systematic_max_abs_m = of_means.max_abs_m;
   if (dof == 0) return out;
   out.noise_m = std::sqrt(within / static_cast<double>(dof));
   // Each group mean carries noise^2 / n_g of variance: remove its average.
@@ -54,7 +57,7 @@ RepeatabilitySplit split_noise_systematic(std::span<const double> error_m,
     mean_noise_var += out.noise_m * out.noise_m / static_cast<double>(g.n);
   mean_noise_var /= ng;
   out.noise_of_mean_m = std::sqrt(mean_noise_var);
-  out.systematic_rms_m = std::sqrt(std::max(0.0, mean_sq / ng - mean_noise_var));
+  out.systematic_rms_m = std::sqrt(std::max(0.0, of_means.rms_m * of_means.rms_m - mean_noise_var));
   return out;
 }
 

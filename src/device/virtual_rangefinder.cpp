@@ -318,10 +318,10 @@ struct MeasurementSetup {
   double level_end_v = 0;
   std::array<double, kLevels> rise_ns, fall_ns;
   double level_top_v = 0;  // largest level that is crossed at all
-  // Fast path (one surface, analytic mode): the echo is amplitude_v g_h(t - delay_ns)
+  // Fast path (one surface, analytic mode): the echo is A g_h(t - delay_ns)
   // with g_h the device's tabulated normalized echo at spread h.
   bool fast = false;
-  double amplitude_v = 0, delay_ns = 0;
+  double delay_ns = 0;
   SpreadEchoTable::At spread{};
   double inv_row_peak_v[2] = {0, 0};  // 1 / (amplitude x peak) of the two rows
   double noise_at_threshold_v = 0;
@@ -393,7 +393,8 @@ struct VirtualRangefinder::Impl {
     c_nominal_m_per_ns =
         physics::speed_of_light_in_air_m_per_s(config.link.laser.wavelength_nm, air) * 1e-9;
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
-    if (mode == SimulationMode::kAnalytic)
+    // The table serves the pulsed core only: an oscillator-loop device never asks.
+    if (mode == SimulationMode::kAnalytic && !config.oscillator.enabled)
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
     // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
     background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
@@ -592,7 +593,7 @@ struct VirtualRangefinder::Impl {
         SurfaceEcho one;
         if (surface_echo(s, c, one)) {
           e = one;
-          ++surfaces;
+          if (++surfaces > 1) break;  // a mixed pixel: the exact path
         }
       }
       if (surfaces == 0 && crosstalk_v <= 0.0) {
@@ -605,7 +606,6 @@ struct VirtualRangefinder::Impl {
       if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns() && crosstalk_v <= 0.0 &&
           after_blanking) {
         m.fast = true;
-        m.amplitude_v = e.amplitude_v;
         m.delay_ns = e.delay_ns;
         m.spread = shapes->at(e.spread_ns);
         m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
@@ -1175,15 +1175,13 @@ void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests,
                                        std::span<ranging::RawMeasurement> out) const {
   if (out.size() != requests.size())
     throw std::invalid_argument("measure_batch: output span size differs from the request count");
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, requests.size()),
-      [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t i = range.begin(); i != range.end(); ++i) {
-          const auto& r = requests[i];
-          out[i] = oscillator_ ? oscillator_->measure(r.target, r.conditions, seed, i, r.shots)
-                               : impl_->measure(r.target, r.conditions, seed, i, r.shots);
-        }
-      });
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, requests.size()),
+                    [&](const tbb::blocked_range<std::size_t>& range) {
+                      for (std::size_t i = range.begin(); i != range.end(); ++i) {
+                        const auto& r = requests[i];
+                        out[i] = measure(r.target, r.conditions, seed, i, r.shots);
+                      }
+                    });
 }
 
 double VirtualRangefinder::tof_to_distance_m(double tof_ns) const {

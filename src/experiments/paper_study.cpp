@@ -235,30 +235,23 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   result.verification = run(device, plan, run_seed(kVerificationRun));
   result.verification_corrected = correct(pipeline, result.verification);
   track_fixed_vs_float(result.verification, result.verification_corrected);
-  {
-    std::vector<double> errors;
-    for (std::size_t i = 0; i < result.verification.size(); ++i)
-      errors.push_back(result.verification_corrected[i].distance_m -
-                       result.verification[i].truth.distance_m);
-    result.verification_split = calib::split_noise_systematic(errors, group);
-  }
+  std::vector<double> errors;
+  for (std::size_t i = 0; i < result.verification.size(); ++i)
+    errors.push_back(result.verification_corrected[i].distance_m -
+                     result.verification[i].truth.distance_m);
+  result.verification_split = calib::split_noise_systematic(errors, group);
   for (std::size_t g = 0; g < options.verification_distances_m.size(); ++g) {
+    // repeat() puts a condition's measurements next to each other.
+    const auto begin = g * static_cast<std::size_t>(test_repeats);
+    const auto n = static_cast<std::size_t>(test_repeats);
+    const auto split = calib::split_noise_systematic(std::span(errors).subspan(begin, n),
+                                                     std::span(group).subspan(begin, n));
     const double d = options.verification_distances_m[g];
-    std::vector<double> measured;
-    for (std::size_t i = 0; i < result.verification.size(); ++i)
-      if (group[i] == g && std::isfinite(result.verification_corrected[i].distance_m))
-        measured.push_back(result.verification_corrected[i].distance_m);
     VerificationRow row;
     row.actual_m = d;
-    row.repeats = static_cast<int>(measured.size());
-    double sum = 0;
-    for (double m : measured) sum += m;
-    row.measured_m = measured.empty() ? ranging::kNaN : sum / static_cast<double>(measured.size());
-    if (measured.size() >= 2) {
-      double ss = 0;
-      for (double m : measured) ss += (m - row.measured_m) * (m - row.measured_m);
-      row.noise_mm = 1e3 * std::sqrt(ss / static_cast<double>(measured.size() - 1));
-    }
+    row.repeats = static_cast<int>(split.rows);
+    row.measured_m = split.rows > 0 ? d + split.systematic_mean_m : ranging::kNaN;
+    row.noise_mm = 1e3 * split.noise_m;
     row.deviation_mm = 1e3 * (d - row.measured_m);  // Table 2's sign: actual - measured
     for (const auto& p : paper_table2) {
       if (std::abs(p.actual_value_m - d) < 0.05) {

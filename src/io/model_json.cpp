@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/json_fields.hpp"
 #include "tofkit/io/surface_json.hpp"

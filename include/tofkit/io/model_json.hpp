@@ -19,8 +19,11 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
-#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/ranging/pipeline.hpp"
+
+namespace tofkit::calib {
+struct ModelFitSummary;
+}  // namespace tofkit::calib
 
 namespace tofkit::io {
 
