@@ -137,49 +137,48 @@ void BM_EmbreeBare(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
-void BM_Footprint(benchmark::State& state) {
-  const int rays = static_cast<int>(state.range(0));
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
-                            static_cast<std::size_t>(state.range(1)));
-  auto& f = fixture();
-  const Footprint fp(config_with(rays));
+// Every beam of the fixture's pattern through `per_beam(i, footprint_result)`,
+// in parallel blocks as the scanner runs them; the values are summed so that
+// the work is not optimized away.
+template <class PerBeam>
+void over_beams(benchmark::State& state, PerBeam per_beam) {
+  const auto& f = fixture();
   for (auto _ : state) {
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256), [&](const auto& block) {
-          Footprint::Result r;
-          double sum = 0;
-          for (std::size_t i = block.begin(); i != block.end(); ++i) {
-            fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
-            sum += r.true_range_m + static_cast<double>(r.target.surfaces.size());
-          }
-          benchmark::DoNotOptimize(sum);
-        });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256),
+                      [&](const auto& block) {
+                        Footprint::Result r;
+                        double sum = 0;
+                        for (std::size_t i = block.begin(); i != block.end(); ++i)
+                          sum += per_beam(i, r);
+                        benchmark::DoNotOptimize(sum);
+                      });
   }
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
-void BM_Measured(benchmark::State& state) {
-  const int rays = static_cast<int>(state.range(0));
+void BM_Footprint(benchmark::State& state) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(state.range(1)));
   auto& f = fixture();
-  const auto config = config_with(rays);
+  const Footprint fp(config_with(static_cast<int>(state.range(0))));
+  over_beams(state, [&](std::size_t i, Footprint::Result& r) {
+    fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
+    return r.true_range_m + static_cast<double>(r.target.surfaces.size());
+  });
+}
+
+void BM_Measured(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  auto& f = fixture();
+  const auto config = config_with(static_cast<int>(state.range(0)));
   const Footprint fp(config);
   const device::VirtualRangefinder dev(config, device::SimulationMode::kAnalytic);
   const device::Conditions conditions;
-  for (auto _ : state) {
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256), [&](const auto& block) {
-          Footprint::Result r;
-          double sum = 0;
-          for (std::size_t i = block.begin(); i != block.end(); ++i) {
-            fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
-            sum += dev.measure(r.target, conditions, 1, i, 1).tof_ns;
-          }
-          benchmark::DoNotOptimize(sum);
-        });
-  }
-  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+  over_beams(state, [&](std::size_t i, Footprint::Result& r) {
+    fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
+    return dev.measure(r.target, conditions, 1, i, 1).tof_ns;
+  });
 }
 
 void BM_Scan(benchmark::State& state) {
@@ -203,25 +202,10 @@ void BM_Scan(benchmark::State& state) {
 void rays_and_threads(benchmark::internal::Benchmark* b) {
   for (int rays : {1, 16})
     for (int threads : {1, 2}) b->Args({rays, threads});
+  b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 }
 
-BENCHMARK(BM_EmbreeBare)
-    ->Apply(rays_and_threads)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->MinTime(1.0);
-BENCHMARK(BM_Footprint)
-    ->Apply(rays_and_threads)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->MinTime(1.0);
-BENCHMARK(BM_Measured)
-    ->Apply(rays_and_threads)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->MinTime(1.0);
-BENCHMARK(BM_Scan)
-    ->Apply(rays_and_threads)
-    ->Unit(benchmark::kMillisecond)
-    ->UseRealTime()
-    ->MinTime(1.0);
+BENCHMARK(BM_EmbreeBare)->Apply(rays_and_threads);
+BENCHMARK(BM_Footprint)->Apply(rays_and_threads);
+BENCHMARK(BM_Measured)->Apply(rays_and_threads);
+BENCHMARK(BM_Scan)->Apply(rays_and_threads);
