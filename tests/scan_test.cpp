@@ -200,6 +200,54 @@ TEST(ScanFootprint, StepEdgeSplitsByTheGeometricFraction) {
   }
 }
 
+// Mesh triangles are one surface unless a crease sharper than
+// scan.crease_angle_deg (30 deg) or a step deeper than the footprint's
+// diameter times its sine parts them. The beam (footprint 9 mm at 2 m) hits
+// the shared edge of two triangles at y = 0, each a half of the disk.
+TEST(ScanFootprint, MeshTrianglesSplitOnlyAtCreasesAndSteps) {
+  const double exit_d = 3e-3, div = 3e-3;
+  const Footprint fp(exit_d, div, 1024);
+  // Two triangles meeting along the z axis at x = 2: the half at y > 0 is
+  // turned by `crease_deg` about that edge and moved back by `step_m`.
+  auto split_count = [&](double crease_deg, double step_m) {
+    Primitive m;
+    m.kind = PrimitiveKind::kMesh;
+    m.name = "mesh";
+    m.reflectance.value = 0.4;
+    const double a = crease_deg * std::numbers::pi / 180.0;
+    m.vertices = {{2.0, -1.0, -1.0},        {2.0, 0.0, -1.0},
+                  {2.0, 0.0, 1.0},          {2.0 + step_m, 0.0, -1.0},
+                  {2.0 + step_m, 0.0, 1.0}, {2.0 + step_m + std::sin(a), std::cos(a), 0.0}};
+    m.triangles = {{0, 1, 2}, {3, 4, 5}};
+    const RayCaster caster(single(m));
+    Footprint::Result res;
+    fp.trace(caster, {0, 0, 0}, {1, 0, 0}, res);
+    double total = 0;
+    for (const auto& surf : res.target.surfaces) total += surf.fraction;
+    EXPECT_NEAR(total, 1.0, 1e-9) << crease_deg << " " << step_m;
+    return res.target.surfaces.size();
+  };
+  EXPECT_EQ(split_count(0.0, 0.0), 1u);    // coplanar: one surface, whatever the triangles
+  EXPECT_EQ(split_count(10.0, 0.0), 1u);   // a shallow crease of a smooth mesh
+  EXPECT_EQ(split_count(45.0, 0.0), 2u);   // a roof-like crease
+  EXPECT_EQ(split_count(0.0, 0.001), 1u);  // 1 mm step: within 9 mm x sin 30 deg
+  EXPECT_EQ(split_count(0.0, 0.02), 2u);   // 20 mm step: a mixed pixel
+  // A sharper crease setting keeps the shallow one apart too.
+  const Footprint strict(exit_d, div, 1024, 5.0);
+  Primitive m;
+  m.kind = PrimitiveKind::kMesh;
+  m.name = "mesh";
+  m.reflectance.value = 0.4;
+  const double a = 10.0 * std::numbers::pi / 180.0;
+  m.vertices = {
+      {2.0, -1.0, -1.0}, {2.0, 0.0, -1.0}, {2.0, 0.0, 1.0}, {2.0 + std::sin(a), std::cos(a), 0.0}};
+  m.triangles = {{0, 1, 2}, {1, 2, 3}};
+  const RayCaster caster(single(m));
+  Footprint::Result res;
+  strict.trace(caster, {0, 0, 0}, {1, 0, 0}, res);
+  EXPECT_EQ(res.target.surfaces.size(), 2u);
+}
+
 TEST(ScanFootprint, TiltedPlateGivesCosineAmplitudeAndLongerEcho) {
   device::DeviceConfig config;
   config.scan.rays_per_beam = 64;

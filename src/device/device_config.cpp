@@ -210,6 +210,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       // scan: beam footprint sampling for ray casting (scan/)
       field("scan.rays_per_beam", &config.scan.rays_per_beam, 1, 4096,
             "sub-rays sampling the beam footprint, equal-area over the disk (1: axis only)"),
+      field(
+          "scan.crease_angle_deg", &config.scan.crease_angle_deg, 0, 90, kClosed,
+          "sub-ray hits on one primitive meeting at a sharper crease (or a step) are two surfaces"),
 
       // memory: receiver recovery in a scan sequence (device/echo_memory.hpp)
       field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6, kClosed,

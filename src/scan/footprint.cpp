@@ -9,9 +9,12 @@ namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
+/// Sub-ray hits that form one surface: one primitive, one reflectance, and
+/// no crease or step between them. `point` and `normal` are its first hit's.
 struct Group {
-  std::uint32_t primitive, part;
+  std::uint32_t primitive;
   double reflectance;
+  Vec3 point, normal;
   double weight = 0, distance_sum = 0;
   Vec3 normal_sum{0, 0, 0};
 };
@@ -20,13 +23,19 @@ struct Group {
 
 Footprint::Footprint(const device::DeviceConfig& config)
     : Footprint(config.link.laser.exit_beam_diameter_mm * 1e-3,
-                config.link.laser.beam_divergence_mrad * 1e-3, config.scan.rays_per_beam) {}
+                config.link.laser.beam_divergence_mrad * 1e-3, config.scan.rays_per_beam,
+                config.scan.crease_angle_deg) {}
 
-Footprint::Footprint(double exit_diameter_m, double divergence_rad, int rays_per_beam)
-    : exit_radius_m_(0.5 * exit_diameter_m), half_divergence_rad_(0.5 * divergence_rad) {
+Footprint::Footprint(double exit_diameter_m, double divergence_rad, int rays_per_beam,
+                     double crease_angle_deg)
+    : exit_radius_m_(0.5 * exit_diameter_m),
+      half_divergence_rad_(0.5 * divergence_rad),
+      cos_crease_(std::cos(crease_angle_deg * std::numbers::pi / 180.0)),
+      sin_crease_(std::sin(crease_angle_deg * std::numbers::pi / 180.0)) {
   const int n = rays_per_beam < 1 ? 1 : rays_per_beam;
   if (n == 1) {
     sub_rays_.push_back({0, 0, 1});
+    tilts_.push_back({0, 0});
     return;
   }
   // Vogel's sunflower: sample k sits at radius sqrt((k + 1/2) / n), so every
@@ -35,7 +44,9 @@ Footprint::Footprint(double exit_diameter_m, double divergence_rad, int rays_per
   for (int k = 0; k < n; ++k) {
     const double r = std::sqrt((k + 0.5) / n);
     const double a = golden * k;
-    sub_rays_.push_back({r * std::cos(a), r * std::sin(a), 1.0 / n});
+    const double x = r * std::cos(a), y = r * std::sin(a);
+    sub_rays_.push_back({x, y, 1.0 / n});
+    tilts_.push_back({std::tan(half_divergence_rad_ * x), std::tan(half_divergence_rad_ * y)});
   }
 }
 
@@ -60,27 +71,36 @@ void Footprint::trace(const RayCaster& caster, const Vec3& origin, const Vec3& a
   Group groups[16];
   std::vector<Group> more;
   std::size_t count = 0;
-  for (const auto& s : sub_rays_) {
+  const double tan_half_divergence = std::tan(half_divergence_rad_);
+  for (std::size_t k = 0; k < sub_rays_.size(); ++k) {
+    const SubRay& s = sub_rays_[k];
     const Vec3 o = origin + (exit_radius_m_ * s.x) * e1 + (exit_radius_m_ * s.y) * e2;
-    const Vec3 d = normalized(axis + std::tan(half_divergence_rad_ * s.x) * e1 +
-                              std::tan(half_divergence_rad_ * s.y) * e2);
+    const Vec3 d = normalized(axis + tilts_[k].x * e1 + tilts_[k].y * e2);
     const Hit h = caster.cast(o, d);
     if (!h.hit()) continue;
-    const double along_axis = dot(o + h.distance_m * d - origin, axis);
+    const Vec3 point = o + h.distance_m * d;
+    const double along_axis = dot(point - origin, axis);
+    // A continuous surface deviates from its tangent plane at the first hit by
+    // no more than the footprint's diameter times the sine of its crease angle;
+    // a larger step (or a sharper crease) is another surface: a mixed pixel.
+    const double diameter_m = 2.0 * (exit_radius_m_ + along_axis * tan_half_divergence);
     Group* g = nullptr;
     for (std::size_t i = 0; i < count; ++i) {
       Group& c = i < 16 ? groups[i] : more[i - 16];
-      if (c.primitive == h.primitive && c.part == h.part && c.reflectance == h.reflectance) {
+      if (c.primitive == h.primitive && c.reflectance == h.reflectance &&
+          dot(c.normal, h.normal) >= cos_crease_ &&
+          std::abs(dot(point - c.point, c.normal)) <= diameter_m * sin_crease_) {
         g = &c;
         break;
       }
     }
     if (g == nullptr) {
+      const Group fresh{h.primitive, h.reflectance, point, h.normal};
       if (count < 16) {
-        groups[count] = Group{h.primitive, h.part, h.reflectance};
+        groups[count] = fresh;
         g = &groups[count];
       } else {
-        more.push_back(Group{h.primitive, h.part, h.reflectance});
+        more.push_back(fresh);
         g = &more.back();
       }
       ++count;

@@ -338,21 +338,21 @@ Hit RayCaster::cast(const Vec3& o, const Vec3& d) const {
   hit.part = rh.hit.primID;
   // Refine on the double ray: the closed form for analytic primitives, double
   // Moller-Trumbore for the hit triangle (float traversal chose which one).
-  double t = rh.ray.tfar;
-  Vec3 n = normalized(facing({rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z}, d));
+  double t = 0;
+  Vec3 n;
+  bool refined = false;
   if (p.kind == PrimitiveKind::kMesh) {
     const auto& tri = p.triangles[rh.hit.primID];
-    double tt = 0;
-    Vec3 nn;
-    if (intersect_triangle(p.vertices[tri[0]], p.vertices[tri[1]], p.vertices[tri[2]], o, d, tt,
-                           nn)) {
-      t = tt, n = nn;
-    }
+    refined =
+        intersect_triangle(p.vertices[tri[0]], p.vertices[tri[1]], p.vertices[tri[2]], o, d, t, n);
   } else {
-    double tt = 0;
-    Vec3 nn;
     std::uint32_t part = 0;
-    if (intersect_primitive(p, o, d, 0.0, kInf, tt, nn, part)) t = tt, n = nn, hit.part = part;
+    refined = intersect_primitive(p, o, d, 0.0, kInf, t, n, part);
+    if (refined) hit.part = part;
+  }
+  if (!refined) {  // the float hit, where the double ray just misses
+    t = rh.ray.tfar;
+    n = normalized(facing({rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z}, d));
   }
   hit.distance_m = t;
   hit.normal = n;

@@ -33,11 +33,6 @@ double norm(const Vec3& v) {
 
 }  // namespace
 
-Vec3 normalized(const Vec3& a) {
-  const double n = norm(a);
-  return {a[0] / n, a[1] / n, a[2] / n};
-}
-
 double Reflectance::at(double u_m, double v_m) const {
   switch (kind) {
     case Kind::kUniform:

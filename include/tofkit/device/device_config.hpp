@@ -96,6 +96,10 @@ struct MeasurementConfig {
 /// Scanning: how a beam's footprint is sampled by rays (scan/).
 struct ScanConfig {
   int rays_per_beam = 1;  ///< sub-rays sampling the beam footprint (1: the beam axis only)
+  /// Sub-ray hits on one primitive of one reflectance are one surface unless
+  /// they meet at a crease sharper than this (mesh triangles of a smooth
+  /// surface are one surface; a box's faces, a roof edge are two).
+  double crease_angle_deg = 30.0;
 };
 
 /// Receiver memory in a time-ordered sequence of measurements (a scan), see

@@ -6,7 +6,11 @@
 /// scan.rays_per_beam sub-rays at equal-area positions of a top-hat profile
 /// (a Vogel sunflower: equal weights), and the sub-ray hits are grouped into
 /// device::Surface's: fraction = share of the beam's power, distance along the
-/// beam axis, reflectance, incidence angle. A footprint across an edge thus
+/// beam axis, reflectance, incidence angle. Hits on one primitive with one
+/// reflectance are one surface unless a crease sharper than
+/// scan.crease_angle_deg, or a step deeper than the footprint's diameter times
+/// its sine, parts them: the triangles of a smooth mesh are one surface, a
+/// box's faces or a roof edge are two. A footprint across an edge thus
 /// becomes a mixed pixel; power that misses every surface is lost.
 
 #include <span>
@@ -30,7 +34,8 @@ struct SubRay {
 class Footprint {
  public:
   explicit Footprint(const device::DeviceConfig& config);
-  Footprint(double exit_diameter_m, double divergence_rad, int rays_per_beam);
+  Footprint(double exit_diameter_m, double divergence_rad, int rays_per_beam,
+            double crease_angle_deg = 30.0);
 
   /// The target seen by a beam (origin, unit axis direction), and the true
   /// range of its axis (first hit, NaN on a miss; with one ray per beam the
@@ -49,7 +54,12 @@ class Footprint {
  private:
   double exit_radius_m_ = 0;
   double half_divergence_rad_ = 0;
+  double cos_crease_ = 1, sin_crease_ = 0;  ///< of scan.crease_angle_deg
   std::vector<SubRay> sub_rays_;
+  struct Tilt {
+    double x, y;  ///< tan of the sub-ray's tilt along the two cross-section axes
+  };
+  std::vector<Tilt> tilts_;
 };
 
 }  // namespace tofkit::scan

@@ -5,6 +5,7 @@
 /// REP-103: right-handed, metres, the sensor looks along +x with z up.
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -94,6 +95,9 @@ inline double dot(const Vec3& a, const Vec3& b) {
 inline Vec3 cross(const Vec3& a, const Vec3& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
-Vec3 normalized(const Vec3& a);
+inline Vec3 normalized(const Vec3& a) {
+  const double inv = 1.0 / std::sqrt(dot(a, a));
+  return {a[0] * inv, a[1] * inv, a[2] * inv};
+}
 
 }  // namespace tofkit::scan
