@@ -80,11 +80,12 @@ struct PhaseTables {
   }
 };
 
+const PhaseTables phase_tables;  // (built at load: no guard on every draw)
+
 inline void sincos_of_phase(std::uint32_t b, double& s, double& c) {
-  static const PhaseTables tables;
   const std::uint32_t k = b >> 8;
-  const auto& a = tables.coarse[k >> 12];
-  const auto& f = tables.fine[k & 4095u];
+  const auto& a = phase_tables.coarse[k >> 12];
+  const auto& f = phase_tables.fine[k & 4095u];
   s = a.s * f.c + a.c * f.s;
   c = a.c * f.c - a.s * f.s;
 }
@@ -482,8 +483,9 @@ struct VirtualRangefinder::Impl {
     if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
     // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
     // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
+    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
     const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
-                                std::tan(physics::deg_to_rad(s.angle_deg));
+                                std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
     out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
     if (out.spread_ns < 1e-4) out.spread_ns = 0.0;
     return true;
@@ -971,8 +973,12 @@ struct VirtualRangefinder::Impl {
     // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
     const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
     const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
+    // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
+    const double cycles = kFlickerLowestHz * t_s;
+    const auto phase = static_cast<std::uint32_t>(
+        static_cast<std::uint64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFFu);
     double sin_a = 0, cos_a = 0;
-    ::sincos(2.0 * kPi * kFlickerLowestHz * t_s, &sin_a, &cos_a);
+    sincos_of_phase(phase, sin_a, cos_a);
     double wander = 0;
     for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
       wander += sin_a * run.cos_phase[k] + cos_a * run.sin_phase[k];  // sin(a + phase)
