@@ -29,6 +29,7 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
   const std::size_t n = pattern.beams.size();
   result.beams.resize(n);
   std::vector<device::SequenceItem> items(n);
+  const scan::RigidTransform to_world = result.sensor.to_world();
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(0, n, 256),
       [&](const tbb::blocked_range<std::size_t>& block) {
@@ -37,8 +38,8 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
           const scan::Beam& beam = pattern.beams[i];
           scan::BeamResult& b = result.beams[i];
           b.beam = beam;
-          b.beam.origin_m = result.sensor.transform(beam.origin_m);
-          b.beam.direction = result.sensor.rotate(beam.direction);
+          b.beam.origin_m = to_world.transform(beam.origin_m);
+          b.beam.direction = to_world.rotate(beam.direction);
           footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
           b.true_range_m = fp.true_range_m;
           b.surfaces = static_cast<int>(fp.target.surfaces.size());
@@ -65,7 +66,7 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
             const scan::Vec3 origin = beam.origin_m + f * (next.origin_m - beam.origin_m);
             const scan::Vec3 dir =
                 scan::normalized(beam.direction + f * (next.direction - beam.direction));
-            footprint.trace(caster, result.sensor.transform(origin), result.sensor.rotate(dir), fp);
+            footprint.trace(caster, to_world.transform(origin), to_world.rotate(dir), fp);
             item.path[static_cast<std::size_t>(k)] = fp.target;
           }
         }

@@ -73,7 +73,7 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
   result.pattern.column_positions_m = pattern.column_positions_m;
   result.pattern.sample_extent_m = pattern.sample_extent_m;
   result.sensor = caster.scene().sensor;
-  const auto& pose = result.sensor;
+  const RigidTransform pose = result.sensor.to_world();
   const std::size_t n = pattern.beams.size();
   reserve_populated(result.beams, n);
   result.beams.resize(n);

@@ -59,18 +59,18 @@ double Reflectance::at(double u_m, double v_m) const {
   return value;
 }
 
-Vec3 Pose::rotate(const Vec3& v) const {
-  // R = Rz(yaw) Ry(pitch) Rx(roll) (REP-103 fixed-axis roll, pitch, yaw).
+RigidTransform Pose::to_world() const {
+  // R = Rz(yaw) Ry(pitch) Rx(roll) (REP-103 fixed-axis roll, pitch, yaw),
+  // applied to the unit vectors for its columns.
   const double cr = std::cos(deg(rpy_deg[0])), sr = std::sin(deg(rpy_deg[0]));
   const double cp = std::cos(deg(rpy_deg[1])), sp = std::sin(deg(rpy_deg[1]));
   const double cy = std::cos(deg(rpy_deg[2])), sy = std::sin(deg(rpy_deg[2]));
-  const Vec3 a{v[0], cr * v[1] - sr * v[2], sr * v[1] + cr * v[2]};
-  const Vec3 b{cp * a[0] + sp * a[2], a[1], -sp * a[0] + cp * a[2]};
-  return {cy * b[0] - sy * b[1], sy * b[0] + cy * b[1], b[2]};
-}
-
-Vec3 Pose::transform(const Vec3& p) const {
-  return rotate(p) + position_m;
+  auto rotate = [&](const Vec3& v) -> Vec3 {
+    const Vec3 a{v[0], cr * v[1] - sr * v[2], sr * v[1] + cr * v[2]};
+    const Vec3 b{cp * a[0] + sp * a[2], a[1], -sp * a[0] + cp * a[2]};
+    return {cy * b[0] - sy * b[1], sy * b[0] + cy * b[1], b[2]};
+  };
+  return {{rotate({1, 0, 0}), rotate({0, 1, 0}), rotate({0, 0, 1})}, position_m};
 }
 
 void plane_axes(const Vec3& normal, Vec3& u, Vec3& v) {

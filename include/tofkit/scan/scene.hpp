@@ -56,13 +56,33 @@ struct Primitive {
 };
 
 /// Rigid pose: position and roll/pitch/yaw (applied z-y'-x'', REP-103).
+/// A pose as a rotation matrix (by columns) and a translation, worked out once
+/// for many points.
+struct RigidTransform {
+  std::array<Vec3, 3> columns{};
+  Vec3 translation{0, 0, 0};
+  [[nodiscard]] Vec3 rotate(const Vec3& v) const {
+    const auto& c = columns;
+    return {c[0][0] * v[0] + c[1][0] * v[1] + c[2][0] * v[2],
+            c[0][1] * v[0] + c[1][1] * v[1] + c[2][1] * v[2],
+            c[0][2] * v[0] + c[1][2] * v[1] + c[2][2] * v[2]};
+  }
+  [[nodiscard]] Vec3 transform(const Vec3& p) const {
+    const Vec3 r = rotate(p);
+    return {r[0] + translation[0], r[1] + translation[1], r[2] + translation[2]};
+  }
+};
+
 struct Pose {
   Vec3 position_m{0, 0, 0};
   Vec3 rpy_deg{0, 0, 0};
+  /// The sensor frame's rotation and origin in the world frame (a scan works
+  /// it out once: rotate() and transform() below take six sines and cosines).
+  [[nodiscard]] RigidTransform to_world() const;
   /// A direction or offset from the sensor frame into the world frame.
-  [[nodiscard]] Vec3 rotate(const Vec3& v) const;
+  [[nodiscard]] Vec3 rotate(const Vec3& v) const { return to_world().rotate(v); }
   /// A point from the sensor frame into the world frame.
-  [[nodiscard]] Vec3 transform(const Vec3& p) const;
+  [[nodiscard]] Vec3 transform(const Vec3& p) const { return to_world().transform(p); }
 };
 
 struct Scene {
