@@ -2,7 +2,9 @@
 // (Eq. 8), the paper's Figure 3 figure, and the group index of air.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/physics/air.hpp"
@@ -125,6 +127,27 @@ TEST(Air, GroupIndexMatchesStandardAirAndScalesWithDensity) {
             group_index_of_air(905.0, {20.0, 1013.25, 0.0}));
   EXPECT_GT(group_index_of_air(780.0, standard), group_index_of_air(905.0, standard));
   EXPECT_NEAR(speed_of_light_in_air_m_per_s(905.0, {20.0, 1013.25, 50.0}), 299709000.0, 20000.0);
+}
+
+// add_to's strided sum equals the template evaluated sample by sample, for
+// delays on and off the template's grid, supports cut at either end, and a
+// sampling step that is not a whole number of template steps (the fallback).
+TEST(PulseTemplate, AddToMatchesPointwiseEvaluation) {
+  const physics::PulseTemplate p(3.0, 120.0);
+  for (const double dt : {0.01, 0.005, 0.0137}) {
+    for (const double delay : {0.0, 7.0, 13.00123456789, 55.5}) {
+      for (const double t0 : {-30.0, 2.0, 40.0}) {
+        const std::size_t n = 9000;
+        std::vector<double> got(n, 0.25), want(n, 0.25);
+        p.add_to(1.7, delay, t0, dt, got.data(), n);
+        for (std::size_t k = 0; k < n; ++k)
+          want[k] += 1.7 * p(t0 + static_cast<double>(k) * dt - delay);
+        double worst = 0;
+        for (std::size_t k = 0; k < n; ++k) worst = std::max(worst, std::abs(got[k] - want[k]));
+        EXPECT_LT(worst, 1e-9) << dt << " " << delay << " " << t0;
+      }
+    }
+  }
 }
 
 TEST(PulseTemplate, TwoPoleBandwidthAndNoiseCorrelation) {

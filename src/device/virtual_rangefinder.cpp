@@ -661,10 +661,10 @@ struct VirtualRangefinder::Impl {
       const double hi = (comp.delay_ns + pulse.end_ns() - m.grid_begin_ns) / kCompositeStepNs;
       const auto i_lo = static_cast<std::size_t>(std::max(std::floor(lo), 0.0));
       const auto i_hi = std::min(n, static_cast<std::size_t>(std::max(std::ceil(hi) + 1.0, 0.0)));
-      for (std::size_t i = i_lo; i < i_hi; ++i) {
-        const double t = m.grid_begin_ns + static_cast<double>(i) * kCompositeStepNs;
-        m.composite[i] += comp.amplitude_v * pulse(t - comp.delay_ns);
-      }
+      if (i_lo < i_hi)
+        pulse.add_to(comp.amplitude_v, comp.delay_ns,
+                     m.grid_begin_ns + static_cast<double>(i_lo) * kCompositeStepNs,
+                     kCompositeStepNs, m.composite.data() + i_lo, i_hi - i_lo);
     }
     // The comparator (and the peak detector) are blanked before blanking_ns.
     const bool gated = m.blanking_ns > 0.0 && m.blanking_ns > m.grid_begin_ns;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
 
 #include "tofkit/physics/constants.hpp"
 
@@ -50,6 +51,37 @@ PulseTemplate::PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double 
   inv_step_ = 1.0 / step_ns;
   last_index_ = static_cast<double>(n - 1);
   end_ns_ = begin_ns_ + last_index_ * step_ns;
+}
+
+void PulseTemplate::add_to(double amplitude, double delay_ns, double t0_ns, double dt_ns,
+                           double* out, std::size_t n) const {
+  const double x0 = (t0_ns - delay_ns - begin_ns_) * inv_step_;
+  const double dx = dt_ns * inv_step_;
+  const double m = std::round(dx);
+  if (m < 1.0 || std::abs(dx - m) > 1e-9 || std::abs(x0) > 1e15) {
+    for (std::size_t k = 0; k < n; ++k)
+      out[k] += amplitude * (*this)(t0_ns + static_cast<double>(k) * dt_ns - delay_ns);
+    return;
+  }
+  // x_k = j0 + f + k m with 0 <= f < 1: nonzero for 0 < x_k < last_index.
+  const double j0_real = std::floor(x0);
+  const double f = x0 - j0_real;
+  const auto j0 = static_cast<std::int64_t>(j0_real);
+  const auto step = static_cast<std::int64_t>(m);
+  const auto last = static_cast<std::int64_t>(last_index_);
+  // First k with x_k > 0, i.e. j_k >= 1 or (j_k == 0 and f > 0).
+  const std::int64_t j_min = f > 0.0 ? 0 : 1;
+  std::int64_t k_begin = 0;
+  if (j0 < j_min) k_begin = (j_min - j0 + step - 1) / step;
+  // Last k + 1 with j_k <= last - 1 (then x_k < last_index and j_k + 1 exists).
+  if (j0 > last - 1) return;
+  const std::int64_t k_end = std::min(static_cast<std::int64_t>(n), (last - 1 - j0) / step + 1);
+  const double a = amplitude * (1.0 - f), b = amplitude * f;
+  const double* v = values_.data();
+  for (std::int64_t k = k_begin; k < k_end; ++k) {
+    const std::int64_t j = j0 + k * step;
+    out[k] += a * v[j] + b * v[j + 1];
+  }
 }
 
 double PulseTemplate::width_at_level_ns(double level) const {

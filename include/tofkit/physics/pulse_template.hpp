@@ -3,6 +3,7 @@
 /// pulse convolved with the receiver's impulse response (two equal real poles,
 /// overall -3 dB bandwidth B; rise time about 0.35 / B).
 
+#include <cstddef>
 #include <vector>
 
 namespace tofkit::physics {
@@ -20,6 +21,13 @@ class PulseTemplate {
     const double f = x - static_cast<double>(i);
     return values_[i] + f * (values_[i + 1] - values_[i]);
   }
+
+  /// out[k] += amplitude * (*this)(t0_ns + k dt_ns - delay_ns) for k < n: a
+  /// delayed, scaled copy added to a sampled waveform. When dt_ns is a whole
+  /// number of the template's steps the interpolation weight is the same at
+  /// every k, and the loop is a strided sum (no per-sample index arithmetic).
+  void add_to(double amplitude, double delay_ns, double t0_ns, double dt_ns, double* out,
+              std::size_t n) const;
 
   [[nodiscard]] double begin_ns() const { return begin_ns_; }  ///< shape is 0 before
   [[nodiscard]] double end_ns() const { return end_ns_; }      ///< and (below 1e-6) after
