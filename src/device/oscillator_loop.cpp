@@ -1,13 +1,12 @@
 #include "tofkit/device/oscillator_loop.hpp"
 
-#include <Random123/philox.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <utility>
 #include <vector>
 
+#include "random_draws.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/physics/air.hpp"
 #include "tofkit/physics/constants.hpp"
@@ -17,30 +16,16 @@ namespace tofkit::device {
 namespace {
 
 using physics::kPi;
-constexpr int kFootprintNodes = 5;  // Gauss-Chebyshev nodes across a tilted footprint
 // Salt that keeps the loop's draws apart from the pulsed core's blocks.
 constexpr std::uint32_t kLoopBlock = 0x4F534331u;  // "OSC1"
 
-/// Counter-based random numbers (Random123 Philox4x32-10), as the pulsed core.
+/// The pulsed core's counter-based draws (Random123 Philox4x32-10).
 std::array<std::uint32_t, 4> philox(std::uint64_t seed, std::uint64_t stream, std::uint32_t index,
                                     std::uint32_t block) {
-  const r123::Philox4x32::key_type key{
-      {static_cast<std::uint32_t>(seed), static_cast<std::uint32_t>(seed >> 32)}};
-  const r123::Philox4x32::ctr_type ctr{
-      {index, block, static_cast<std::uint32_t>(stream), static_cast<std::uint32_t>(stream >> 32)}};
-  const auto r = r123::Philox4x32{}(ctr, key);
-  return {r[0], r[1], r[2], r[3]};
+  return detail::CounterRng(seed).draw(stream, index, block);
 }
-
-double unit_open(std::uint32_t u) {
-  return (static_cast<double>(u >> 8) + 0.5) * (1.0 / 16777216.0);
-}
-
-std::array<double, 2> normal_pair(std::uint32_t a, std::uint32_t b) {
-  const double r = std::sqrt(-2.0 * std::log(unit_open(a)));
-  const double phase = 2.0 * kPi * unit_open(b);
-  return {r * std::cos(phase), r * std::sin(phase)};
-}
+using detail::normal_pair;
+using detail::unit_open;
 
 /// One surface's return: a step of amplitude_v arriving delay_ns after the laser edge.
 struct Step {
@@ -131,17 +116,10 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond) co
       steps.push_back({delay, amplitude});
       continue;
     }
-    double weight_sum = 0;
-    std::array<double, kFootprintNodes> w{};
-    for (int k = 0; k < kFootprintNodes; ++k) {
-      const double x = kPi * (k + 1) / (kFootprintNodes + 1);
-      w[static_cast<std::size_t>(k)] = std::sin(x) * std::sin(x);
-      weight_sum += w[static_cast<std::size_t>(k)];
-    }
-    for (int k = 0; k < kFootprintNodes; ++k) {
-      const double u = std::cos(kPi * (k + 1) / (kFootprintNodes + 1));
-      steps.push_back({delay + 2.0 * u * half_depth_m / c_m_per_ns,
-                       amplitude * w[static_cast<std::size_t>(k)] / weight_sum});
+    const auto& nodes = detail::footprint_nodes();
+    for (std::size_t k = 0; k < nodes.u.size(); ++k) {
+      steps.push_back(
+          {delay + 2.0 * nodes.u[k] * half_depth_m / c_m_per_ns, amplitude * nodes.w[k]});
     }
   }
   std::sort(steps.begin(), steps.end(),
