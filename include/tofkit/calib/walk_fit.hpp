@@ -1,0 +1,60 @@
+#pragma once
+/// \file Fitting the physical walk model (ranging/walk_model.hpp) to range
+/// errors over echo pulse width, by nonlinear least squares
+/// (Levenberg-Marquardt, finite-difference Jacobian):
+///
+///   e_i = constant - (c_air / 2) (t_rise(w_i) - t_rise(w_ref))
+///
+/// over the shape's pulse sigma and pole time constant (log-parameterized, so
+/// they stay positive), and, when the rows include clipped echoes (raw flag
+/// kRawSaturated), the clipping onset ln(V_sat / V) and the recovery time per
+/// e-fold. Without clipped rows neither is observable: the shape then has no
+/// recovery term. Only the data are used (no device configuration): the shape
+/// is what makes the walk of weaker and stronger echoes than the calibration's
+/// predictable.
+
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+
+#include "tofkit/ranging/walk_model.hpp"
+
+namespace tofkit::calib {
+
+struct WalkFitOptions {
+  int max_iterations = 200;
+  /// The clipping onset and recovery are fitted only with at least this many
+  /// rows flagged saturated (and this many unsaturated ones for the shape).
+  std::size_t min_saturated_rows = 3;
+  /// An extra start of the iteration (e.g. the previous backfitting pass),
+  /// tried beside a few starting shapes scaled to the data's widths (the
+  /// least-squares surface has local minima).
+  std::optional<ranging::WalkShape> initial;
+};
+
+struct WalkFitResult {
+  ranging::WalkShape shape;
+  double constant_m = 0;               ///< e at the reference width
+  double reference_pulse_width_ns = 0;  ///< walk correction is zero here
+  double width_min_ns = 0, width_max_ns = 0;  ///< widths fitted on (the step's domain)
+  std::size_t rows = 0;
+  std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
+  double rms_m = 0;                ///< RMS residual of the fit
+  int iterations = 0;
+  bool converged = false;
+  [[nodiscard]] std::string summary() const;
+};
+
+/// `saturated[i]` != 0: row i's echo clipped (kRawSaturated); may be empty
+/// (none clipped). `metres_per_ns`: c_air / 2. Throws std::invalid_argument
+/// for mismatched sizes, fewer than 6 rows, non-finite values or no spread in
+/// pulse width.
+[[nodiscard]] WalkFitResult fit_walk(std::span<const double> pulse_width_ns,
+                                     std::span<const double> error_m,
+                                     std::span<const std::uint8_t> saturated,
+                                     double reference_pulse_width_ns, double metres_per_ns,
+                                     const WalkFitOptions& options = {});
+
+}  // namespace tofkit::calib
