@@ -344,7 +344,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   } else if (steps.grayvalue) {
     g.intercept += constant;  // no offset step: the first hinge carries the constant
   } else if (steps.walk) {
-    result.offset_m = constant;  // no offset step: the walk has no constant, an offset step holds it
+    result.offset_m =
+        constant;  // no offset step: the walk has no constant, an offset step holds it
   } else {
     h.intercept += constant;
   }
@@ -353,10 +354,10 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     result.pipeline.add_step(ranging::make_offset_step(result.offset_m));
   }
   if (steps.walk) {
-    result.pipeline.add_step(ranging::make_walk_step(
-        std::make_shared<const ranging::WalkModel>(*walk_model),
-        {*std::min_element(pulse_width.begin(), pulse_width.end()),
-         *std::max_element(pulse_width.begin(), pulse_width.end())}));
+    result.pipeline.add_step(
+        ranging::make_walk_step(std::make_shared<const ranging::WalkModel>(*walk_model),
+                                {*std::min_element(pulse_width.begin(), pulse_width.end()),
+                                 *std::max_element(pulse_width.begin(), pulse_width.end())}));
   }
   if (steps.grayvalue) {
     result.grayvalue->function = g;

@@ -28,12 +28,14 @@ ranging::WalkShape shape_of(const Eigen::VectorXd& p) {
   return s;
 }
 
-void clamp_parameters(Eigen::VectorXd& p) {
+/// min_log_saturation: the clipping onset is not below the strongest unclipped
+/// echo seen (less a margin for the shape's change).
+void clamp_parameters(Eigen::VectorXd& p, double min_log_saturation) {
   p(1) = std::clamp(p(1), kMinLogTime, kMaxLogTime);
   p(2) = std::clamp(p(2), std::max(kMinLogTime, p(1) - kMaxLogRatio),
                     std::min(kMaxLogTime, p(1) + kMaxLogRatio));
   if (p.size() > 3) {
-    p(3) = std::clamp(p(3), 0.01, ranging::kMaxLogOverdrive - 0.5);
+    p(3) = std::clamp(p(3), std::max(0.01, min_log_saturation), ranging::kMaxLogOverdrive - 0.5);
     p(4) = std::clamp(p(4), -7.0, 5.0);
   }
 }
@@ -42,6 +44,7 @@ struct Problem {
   std::span<const double> w, e;
   std::vector<std::size_t> rows;  ///< rows in this stage
   double reference = 0, metres_per_ns = 0;
+  double min_log_saturation = 0;
 
   /// residual_i = model_i - e_i; false when the shape cannot be tabulated.
   bool residuals(const Eigen::VectorXd& p, Eigen::VectorXd& r) const {
@@ -55,8 +58,7 @@ struct Problem {
     r.resize(static_cast<Eigen::Index>(rows.size()));
     for (std::size_t k = 0; k < rows.size(); ++k) {
       const std::size_t i = rows[k];
-      const double model =
-          p(0) - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
+      const double model = p(0) - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
       r(static_cast<Eigen::Index>(k)) = model - e[i];
     }
     return r.allFinite();
@@ -73,7 +75,7 @@ struct LmResult {
 /// Levenberg-Marquardt with Marquardt's diagonal scaling and a forward-difference Jacobian.
 LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_iterations) {
   LmResult out;
-  clamp_parameters(p);
+  clamp_parameters(p, problem.min_log_saturation);
   Eigen::VectorXd r;
   if (!problem.residuals(p, r)) return out;
   double sse = r.squaredNorm();
@@ -103,7 +105,7 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
       Eigen::MatrixXd a = jtj;
       a.diagonal() += lambda * jtj.diagonal().cwiseMax(1e-12 * jtj.diagonal().maxCoeff());
       Eigen::VectorXd q = p - a.ldlt().solve(gradient);
-      clamp_parameters(q);
+      clamp_parameters(q, problem.min_log_saturation);
       if (problem.residuals(q, r_step) && r_step.squaredNorm() < sse) {
         const double gain = sse - r_step.squaredNorm();
         const double step_size = (q - p).cwiseAbs().maxCoeff();
@@ -136,7 +138,8 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
                        double metres_per_ns, const WalkFitOptions& options) {
   const std::size_t n = pulse_width_ns.size();
   if (error_m.size() != n || (!saturated.empty() && saturated.size() != n)) {
-    throw std::invalid_argument("walk fit: pulse widths, errors and saturation flags differ in size");
+    throw std::invalid_argument(
+        "walk fit: pulse widths, errors and saturation flags differ in size");
   }
   if (n < kMinWalkRows) {
     throw std::invalid_argument("walk fit: " + std::to_string(n) + " rows (needs at least " +
@@ -211,17 +214,34 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     for (std::size_t i : clear) widest_clear = std::max(widest_clear, pulse_width_ns[i]);
     std::size_t k = 0;
     while (k + 1 < curve.width_ns.size() && curve.width_ns[k] < widest_clear) ++k;
-    Eigen::VectorXd p(5);
-    p << best.p(0), best.p(1), best.p(2), curve.log_overdrive[k], 0.0;
-    if (options.initial && std::isfinite(options.initial->saturation_log_overdrive)) {
-      p(3) = options.initial->saturation_log_overdrive;
-      p(4) = std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3));
-    }
+    const double onset = curve.log_overdrive[k];
+    problem.min_log_saturation = onset - 0.3;
     problem.rows.resize(n);
     for (std::size_t i = 0; i < n; ++i) problem.rows[i] = i;
-    best = levenberg_marquardt(problem, p, options.max_iterations);
-    if (!std::isfinite(best.sse)) throw std::invalid_argument("walk fit: clipping did not fit");
-    iterations += best.iterations;
+    std::vector<Eigen::VectorXd> clipped_starts;
+    for (double above : {0.0, 0.7, 1.5}) {
+      for (double recovery_ns : {0.5, 2.0}) {
+        Eigen::VectorXd p(5);
+        p << best.p(0), best.p(1), best.p(2), onset + above, std::log(recovery_ns);
+        clipped_starts.push_back(p);
+      }
+    }
+    if (options.initial && std::isfinite(options.initial->saturation_log_overdrive)) {
+      Eigen::VectorXd p(5);
+      p << best.p(0), best.p(1), best.p(2), options.initial->saturation_log_overdrive,
+          std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3));
+      clipped_starts.push_back(p);
+    }
+    LmResult clipped_best;
+    for (const Eigen::VectorXd& start : clipped_starts) {
+      LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
+      iterations += lm.iterations;
+      if (lm.sse < clipped_best.sse) clipped_best = lm;
+    }
+    if (!std::isfinite(clipped_best.sse)) {
+      throw std::invalid_argument("walk fit: clipping did not fit");
+    }
+    best = clipped_best;
   }
   result.shape = shape_of(best.p);
   result.constant_m = best.p(0);

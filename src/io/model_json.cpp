@@ -173,8 +173,8 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
       ranging::WalkShape shape;
       shape.pulse_sigma_ns = number(sj, "pulse_sigma_ns", sw);
       shape.pole_time_constant_ns = number(sj, "pole_time_constant_ns", sw);
-      shape.saturation_log_overdrive = number_or(sj, "saturation_log_overdrive", sw,
-                                                 std::numeric_limits<double>::infinity());
+      shape.saturation_log_overdrive =
+          number_or(sj, "saturation_log_overdrive", sw, std::numeric_limits<double>::infinity());
       shape.recovery_ns_per_neper = number(sj, "recovery_ns_per_neper", sw);
       try {
         step.walk = std::make_shared<const ranging::WalkModel>(

@@ -76,8 +76,7 @@ void add_walk(const WalkModel& walk, const InputDomain& domain, double metres_pe
   walk.relative_rise_ns(b.pulse_width.data(), rise, n);
   for (std::size_t i = 0; i < n; ++i) {
     b.distance[i] -= metres_per_ns * rise[i];
-    b.outside[i] =
-        std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
+    b.outside[i] = std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
   }
 }
 

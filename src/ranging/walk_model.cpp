@@ -50,8 +50,9 @@ void WalkShape::validate() const {
   };
   positive(pulse_sigma_ns, "pulse_sigma_ns");
   positive(pole_time_constant_ns, "pole_time_constant_ns");
-  if (pulse_sigma_ns / pole_time_constant_ns > 1e3 || pole_time_constant_ns / pulse_sigma_ns > 1e3 ||
-      pulse_sigma_ns > 1e3 || pole_time_constant_ns > 1e3) {
+  if (pulse_sigma_ns / pole_time_constant_ns > 1e3 ||
+      pole_time_constant_ns / pulse_sigma_ns > 1e3 || pulse_sigma_ns > 1e3 ||
+      pole_time_constant_ns > 1e3) {
     throw std::invalid_argument(
         "walk shape: pulse_sigma_ns and pole_time_constant_ns must be within a factor 1000 of "
         "each other and at most 1000 ns");
@@ -106,7 +107,8 @@ double rise_at_width(const WalkCurve& c, double width_ns) {
   const std::vector<double>& w = c.width_ns;
   if (std::isnan(width_ns)) return width_ns;
   if (width_ns <= w.front()) return c.rise_ns.front();
-  std::size_t k = static_cast<std::size_t>(std::upper_bound(w.begin(), w.end(), width_ns) - w.begin());
+  std::size_t k =
+      static_cast<std::size_t>(std::upper_bound(w.begin(), w.end(), width_ns) - w.begin());
   k = std::min(k, w.size() - 1);  // beyond the last width: the last segment continued
   const double f = (width_ns - w[k - 1]) / (w[k] - w[k - 1]);
   return c.rise_ns[k - 1] + f * (c.rise_ns[k] - c.rise_ns[k - 1]);

@@ -36,8 +36,8 @@ struct WalkFitOptions {
 
 struct WalkFitResult {
   ranging::WalkShape shape;
-  double constant_m = 0;               ///< e at the reference width
-  double reference_pulse_width_ns = 0;  ///< walk correction is zero here
+  double constant_m = 0;                      ///< e at the reference width
+  double reference_pulse_width_ns = 0;        ///< walk correction is zero here
   double width_min_ns = 0, width_max_ns = 0;  ///< widths fitted on (the step's domain)
   std::size_t rows = 0;
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)

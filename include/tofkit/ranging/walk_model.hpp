@@ -88,7 +88,7 @@ class WalkModel {
   double width_max_ns_ = 0;
   double inv_step_ = 0;
   double step_ = 0;
-  double slope_above_ = 0;  ///< d rise / d w beyond the last node
+  double slope_above_ = 0;    ///< d rise / d w beyond the last node
   std::vector<double> rise_;  ///< relative rise at width k * step_
 };
 
