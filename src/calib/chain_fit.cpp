@@ -14,6 +14,10 @@ namespace tofkit::calib {
 namespace {
 
 constexpr std::size_t kMinChainRows = 10;
+/// The walk's nonlinear fit settles to about this (its finite-difference
+/// Jacobian and tabulated shape): backfitting with a walk step stops when no
+/// walk value changes by more than this either (10 um, far below any figure).
+constexpr double kWalkTolerance_m = 1e-5;
 /// Largest |value| a fit accepts: squares and sums of squares over any
 /// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
 /// value is a corrupt cell, not a measurement.
@@ -287,6 +291,10 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       const Eigen::VectorXd values = walk_values(spw);
       walk_change = (values - walk_part).cwiseAbs().maxCoeff();
       walk_part = values;
+      // The temperature hinge's knots are searched on e - walk (the walk carries the constant).
+      for (std::size_t i = 0; i < ns; ++i) {
+        g_values[i] = walk.constant_m + values(static_cast<Eigen::Index>(i));
+      }
       result.walk = walk;
     }
     if (steps.temperature) {
@@ -316,9 +324,12 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       return true;
     };
     // One hinge (or none) is solved in one pass; two when knots and h settle.
+    // With a walk step, when the walk and h values settle: the walk's
+    // micrometre-level jitter may move a temperature knot without changing the fit.
+    const double walk_tolerance = std::max(options.backfit_tolerance_m, kWalkTolerance_m);
     if (!(width_step && steps.temperature) ||
-        (it > 1 && change < options.backfit_tolerance_m &&
-         walk_change < options.backfit_tolerance_m && same(g_knots, old_g_knots, 1e-6) &&
+        (it > 1 && steps.walk && change < walk_tolerance && walk_change < walk_tolerance) ||
+        (it > 1 && change < options.backfit_tolerance_m && same(g_knots, old_g_knots, 1e-6) &&
          same(h_knots, old_h_knots, 1e-6))) {
       result.converged = true;
       break;

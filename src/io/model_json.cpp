@@ -306,6 +306,17 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
               {"after", stats_json(chain.after)}};
     if (chain.grayvalue) c["grayvalue"] = hinge_json(*chain.grayvalue);
     if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
+    if (chain.walk) {
+      const calib::WalkFitResult& w = *chain.walk;
+      c["walk"] = {{"pulse_sigma_ns", w.shape.pulse_sigma_ns},
+                   {"pole_time_constant_ns", w.shape.pole_time_constant_ns},
+                   {"saturation_log_overdrive", finite_or_null(w.shape.saturation_log_overdrive)},
+                   {"recovery_ns_per_neper", w.shape.recovery_ns_per_neper},
+                   {"rows_clipped", w.saturated_rows},
+                   {"rms_m", w.rms_m},
+                   {"iterations", w.iterations},
+                   {"converged", w.converged}};
+    }
     j["chain"] = c;
   }
   if (s.walk) {
