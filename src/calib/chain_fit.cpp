@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -259,6 +260,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   std::vector<double> g_values(ns, 0.0), h_values(ns, 0.0), partial(ns);
   std::vector<double> g_knots, h_knots;
   Eigen::VectorXd walk_part = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ns));
+  double last_walk_change = std::numeric_limits<double>::infinity();
   Eigen::Index g_first = 1, h_first = 1;
   RobustLinearFit joint;
   const auto joint_design = [&](const std::vector<double>& pw, const std::vector<double>& t) {
@@ -286,11 +288,16 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - h_values[i];
       WalkFitOptions walk_options;
       if (result.walk) walk_options.initial = result.walk->shape;
+      // Searched afresh while the walk still moves by more than 0.1 mm (the
+      // first passes see e with a rough h, and may start in a poor valley);
+      // then only refined from the previous pass.
+      walk_options.multistart = !result.walk || last_walk_change > 1e-4;
       const WalkFitResult walk = fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options);
       walk_model.emplace(walk.shape, ref_g);
       const Eigen::VectorXd values = walk_values(spw);
       walk_change = (values - walk_part).cwiseAbs().maxCoeff();
       walk_part = values;
+      last_walk_change = walk_change;
       // The temperature hinge's knots are searched on e - walk (the walk carries the constant).
       for (std::size_t i = 0; i < ns; ++i) {
         g_values[i] = walk.constant_m + values(static_cast<Eigen::Index>(i));

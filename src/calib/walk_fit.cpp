@@ -186,7 +186,7 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
         std::log(options.initial->pole_time_constant_ns);
     starts.push_back(p);
   }
-  {
+  if (!options.initial || options.multistart) {
     double w_mid = 0;
     for (std::size_t i : problem.rows) w_mid += pulse_width_ns[i];
     w_mid = std::max(w_mid / static_cast<double>(problem.rows.size()), 1e-3);
@@ -230,7 +230,11 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
       Eigen::VectorXd p(5);
       p << best.p(0), best.p(1), best.p(2), options.initial->saturation_log_overdrive,
           std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3));
-      clipped_starts.push_back(p);
+      if (options.multistart) {
+        clipped_starts.push_back(p);
+      } else {
+        clipped_starts.assign(1, p);
+      }
     }
     LmResult clipped_best;
     for (const Eigen::VectorXd& start : clipped_starts) {

@@ -28,10 +28,12 @@ struct WalkFitOptions {
   /// The clipping onset and recovery are fitted only with at least this many
   /// rows flagged saturated (and this many unsaturated ones for the shape).
   std::size_t min_saturated_rows = 3;
-  /// An extra start of the iteration (e.g. the previous backfitting pass),
-  /// tried beside a few starting shapes scaled to the data's widths (the
-  /// least-squares surface has local minima).
+  /// Start of the iteration (e.g. the previous backfitting pass); without it
+  /// (or with multistart) a few starting shapes scaled to the data's widths
+  /// are tried as well and the best kept (the least-squares surface has local
+  /// minima).
   std::optional<ranging::WalkShape> initial;
+  bool multistart = true;
 };
 
 struct WalkFitResult {
