@@ -180,7 +180,9 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     e.push_back(r.truth.distance_m - start);
     pulse_width.push_back(r.raw.pulse_width_ns);
     temperature.push_back(r.raw.temperature_c);
-    saturated.push_back((r.raw.flags & ranging::kRawSaturated) != 0 ? 1 : 0);
+    saturated.push_back(static_cast<std::uint8_t>(
+        ((r.raw.flags & ranging::kRawSaturated) != 0 ? kWalkRowClipped : 0) |
+        ((r.raw.flags & ranging::kRawPartialEchoes) != 0 ? kWalkRowPartial : 0)));
   }
   const std::size_t n = e.size();
   result.rows = n;
@@ -258,6 +260,15 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       Eigen::Map<const Eigen::VectorXd>(se.data(), static_cast<Eigen::Index>(ns));
   const RobustOptions robust = joint_robust_options(steps, g_options.robust, h_options.robust);
   std::vector<double> g_values(ns, 0.0), h_values(ns, 0.0), partial(ns);
+  if (steps.walk && steps.temperature) {
+    // The walk's nonlinear fit has local minima: its first pass must not see
+    // the temperature drift as walk. Start h from the hinge chain (robust,
+    // linear in its coefficients) fitted on the same rows.
+    ChainFitOptions hinge_options = options;
+    hinge_options.steps = ChainSteps{true, true, true, false};
+    const ChainFitResult hinge = fit_chain(records, hinge_options);
+    for (std::size_t i = 0; i < ns; ++i) h_values[i] = hinge.temperature->function(st[i]);
+  }
   std::vector<double> g_knots, h_knots;
   Eigen::VectorXd walk_part = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ns));
   double last_walk_change = std::numeric_limits<double>::infinity();
@@ -374,8 +385,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   if (steps.walk) {
     result.pipeline.add_step(
         ranging::make_walk_step(std::make_shared<const ranging::WalkModel>(*walk_model),
-                                {*std::min_element(pulse_width.begin(), pulse_width.end()),
-                                 *std::max_element(pulse_width.begin(), pulse_width.end())}));
+                                // The widths the walk was fitted on (full echoes).
+                                {result.walk->width_min_ns, result.walk->width_max_ns}));
   }
   if (steps.grayvalue) {
     result.grayvalue->function = g;

@@ -7,9 +7,11 @@
 ///
 /// over the shape's pulse sigma and pole time constant (log-parameterized, so
 /// they stay positive), and, when the rows include clipped echoes (raw flag
-/// kRawSaturated), the clipping onset ln(V_sat / V) and the recovery time per
-/// e-fold. Without clipped rows neither is observable: the shape then has no
-/// recovery term. Only the data are used (no device configuration): the shape
+/// kRawSaturated), the recovery time per e-fold of overdrive and the clipping
+/// onset, fitted as the pulse width where clipping starts, kept by the flags
+/// between the widest unclipped and the narrowest clipped echo (and turned into
+/// ln(V_sat / V) by the shape). Without
+/// clipped rows neither is observable: the shape then has no recovery term. Only the data are used (no device configuration): the shape
 /// is what makes the walk of weaker and stronger echoes than the calibration's
 /// predictable.
 
@@ -22,6 +24,9 @@
 #include "tofkit/ranging/walk_model.hpp"
 
 namespace tofkit::calib {
+
+/// Bits of fit_walk's row status.
+enum WalkRowStatus : std::uint8_t { kWalkRowClipped = 1, kWalkRowPartial = 2 };
 
 struct WalkFitOptions {
   int max_iterations = 200;
@@ -41,7 +46,8 @@ struct WalkFitResult {
   double constant_m = 0;                      ///< e at the reference width
   double reference_pulse_width_ns = 0;        ///< walk correction is zero here
   double width_min_ns = 0, width_max_ns = 0;  ///< widths fitted on (the step's domain)
-  std::size_t rows = 0;
+  std::size_t rows = 0;                       ///< rows fitted (partial-echo rows are not)
+  std::size_t partial_rows = 0;               ///< rows left out: not every shot gave an echo
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
   double rms_m = 0;                ///< RMS residual of the fit
   int iterations = 0;
@@ -49,13 +55,16 @@ struct WalkFitResult {
   [[nodiscard]] std::string summary() const;
 };
 
-/// `saturated[i]` != 0: row i's echo clipped (kRawSaturated); may be empty
-/// (none clipped). `metres_per_ns`: c_air / 2. Throws std::invalid_argument
-/// for mismatched sizes, fewer than 6 rows, non-finite values or no spread in
-/// pulse width.
+/// `status[i]`: kWalkRowClipped when row i's echo clipped (kRawSaturated),
+/// kWalkRowPartial when not every shot gave an echo (kRawPartialEchoes: the
+/// mean over the shots that crossed is biased by which shots crossed, which a
+/// noise-free crossing does not model; such rows are not fitted); may be
+/// empty (all plain). `metres_per_ns`: c_air / 2. Throws std::invalid_argument
+/// for mismatched sizes, fewer than 6 rows (without partial echoes), non-finite values or no spread
+/// in pulse width.
 [[nodiscard]] WalkFitResult fit_walk(std::span<const double> pulse_width_ns,
                                      std::span<const double> error_m,
-                                     std::span<const std::uint8_t> saturated,
+                                     std::span<const std::uint8_t> status,
                                      double reference_pulse_width_ns, double metres_per_ns,
                                      const WalkFitOptions& options = {});
 
