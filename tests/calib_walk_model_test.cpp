@@ -226,6 +226,47 @@ TEST(WalkModel, FitRecoversAKnownShapeAndExtrapolates) {
   }
 }
 
+// The same with clipping: rows above ln a = 4 flagged clipped (2 ns of extra
+// width per e-fold), and a few partial-echo rows with a wrong error that must
+// not be fitted. The recovery is found and the walk predicted for echoes far
+// stronger than any fitted.
+TEST(WalkModel, FitRecoversClippingFromFlaggedRows) {
+  const ranging::WalkShape truth{0.6, 1.1, 4.0, 2.0};
+  const ranging::WalkCurve curve = ranging::walk_curve(truth);
+  std::mt19937_64 rng(6);
+  std::normal_distribution<double> noise(0.0, 2e-4);
+  std::vector<double> w, e;
+  std::vector<std::uint8_t> status;
+  for (double log_a = 1.5; log_a <= 6.0; log_a += 0.05) {
+    w.push_back(interpolate(curve.log_overdrive, curve.width_ns, log_a));
+    e.push_back(-0.2 - kMetresPerNs * interpolate(curve.log_overdrive, curve.rise_ns, log_a) +
+                noise(rng));
+    status.push_back(log_a > 4.0 ? calib::kWalkRowClipped : 0);
+  }
+  for (int k = 0; k < 5; ++k) {  // partial echoes, 50 mm off: left out
+    w.push_back(1.0 + 0.1 * k);
+    e.push_back(0.05);
+    status.push_back(calib::kWalkRowPartial);
+  }
+  const calib::WalkFitResult fit = calib::fit_walk(w, e, status, 5.0, kMetresPerNs);
+  EXPECT_EQ(fit.partial_rows, 5u);
+  EXPECT_GT(fit.saturated_rows, 30u);
+  // Only the map width -> walk is observable, not the scale of ln a: the
+  // shape and onset trade off a little (e.g. sigma 0.62, tau 1.23, onset 3.5),
+  // the recovery (extra width per e-fold) much less.
+  EXPECT_NEAR(fit.shape.recovery_ns_per_neper, truth.recovery_ns_per_neper, 0.5) << fit.summary();
+  EXPECT_LE(fit.rms_m, 3e-4) << fit.summary();
+  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
+  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
+  for (double log_a = 0.2; log_a <= 9.0; log_a += 0.2) {
+    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
+    const double true_walk =
+        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
+    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
+        << "ln a " << log_a << ", width " << width << " ns";
+  }
+}
+
 TEST(WalkModel, CurveIsMonotoneAndClippingWidens) {
   ranging::WalkShape shape{0.7, 1.0};
   const ranging::WalkCurve free = ranging::walk_curve(shape);
