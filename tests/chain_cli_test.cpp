@@ -232,7 +232,7 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
                  "no spread in temperature_c (all 21.00 C)");
   expect_failure(records, "offset,tilt", "--chain offset,tilt: unknown chain step \"tilt\"");
   expect_failure(records, "offset,grayvalue,walk",
-                 "grayvalue and walk both correct the pulse width");
+                 "--chain offset,grayvalue,walk: chain steps grayvalue and walk both");
 
   // A model that cannot be read is named, and nothing is written.
   std::ofstream(path("broken.json")) << "{\"kind\": \"tofkit.pipeline\", \"version\": 1}";
