@@ -230,7 +230,9 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   for (auto& r : flat_t) r.raw.temperature_c = 21.0;
   expect_failure(flat_t, "offset,grayvalue,temperature",
                  "no spread in temperature_c (all 21.00 C)");
-  expect_failure(records, "offset,walk", "--chain offset,walk: unknown chain step \"walk\"");
+  expect_failure(records, "offset,tilt", "--chain offset,tilt: unknown chain step \"tilt\"");
+  expect_failure(records, "offset,grayvalue,walk",
+                 "--chain offset,grayvalue,walk: chain steps grayvalue and walk both");
 
   // A model that cannot be read is named, and nothing is written.
   std::ofstream(path("broken.json")) << "{\"kind\": \"tofkit.pipeline\", \"version\": 1}";

@@ -314,7 +314,7 @@ TEST(Pipeline, ValidatesSteps) {
   EXPECT_THROW(p.add_step(make_grayvalue_step(PiecewiseLinear{}, {2.0, 1.0})),
                std::invalid_argument);
   EXPECT_EQ(step_kind_from_name("temperature"), StepKind::kTemperature);
-  EXPECT_THROW((void)step_kind_from_name("walk"), std::invalid_argument);
+  EXPECT_THROW((void)step_kind_from_name("tilt"), std::invalid_argument);
 }
 
 // ---- fixed point ----
@@ -503,7 +503,7 @@ TEST(ModelJson, ErrorsNameTheFileAndField) {
   EXPECT_NE(load_error(j.dump()).find("model.json.version: unsupported version 7"),
             std::string::npos);
   j = io::pipeline_to_json(paper_pipeline());
-  j["steps"][0]["kind"] = "walk";
+  j["steps"][0]["kind"] = "tilt";
   EXPECT_NE(load_error(j.dump()).find("model.json.steps[0].kind"), std::string::npos);
   j = io::pipeline_to_json(paper_pipeline());
   j["steps"][2]["function"]["slopes"] = nlohmann::json::array();

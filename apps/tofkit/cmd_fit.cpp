@@ -235,7 +235,9 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
   sub.add_option("--in", o->in, "raw CSV with ground truth (calibration data)")->required();
   sub.add_option("--out", o->out, "model file to write (JSON)")->required();
   sub.add_option("--chain", o->chain,
-                 "chain steps to fit: any of offset,grayvalue,temperature (paper Section 5)");
+                 "chain steps to fit: any of offset,grayvalue,temperature (paper Section 5); "
+                 "walk instead of grayvalue: a physical walk model (pulse shape through the "
+                 "threshold) that extrapolates beyond the calibration's pulse widths");
   sub.add_option("--surface", o->surface,
                  "correction surface: poly:N (thesis Section 4.6) or bspline; after --chain it "
                  "fits the chain's residual");

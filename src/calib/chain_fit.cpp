@@ -2,7 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <limits>
+#include <memory>
+#include <optional>
 #include <stdexcept>
 #include <utility>
 #include <vector>
@@ -11,6 +15,10 @@ namespace tofkit::calib {
 namespace {
 
 constexpr std::size_t kMinChainRows = 10;
+/// The walk's nonlinear fit settles to about this (its finite-difference
+/// Jacobian and tabulated shape): backfitting with a walk step stops when no
+/// walk value changes by more than this either (10 um, far below any figure).
+constexpr double kWalkTolerance_m = 1e-5;
 /// Largest |value| a fit accepts: squares and sums of squares over any
 /// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
 /// value is a corrupt cell, not a measurement.
@@ -87,6 +95,7 @@ double hinge_from_coefficients(const Eigen::VectorXd& beta, Eigen::Index first, 
 /// in the joint solve either.
 RobustOptions joint_robust_options(const ChainSteps& steps, const RobustOptions& g,
                                    const RobustOptions& h) {
+  if (steps.walk && !steps.temperature) return RobustOptions{.loss = RobustLoss::kNone};
   if (!steps.grayvalue) return h;
   if (!steps.temperature) return g;
   return static_cast<int>(h.loss) < static_cast<int>(g.loss) ? h : g;
@@ -106,10 +115,11 @@ ChainSteps parse_chain_steps(std::string_view list) {
     bool* flag = name == "offset"        ? &steps.offset
                  : name == "grayvalue"   ? &steps.grayvalue
                  : name == "temperature" ? &steps.temperature
+                 : name == "walk"        ? &steps.walk
                                          : nullptr;
     if (flag == nullptr) {
       throw std::invalid_argument("unknown chain step \"" + std::string(name) +
-                                  "\" (expected offset, grayvalue, temperature)");
+                                  "\" (expected offset, grayvalue or walk, temperature)");
     }
     if (*flag) throw std::invalid_argument("chain step \"" + std::string(name) + "\" given twice");
     *flag = true;
@@ -117,6 +127,10 @@ ChainSteps parse_chain_steps(std::string_view list) {
     begin = comma + 1;
   }
   if (!any) throw std::invalid_argument("empty chain step list");
+  if (steps.grayvalue && steps.walk) {
+    throw std::invalid_argument(
+        "chain steps grayvalue and walk both correct the pulse width: give one of them");
+  }
   return steps;
 }
 
@@ -129,20 +143,26 @@ std::string to_string(const ChainSteps& steps) {
   };
   add(steps.offset, "offset");
   add(steps.grayvalue, "grayvalue");
+  add(steps.walk, "walk");
   add(steps.temperature, "temperature");
   return s;
 }
 
 ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFitOptions& options) {
   const ChainSteps& steps = options.steps;
-  if (!steps.offset && !steps.grayvalue && !steps.temperature) {
+  if (!steps.offset && !steps.grayvalue && !steps.temperature && !steps.walk) {
     throw std::invalid_argument("chain fit: no step selected");
   }
+  if (steps.grayvalue && steps.walk) {
+    throw std::invalid_argument("chain fit: grayvalue and walk both correct the pulse width");
+  }
+  const bool width_step = steps.grayvalue || steps.walk;
   ChainFitResult result;
   result.pipeline = ranging::Pipeline(options.time_to_distance);
 
   // Usable rows and the error to model, e = true - c_air tof / 2.
   std::vector<double> e, pulse_width, temperature;
+  std::vector<std::uint8_t> saturated;
   std::vector<std::size_t> used;
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
@@ -150,34 +170,38 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
     require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
     require_fit_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
-    if (steps.grayvalue) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (width_step) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
     if (steps.temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
     const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
-                    (!steps.grayvalue || std::isfinite(r.raw.pulse_width_ns)) &&
+                    (!width_step || std::isfinite(r.raw.pulse_width_ns)) &&
                     (!steps.temperature || std::isfinite(r.raw.temperature_c));
     if (!ok) continue;
     used.push_back(i);
     e.push_back(r.truth.distance_m - start);
     pulse_width.push_back(r.raw.pulse_width_ns);
     temperature.push_back(r.raw.temperature_c);
+    saturated.push_back(static_cast<std::uint8_t>(
+        ((r.raw.flags & ranging::kRawSaturated) != 0 ? kWalkRowClipped : 0) |
+        ((r.raw.flags & ranging::kRawPartialEchoes) != 0 ? kWalkRowPartial : 0)));
   }
   const std::size_t n = e.size();
   result.rows = n;
   result.rows_skipped = records.size() - n;
   const std::size_t min_parameters =
-      (steps.offset ? 1 : 0) + (steps.grayvalue ? 2 : 0) + (steps.temperature ? 2 : 0);
+      (steps.offset ? 1 : 0) + (width_step ? 2 : 0) + (steps.temperature ? 2 : 0);
   if (n < std::max(kMinChainRows, min_parameters)) {
     std::string needs = "an echo and finite distance_true_m and tof_ns (or distance_raw_m)";
-    if (steps.grayvalue) needs += ", pulse_width_ns";
+    if (width_step) needs += ", pulse_width_ns";
     if (steps.temperature) needs += ", temperature_c";
     throw std::invalid_argument("too few rows: " + std::to_string(n) + " usable of " +
                                 std::to_string(records.size()) + " (the chain fit needs at least " +
                                 std::to_string(std::max(kMinChainRows, min_parameters)) +
                                 " rows with " + needs + ")");
   }
-  if (steps.grayvalue) {
+  if (width_step) {
     require_spread(pulse_width, "pulse_width_ns", "ns",
-                   "the grayvalue step needs plates of different reflectance");
+                   std::string("the ") + (steps.walk ? "walk" : "grayvalue") +
+                       " step needs plates of different reflectance");
   }
   if (steps.temperature) {
     require_spread(temperature, "temperature_c", "C",
@@ -210,11 +234,23 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   const std::size_t ns = search.size();
   result.knot_search_rows = ns;
   std::vector<double> se(ns), spw(ns), st(ns);
+  std::vector<std::uint8_t> ssat(ns);
   for (std::size_t j = 0; j < ns; ++j) {
     se[j] = e[search[j]];
     spw[j] = pulse_width[search[j]];
     st[j] = temperature[search[j]];
+    ssat[j] = saturated[search[j]];
   }
+  const double metres_per_ns = ranging::metres_per_ns(options.time_to_distance);
+  // The walk correction at the rows' widths (zero at the reference width).
+  std::optional<ranging::WalkModel> walk_model;
+  const auto walk_values = [&](const std::vector<double>& pw) {
+    Eigen::VectorXd v(static_cast<Eigen::Index>(pw.size()));
+    for (std::size_t i = 0; i < pw.size(); ++i) {
+      v(static_cast<Eigen::Index>(i)) = -metres_per_ns * walk_model->relative_rise_ns(pw[i]);
+    }
+    return v;
+  };
 
   // Backfitting over the knots with joint coefficients: each iteration
   // searches the knots of g on e - h and of h on e - g (1-D hinge fits, which
@@ -224,7 +260,18 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       Eigen::Map<const Eigen::VectorXd>(se.data(), static_cast<Eigen::Index>(ns));
   const RobustOptions robust = joint_robust_options(steps, g_options.robust, h_options.robust);
   std::vector<double> g_values(ns, 0.0), h_values(ns, 0.0), partial(ns);
+  if (steps.walk && steps.temperature) {
+    // The walk's nonlinear fit has local minima: its first pass must not see
+    // the temperature drift as walk. Start h from the hinge chain (robust,
+    // linear in its coefficients) fitted on the same rows.
+    ChainFitOptions hinge_options = options;
+    hinge_options.steps = ChainSteps{true, true, true, false};
+    const ChainFitResult hinge = fit_chain(records, hinge_options);
+    for (std::size_t i = 0; i < ns; ++i) h_values[i] = hinge.temperature->function(st[i]);
+  }
   std::vector<double> g_knots, h_knots;
+  Eigen::VectorXd walk_part = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(ns));
+  double last_walk_change = std::numeric_limits<double>::infinity();
   Eigen::Index g_first = 1, h_first = 1;
   RobustLinearFit joint;
   const auto joint_design = [&](const std::vector<double>& pw, const std::vector<double>& t) {
@@ -245,6 +292,29 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       g_knots = result.grayvalue->knots;
       for (std::size_t i = 0; i < ns; ++i) g_values[i] = result.grayvalue->function(spw[i]);
     }
+    double walk_change = 0;
+    if (steps.walk) {
+      // The walk's shape by nonlinear least squares on e - h (warm start from
+      // the previous pass); the joint linear solve then fits e - walk.
+      for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - h_values[i];
+      WalkFitOptions walk_options;
+      if (result.walk) walk_options.initial = result.walk->shape;
+      // Searched afresh while the walk still moves by more than 0.1 mm (the
+      // first passes see e with a rough h, and may start in a poor valley);
+      // then only refined from the previous pass.
+      walk_options.multistart = !result.walk || last_walk_change > 1e-4;
+      const WalkFitResult walk = fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options);
+      walk_model.emplace(walk.shape, ref_g);
+      const Eigen::VectorXd values = walk_values(spw);
+      walk_change = (values - walk_part).cwiseAbs().maxCoeff();
+      walk_part = values;
+      last_walk_change = walk_change;
+      // The temperature hinge's knots are searched on e - walk (the walk carries the constant).
+      for (std::size_t i = 0; i < ns; ++i) {
+        g_values[i] = walk.constant_m + values(static_cast<Eigen::Index>(i));
+      }
+      result.walk = walk;
+    }
     if (steps.temperature) {
       for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - g_values[i];
       result.temperature = fit_hinge(st, partial, h_options);
@@ -253,7 +323,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     // Joint robust least squares with the knots fixed: [1, g basis, h basis].
     const Eigen::MatrixXd design = joint_design(spw, st);
     const Eigen::Index columns = design.cols();
-    joint = robust_linear_fit(design, sev, robust);
+    joint = robust_linear_fit(design, sev - walk_part, robust);
     // Partial fits for the next iteration: g carries the constant, h its own basis only.
     const Eigen::VectorXd h_part =
         design.rightCols(columns - h_first) * joint.coefficients.tail(columns - h_first);
@@ -272,7 +342,11 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       return true;
     };
     // One hinge (or none) is solved in one pass; two when knots and h settle.
-    if (!(steps.grayvalue && steps.temperature) ||
+    // With a walk step, when the walk and h values settle: the walk's
+    // micrometre-level jitter may move a temperature knot without changing the fit.
+    const double walk_tolerance = std::max(options.backfit_tolerance_m, kWalkTolerance_m);
+    if (!(width_step && steps.temperature) ||
+        (it > 1 && steps.walk && change < walk_tolerance && walk_change < walk_tolerance) ||
         (it > 1 && change < options.backfit_tolerance_m && same(g_knots, old_g_knots, 1e-6) &&
          same(h_knots, old_h_knots, 1e-6))) {
       result.converged = true;
@@ -283,7 +357,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     // All rows, the knots found: one joint robust solve.
     const Eigen::VectorXd ev =
         Eigen::Map<const Eigen::VectorXd>(e.data(), static_cast<Eigen::Index>(n));
-    joint = robust_linear_fit(joint_design(pulse_width, temperature), ev, robust);
+    const Eigen::VectorXd target = steps.walk ? Eigen::VectorXd(ev - walk_values(pulse_width)) : ev;
+    joint = robust_linear_fit(joint_design(pulse_width, temperature), target, robust);
   }
   result.rows_downweighted = static_cast<std::size_t>((joint.weights.array() < 0.5).count());
 
@@ -297,11 +372,22 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     result.offset_m = constant;
   } else if (steps.grayvalue) {
     g.intercept += constant;  // no offset step: the first hinge carries the constant
+  } else if (steps.walk) {
+    result.offset_m =
+        constant;  // no offset step: the walk has no constant, an offset step holds it
   } else {
     h.intercept += constant;
   }
 
-  if (steps.offset) result.pipeline.add_step(ranging::make_offset_step(result.offset_m));
+  if (steps.offset || (steps.walk && !steps.offset)) {
+    result.pipeline.add_step(ranging::make_offset_step(result.offset_m));
+  }
+  if (steps.walk) {
+    result.pipeline.add_step(
+        ranging::make_walk_step(std::make_shared<const ranging::WalkModel>(*walk_model),
+                                // The widths the walk was fitted on (full echoes).
+                                {result.walk->width_min_ns, result.walk->width_max_ns}));
+  }
   if (steps.grayvalue) {
     result.grayvalue->function = g;
     result.pipeline.add_step(
@@ -352,6 +438,7 @@ std::string ChainFitResult::summary() const {
                 converged ? "converged" : "did NOT converge", backfit_iterations, offset_m * 1e3);
   s += buffer;
   if (grayvalue) s += "  grayvalue:   " + grayvalue->summary() + "\n";
+  if (walk) s += "  walk:        " + walk->summary() + "\n";
   if (temperature) s += "  temperature: " + temperature->summary() + "\n";
   std::snprintf(buffer, sizeof buffer,
                 "  error before: bias %.3f mm, RMS %.3f mm; after: bias %.3f mm, RMS %.3f mm "

@@ -2,7 +2,9 @@
 
 #include <cmath>
 #include <fstream>
+#include <initializer_list>
 #include <limits>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -53,6 +55,18 @@ std::string text(const json& j, const char* key, const std::string& where) {
   return v.get<std::string>();
 }
 
+/// A walk step's objects are read strictly: a key this reader does not know is
+/// an error naming it (a misspelt parameter must not silently fall back).
+void refuse_unknown_keys(const json& j, const std::string& where,
+                         std::initializer_list<const char*> known) {
+  if (!j.is_object()) fail(where, "expected an object");
+  for (const auto& [key, value] : j.items()) {
+    bool ok = false;
+    for (const char* k : known) ok = ok || key == k;
+    if (!ok) fail(where + "." + key, "unknown key");
+  }
+}
+
 json fit_to_json(const ranging::StepFitInfo& fit) {
   return {{"rows", fit.rows}, {"residual_rms_m", finite_or_null(fit.residual_rms_m)}};
 }
@@ -96,6 +110,18 @@ json step_to_json(const ranging::Step& step) {
     case ranging::StepKind::kSurface:
       j["surface"] = surface_to_json(*step.surface);
       break;
+    case ranging::StepKind::kWalk: {
+      const ranging::WalkShape& shape = step.walk->shape();
+      j["input"] = "pulse_width_ns";
+      j["shape"] = {{"pulse_sigma_ns", shape.pulse_sigma_ns},
+                    {"pole_time_constant_ns", shape.pole_time_constant_ns},
+                    {"saturation_log_overdrive", finite_or_null(shape.saturation_log_overdrive)},
+                    {"recovery_ns_per_neper", shape.recovery_ns_per_neper}};
+      j["reference_pulse_width_ns"] = step.walk->reference_pulse_width_ns();
+      j["domain"] = {{"min", finite_or_null(step.domain.min)},
+                     {"max", finite_or_null(step.domain.max)}};
+      break;
+    }
   }
   j["fit"] = fit_to_json(step.fit);
   return j;
@@ -133,6 +159,37 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
     case ranging::StepKind::kSurface:
       step.surface = surface_from_json(field(j, "surface", where), where + ".surface");
       break;
+    case ranging::StepKind::kWalk: {
+      refuse_unknown_keys(j, where,
+                          {"kind", "input", "shape", "reference_pulse_width_ns", "domain", "fit"});
+      if (text(j, "input", where) != "pulse_width_ns") {
+        fail(where + ".input", "a walk step's input is \"pulse_width_ns\"");
+      }
+      const std::string sw = where + ".shape";
+      const json& sj = field(j, "shape", where);
+      refuse_unknown_keys(sj, sw,
+                          {"pulse_sigma_ns", "pole_time_constant_ns", "saturation_log_overdrive",
+                           "recovery_ns_per_neper"});
+      ranging::WalkShape shape;
+      shape.pulse_sigma_ns = number(sj, "pulse_sigma_ns", sw);
+      shape.pole_time_constant_ns = number(sj, "pole_time_constant_ns", sw);
+      shape.saturation_log_overdrive =
+          number_or(sj, "saturation_log_overdrive", sw, std::numeric_limits<double>::infinity());
+      shape.recovery_ns_per_neper = number(sj, "recovery_ns_per_neper", sw);
+      try {
+        step.walk = std::make_shared<const ranging::WalkModel>(
+            shape, number(j, "reference_pulse_width_ns", where));
+      } catch (const std::invalid_argument& e) {
+        fail(sw, e.what());
+      }
+      const json& d = field(j, "domain", where);
+      refuse_unknown_keys(d, where + ".domain", {"min", "max"});
+      step.domain.min =
+          number_or(d, "min", where + ".domain", -std::numeric_limits<double>::infinity());
+      step.domain.max =
+          number_or(d, "max", where + ".domain", std::numeric_limits<double>::infinity());
+      break;
+    }
   }
   step.fit = fit_from_json(j, where);
   try {
@@ -249,6 +306,17 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
               {"after", stats_json(chain.after)}};
     if (chain.grayvalue) c["grayvalue"] = hinge_json(*chain.grayvalue);
     if (chain.temperature) c["temperature"] = hinge_json(*chain.temperature);
+    if (chain.walk) {
+      const calib::WalkFitResult& w = *chain.walk;
+      c["walk"] = {{"pulse_sigma_ns", w.shape.pulse_sigma_ns},
+                   {"pole_time_constant_ns", w.shape.pole_time_constant_ns},
+                   {"saturation_log_overdrive", finite_or_null(w.shape.saturation_log_overdrive)},
+                   {"recovery_ns_per_neper", w.shape.recovery_ns_per_neper},
+                   {"rows_clipped", w.saturated_rows},
+                   {"rms_m", w.rms_m},
+                   {"iterations", w.iterations},
+                   {"converged", w.converged}};
+    }
     j["chain"] = c;
   }
   if (s.walk) {

@@ -67,6 +67,19 @@ void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double
   }
 }
 
+/// distance += -(c_air / 2) (t_rise(w) - t_rise(w_ref)): a late rising crossing
+/// reads long (walk, DESIGN.md "Discriminator"). Widths outside the fitted
+/// domain are marked but corrected by the shape (its physics extrapolates).
+void add_walk(const WalkModel& walk, const InputDomain& domain, double metres_per_ns,
+              BlockBuffers& b, std::size_t n) {
+  double* rise = b.scratch_a.data();
+  walk.relative_rise_ns(b.pulse_width.data(), rise, n);
+  for (std::size_t i = 0; i < n; ++i) {
+    b.distance[i] -= metres_per_ns * rise[i];
+    b.outside[i] = std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
+  }
+}
+
 double midpoint(double lo, double hi) {
   const double mid = 0.5 * (lo + hi);
   return std::isfinite(mid) ? mid : 0.0;
@@ -170,17 +183,19 @@ std::string_view step_kind_name(StepKind kind) {
       return "temperature";
     case StepKind::kSurface:
       return "surface";
+    case StepKind::kWalk:
+      return "walk";
   }
   return "unknown";
 }
 
 StepKind step_kind_from_name(std::string_view name) {
-  for (StepKind kind :
-       {StepKind::kOffset, StepKind::kGrayvalue, StepKind::kTemperature, StepKind::kSurface}) {
+  for (StepKind kind : {StepKind::kOffset, StepKind::kGrayvalue, StepKind::kTemperature,
+                        StepKind::kSurface, StepKind::kWalk}) {
     if (step_kind_name(kind) == name) return kind;
   }
   throw std::invalid_argument("unknown step kind \"" + std::string(name) +
-                              "\" (expected offset, grayvalue, temperature or surface)");
+                              "\" (expected offset, grayvalue, temperature, surface or walk)");
 }
 
 void Step::validate() const {
@@ -205,6 +220,13 @@ void Step::validate() const {
       break;
     case StepKind::kSurface:
       if (!surface) throw std::invalid_argument("surface step: no surface");
+      break;
+    case StepKind::kWalk:
+      if (!walk) throw std::invalid_argument("walk step: no walk model");
+      if (std::isnan(domain.min) || std::isnan(domain.max) || domain.min > domain.max) {
+        throw std::invalid_argument("walk step: domain [" + format_number(domain.min) + ", " +
+                                    format_number(domain.max) + "] is empty or NaN");
+      }
       break;
   }
 }
@@ -236,6 +258,14 @@ Step make_surface_step(std::shared_ptr<const CorrectionSurface> surface) {
   Step step;
   step.kind = StepKind::kSurface;
   step.surface = std::move(surface);
+  return step;
+}
+
+Step make_walk_step(std::shared_ptr<const WalkModel> walk, InputDomain pulse_width_domain_ns) {
+  Step step;
+  step.kind = StepKind::kWalk;
+  step.walk = std::move(walk);
+  step.domain = pulse_width_domain_ns;
   return step;
 }
 
@@ -356,6 +386,9 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
         case StepKind::kSurface:
           add_surface(*step.surface, b, n);
           break;
+        case StepKind::kWalk:
+          add_walk(*step.walk, step.domain, metres_per_ns_, b, n);
+          break;
       }
     }
     fill_sigma(confidence, residual_rms_m_, b, n, sigma.data());
@@ -410,6 +443,10 @@ std::string Pipeline::summary() const {
             << format_number(step.domain.max) << "]" << unit;
         break;
       }
+      case StepKind::kWalk:
+        out << ": " << step.walk->summary() << ", domain [" << format_number(step.domain.min)
+            << ", " << format_number(step.domain.max) << "] ns";
+        break;
       case StepKind::kSurface:
         out << " " << step.surface->kind()
             << (step.surface->uses_temperature() ? " (range, amplitude, temperature)"

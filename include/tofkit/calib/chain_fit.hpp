@@ -28,6 +28,7 @@
 
 #include "tofkit/calib/hinge_fit.hpp"
 #include "tofkit/calib/statistics.hpp"
+#include "tofkit/calib/walk_fit.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
 
@@ -38,10 +39,14 @@ struct ChainSteps {
   bool offset = true;
   bool grayvalue = true;
   bool temperature = true;
+  /// The physical walk model (calib/walk_fit.hpp) in place of the grayvalue
+  /// hinge: same input (pulse width), extrapolates beyond the plates' widths.
+  bool walk = false;
 };
 
-/// "offset,grayvalue,temperature" (any subset, any order). Throws
-/// std::invalid_argument naming an unknown or repeated step, or an empty list.
+/// "offset,grayvalue,temperature" (any subset, any order; "walk" instead of
+/// "grayvalue"). Throws std::invalid_argument naming an unknown or repeated
+/// step, both grayvalue and walk, or an empty list.
 [[nodiscard]] ChainSteps parse_chain_steps(std::string_view list);
 [[nodiscard]] std::string to_string(const ChainSteps& steps);
 
@@ -65,6 +70,7 @@ struct ChainFitResult {
   double offset_m = 0;
   std::optional<HingeFitResult> grayvalue;  ///< knots, BIC, domain from the 1-D fits
   std::optional<HingeFitResult> temperature;
+  std::optional<WalkFitResult> walk;  ///< the walk step's shape (steps.walk)
   std::size_t rows = 0;               ///< rows fitted
   std::size_t rows_skipped = 0;       ///< no echo, or a non-finite value the fit needs
   std::size_t rows_downweighted = 0;  ///< final robust weight below 0.5
@@ -76,6 +82,9 @@ struct ChainFitResult {
   [[nodiscard]] std::string summary() const;
 };
 
+/// With a walk step, backfitting alternates the walk's nonlinear fit on e - h
+/// with the joint linear solve of [1, h basis] on e - walk.
+///
 /// Rows need an echo, a finite truth.distance_m and start distance, and (for
 /// the steps fitted) a finite pulse width / temperature. Throws
 /// std::invalid_argument naming the problem and the column: fewer than 10

@@ -8,12 +8,18 @@
 ///              {"kind": "grayvalue" | "temperature", "input": "pulse_width_ns" | "temperature_c",
 ///               "function": {"x0", "intercept", "slope0", "knots": [], "slopes": []},
 ///               "domain": {"min", "max"}},
-///              {"kind": "surface", "surface": io::surface_to_json(...)}],
+///              {"kind": "surface", "surface": io::surface_to_json(...)},
+///              {"kind": "walk", "input": "pulse_width_ns",
+///               "shape": {"pulse_sigma_ns", "pole_time_constant_ns",
+///                         "saturation_log_overdrive" (null: no clipping seen),
+///                         "recovery_ns_per_neper"},
+///               "reference_pulse_width_ns", "domain": {"min", "max"}}],
 ///    each step with "fit": {"rows", "residual_rms_m"},
 ///    "confidence": io::confidence_to_json(...)  (absent without a confidence model),
 ///    "residual_rms_m": ..., "fit": {...}  (free-form fit statistics, optional)}
 ///
 /// Non-finite numbers are written as null (an open domain bound, an unknown RMS).
+/// A walk step's objects are read strictly: an unknown key is an error naming it.
 
 #include <filesystem>
 #include <nlohmann/json.hpp>

@@ -11,7 +11,9 @@
 /// Section 4), `grayvalue` (hinge in echo pulse width, Section 5.1),
 /// `temperature` (hinge in sensor temperature, Section 5.2) and `surface`
 /// (a correction surface over the distance before the step, amplitude and
-/// temperature; thesis Section 4.6).
+/// temperature; thesis Section 4.6) and `walk` (the physical walk of an echo
+/// shape through the threshold as a function of echo pulse width,
+/// ranging/walk_model.hpp: an alternative to `grayvalue` that extrapolates).
 
 #include <cstddef>
 #include <cstdint>
@@ -28,12 +30,13 @@
 #include "tofkit/ranging/piecewise_linear.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
 #include "tofkit/ranging/time_to_distance.hpp"
+#include "tofkit/ranging/walk_model.hpp"
 
 namespace tofkit::ranging {
 
-enum class StepKind { kOffset, kGrayvalue, kTemperature, kSurface };
+enum class StepKind { kOffset, kGrayvalue, kTemperature, kSurface, kWalk };
 
-/// "offset", "grayvalue", "temperature", "surface".
+/// "offset", "grayvalue", "temperature", "surface", "walk".
 [[nodiscard]] std::string_view step_kind_name(StepKind kind);
 /// Inverse of step_kind_name; throws std::invalid_argument on an unknown name.
 [[nodiscard]] StepKind step_kind_from_name(std::string_view name);
@@ -57,9 +60,11 @@ struct Step {
   double offset_m = 0;  ///< kOffset
   PiecewiseLinear
       function;  ///< kGrayvalue (x = pulse_width_ns) / kTemperature (x = temperature_c), y in m
-  InputDomain
-      domain;  ///< kGrayvalue / kTemperature: x range fitted on; outside -> kCorrOutOfDomain
+  InputDomain domain;  ///< kGrayvalue / kTemperature / kWalk: x range fitted on; outside ->
+                       ///< kCorrOutOfDomain
   std::shared_ptr<const CorrectionSurface> surface;  ///< kSurface
+  /// kWalk: C = -(c_air / 2) (t_rise(pulse_width_ns) - t_rise(reference width)).
+  std::shared_ptr<const WalkModel> walk;
   StepFitInfo fit;
 
   /// Throws std::invalid_argument naming the problem.
@@ -71,6 +76,10 @@ struct Step {
 [[nodiscard]] Step make_temperature_step(PiecewiseLinear function,
                                          InputDomain temperature_domain_c);
 [[nodiscard]] Step make_surface_step(std::shared_ptr<const CorrectionSurface> surface);
+/// The walk of `walk`'s shape; `pulse_width_domain_ns`: widths it was fitted on
+/// (outside: still corrected by the shape, flagged kCorrOutOfDomain).
+[[nodiscard]] Step make_walk_step(std::shared_ptr<const WalkModel> walk,
+                                  InputDomain pulse_width_domain_ns);
 
 /// One input field read in place: element i is the T at `data` + i * `stride`
 /// bytes (a member of an array of structs, a column of a structured NumPy

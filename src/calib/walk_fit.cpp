@@ -1,0 +1,330 @@
+#include "tofkit/calib/walk_fit.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+namespace tofkit::calib {
+namespace {
+
+constexpr std::size_t kMinWalkRows = 6;
+/// Distinct unclipped shapes from which the clipped fit starts.
+constexpr std::size_t kClippingShapeStarts = 3;
+/// Bounds of the log-parameters: times 0.005-200 ns, within a factor 30 of each other.
+constexpr double kMinLogTime = -5.3, kMaxLogTime = 5.3, kMaxLogRatio = 3.4;
+
+/// Parameters: [constant, ln sigma, ln tau] or, with clipping,
+/// [constant, ln sigma, ln tau, ln tau_r, w_sat]. The clipping onset is
+/// fitted as the pulse width w_sat at which echoes start to clip, bounded by
+/// the rows' flags to lie between the widest unclipped and the narrowest
+/// clipped echo; the unclipped shape turns it into ln a_sat. (An onset free in
+/// ln a trades off against the shape's exponential tail, which also widens
+/// strong echoes like ln a: the fit could then explain clipped rows as
+/// unclipped.)
+ranging::WalkShape shape_of(const Eigen::VectorXd& p) {
+  ranging::WalkShape s;
+  s.pulse_sigma_ns = std::exp(p(1));
+  s.pole_time_constant_ns = std::exp(p(2));
+  if (p.size() > 3) {
+    const ranging::WalkCurve free = ranging::walk_curve(s, 600);
+    const std::vector<double>& w = free.width_ns;
+    const double saturation_width_ns = p(4);
+    const auto it = std::upper_bound(w.begin(), w.end(), saturation_width_ns);
+    const auto k = static_cast<std::size_t>(
+        std::clamp<std::ptrdiff_t>(it - w.begin(), 1, static_cast<std::ptrdiff_t>(w.size()) - 1));
+    const double f = std::clamp((saturation_width_ns - w[k - 1]) / (w[k] - w[k - 1]), 0.0, 1.0);
+    s.saturation_log_overdrive =
+        free.log_overdrive[k - 1] + f * (free.log_overdrive[k] - free.log_overdrive[k - 1]);
+    s.recovery_ns_per_neper = std::exp(p(3));
+  }
+  return s;
+}
+
+void clamp_parameters(Eigen::VectorXd& p, double onset_min_ns, double onset_max_ns) {
+  p(1) = std::clamp(p(1), kMinLogTime, kMaxLogTime);
+  p(2) = std::clamp(p(2), std::max(kMinLogTime, p(1) - kMaxLogRatio),
+                    std::min(kMaxLogTime, p(1) + kMaxLogRatio));
+  if (p.size() > 3) {
+    p(3) = std::clamp(p(3), -7.0, 5.0);
+    p(4) = std::clamp(p(4), onset_min_ns, onset_max_ns);
+  }
+}
+
+struct Problem {
+  std::span<const double> w, e;
+  std::vector<std::size_t> rows;  ///< rows in this stage
+  double reference = 0, metres_per_ns = 0;
+  double onset_min_ns = 0, onset_max_ns = 0;  ///< bounds of w_sat (with clipping)
+
+  /// residual_i = model_i - e_i; false when the shape cannot be tabulated.
+  bool residuals(const Eigen::VectorXd& p, Eigen::VectorXd& r) const {
+    ranging::WalkCurve curve;
+    try {
+      curve = ranging::walk_curve(shape_of(p), 600);
+    } catch (const std::invalid_argument&) {
+      return false;
+    }
+    const double rise_ref = ranging::rise_at_width(curve, reference);
+    r.resize(static_cast<Eigen::Index>(rows.size()));
+    for (std::size_t k = 0; k < rows.size(); ++k) {
+      const std::size_t i = rows[k];
+      const double model = p(0) - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
+      r(static_cast<Eigen::Index>(k)) = model - e[i];
+    }
+    return r.allFinite();
+  }
+};
+
+struct LmResult {
+  Eigen::VectorXd p;
+  double sse = std::numeric_limits<double>::infinity();
+  int iterations = 0;
+  bool converged = false;
+};
+
+/// Levenberg-Marquardt with Marquardt's diagonal scaling and a forward-difference Jacobian.
+LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_iterations) {
+  LmResult out;
+  clamp_parameters(p, problem.onset_min_ns, problem.onset_max_ns);
+  Eigen::VectorXd r;
+  if (!problem.residuals(p, r)) return out;
+  double sse = r.squaredNorm();
+  double lambda = 1e-3;
+  const Eigen::Index m = p.size();
+  Eigen::MatrixXd jacobian(r.size(), m);
+  Eigen::VectorXd r_step;
+  int it = 0;
+  for (; it < max_iterations; ++it) {
+    for (Eigen::Index k = 0; k < m; ++k) {
+      // Constant: in metres (1e-5 m); log-parameters: 1e-4 relative.
+      const double h = k == 0 ? 1e-5 : 1e-4;
+      Eigen::VectorXd q = p;
+      q(k) += h;
+      if (!problem.residuals(q, r_step)) {
+        q(k) = p(k) - h;
+        if (!problem.residuals(q, r_step)) return out;
+        jacobian.col(k) = (r - r_step) / h;
+      } else {
+        jacobian.col(k) = (r_step - r) / h;
+      }
+    }
+    const Eigen::MatrixXd jtj = jacobian.transpose() * jacobian;
+    const Eigen::VectorXd gradient = jacobian.transpose() * r;
+    bool improved = false;
+    while (lambda < 1e12) {
+      Eigen::MatrixXd a = jtj;
+      a.diagonal() += lambda * jtj.diagonal().cwiseMax(1e-12 * jtj.diagonal().maxCoeff());
+      Eigen::VectorXd q = p - a.ldlt().solve(gradient);
+      clamp_parameters(q, problem.onset_min_ns, problem.onset_max_ns);
+      if (problem.residuals(q, r_step) && r_step.squaredNorm() < sse) {
+        const double gain = sse - r_step.squaredNorm();
+        const double step_size = (q - p).cwiseAbs().maxCoeff();
+        p = q;
+        r = r_step;
+        sse = r.squaredNorm();
+        lambda = std::max(lambda * 0.3, 1e-9);
+        improved = true;
+        if (gain < 1e-10 * std::max(sse, 1e-18) || step_size < 1e-9) out.converged = true;
+        break;
+      }
+      lambda *= 10;
+    }
+    if (!improved) {
+      out.converged = true;  // no step lowers the residual: a minimum (to the step's resolution)
+      break;
+    }
+    if (out.converged) break;
+  }
+  out.p = p;
+  out.sse = sse;
+  out.iterations = it + 1;
+  return out;
+}
+
+}  // namespace
+
+WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const double> error_m,
+                       std::span<const std::uint8_t> status, double reference_pulse_width_ns,
+                       double metres_per_ns, const WalkFitOptions& options) {
+  const std::size_t n = pulse_width_ns.size();
+  if (error_m.size() != n || (!status.empty() && status.size() != n)) {
+    throw std::invalid_argument(
+        "walk fit: pulse widths, errors and saturation flags differ in size");
+  }
+  if (!(std::isfinite(reference_pulse_width_ns) && metres_per_ns > 0)) {
+    throw std::invalid_argument("walk fit: reference width and c_air / 2 must be finite");
+  }
+  WalkFitResult result;
+  result.reference_pulse_width_ns = reference_pulse_width_ns;
+  Problem problem{pulse_width_ns, error_m, {}, reference_pulse_width_ns, metres_per_ns};
+  std::vector<std::size_t> clear, clipped;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(pulse_width_ns[i]) || !std::isfinite(error_m[i])) {
+      throw std::invalid_argument("walk fit: row " + std::to_string(i + 1) +
+                                  " has a non-finite pulse width or error");
+    }
+    const std::uint8_t row = status.empty() ? 0 : status[i];
+    if ((row & kWalkRowPartial) != 0) {
+      ++result.partial_rows;
+      continue;
+    }
+    ((row & kWalkRowClipped) != 0 ? clipped : clear).push_back(i);
+  }
+  std::vector<std::size_t> fitted = clear;
+  fitted.insert(fitted.end(), clipped.begin(), clipped.end());
+  std::sort(fitted.begin(), fitted.end());
+  result.rows = fitted.size();
+  if (fitted.size() < kMinWalkRows) {
+    throw std::invalid_argument("walk fit: " + std::to_string(fitted.size()) +
+                                " rows with every shot echoed (needs at least " +
+                                std::to_string(kMinWalkRows) + ")");
+  }
+  result.saturated_rows = clipped.size();
+  result.width_min_ns = pulse_width_ns[fitted.front()];
+  result.width_max_ns = result.width_min_ns;
+  for (std::size_t i : fitted) {
+    result.width_min_ns = std::min(result.width_min_ns, pulse_width_ns[i]);
+    result.width_max_ns = std::max(result.width_max_ns, pulse_width_ns[i]);
+  }
+  if (!(result.width_max_ns > result.width_min_ns)) {
+    throw std::invalid_argument("walk fit: no spread in pulse_width_ns");
+  }
+  const bool fit_clipping =
+      clipped.size() >= options.min_saturated_rows && clear.size() >= kMinWalkRows;
+  // Without enough clipped rows to fit the recovery, every row (clipped or
+  // not) is fitted by the shape alone.
+  problem.rows = fit_clipping ? clear : fitted;
+  double mean_e = 0;
+  for (std::size_t i : problem.rows) mean_e += error_m[i];
+  mean_e /= static_cast<double>(problem.rows.size());
+
+  // Stage 1: the unclipped shape. Starts scaled to the widths seen (a pulse's
+  // width over threshold is a few of its time constants), unless given.
+  std::vector<Eigen::VectorXd> starts;
+  if (options.initial) {
+    Eigen::VectorXd p(3);
+    p << mean_e, std::log(options.initial->pulse_sigma_ns),
+        std::log(options.initial->pole_time_constant_ns);
+    starts.push_back(p);
+  }
+  if (!options.initial || options.multistart) {
+    double w_mid = 0;
+    for (std::size_t i : problem.rows) w_mid += pulse_width_ns[i];
+    w_mid = std::max(w_mid / static_cast<double>(problem.rows.size()), 1e-3);
+    for (double sigma_scale : {0.03, 0.1, 0.3}) {
+      for (double ratio : {0.3, 1.0, 3.0}) {
+        Eigen::VectorXd p(3);
+        p << mean_e, std::log(sigma_scale * w_mid), std::log(sigma_scale * w_mid * ratio);
+        starts.push_back(p);
+      }
+    }
+  }
+  std::vector<LmResult> minima;
+  int iterations = 0;
+  for (const Eigen::VectorXd& start : starts) {
+    LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
+    iterations += lm.iterations;
+    if (std::isfinite(lm.sse)) minima.push_back(std::move(lm));
+  }
+  if (minima.empty()) throw std::invalid_argument("walk fit: no shape fits the rows");
+  std::sort(minima.begin(), minima.end(),
+            [](const LmResult& a, const LmResult& b) { return a.sse < b.sse; });
+  LmResult best = minima.front();
+  // Distinct local minima, best first: unclipped echoes over a narrow range of
+  // strengths may fit two shapes almost equally, and clipped rows then decide.
+  std::vector<Eigen::VectorXd> shapes;
+  for (const LmResult& m : minima) {
+    bool distinct = true;
+    for (const Eigen::VectorXd& q : shapes) {
+      distinct = distinct && (std::fabs(m.p(1) - q(1)) > 0.05 || std::fabs(m.p(2) - q(2)) > 0.05);
+    }
+    if (distinct && shapes.size() < kClippingShapeStarts) shapes.push_back(m.p);
+  }
+
+  if (fit_clipping) {
+    // Stage 2: the recovery, with the onset where the flags put it, then all
+    // parameters on all rows.
+    double widest_clear = -std::numeric_limits<double>::infinity();
+    double narrowest_clipped = std::numeric_limits<double>::infinity();
+    for (std::size_t i : clear) widest_clear = std::max(widest_clear, pulse_width_ns[i]);
+    for (std::size_t i : clipped)
+      narrowest_clipped = std::min(narrowest_clipped, pulse_width_ns[i]);
+    problem.onset_min_ns = std::min(widest_clear, narrowest_clipped);
+    problem.onset_max_ns = std::max(widest_clear, narrowest_clipped);
+    const double onset_mid = 0.5 * (widest_clear + narrowest_clipped);
+    problem.rows = fitted;
+    std::vector<Eigen::VectorXd> clipped_starts;
+    if (!options.initial || options.multistart) {
+      for (const Eigen::VectorXd& q : shapes) {
+        for (double recovery_ns : {0.3, 1.0, 3.0}) {
+          Eigen::VectorXd p(5);
+          p << q(0), q(1), q(2), std::log(recovery_ns), onset_mid;
+          clipped_starts.push_back(p);
+        }
+      }
+    }
+    if (options.initial && std::isfinite(options.initial->saturation_log_overdrive)) {
+      // (Its onset width from its own unclipped curve.)
+      ranging::WalkShape free = *options.initial;
+      free.saturation_log_overdrive = std::numeric_limits<double>::infinity();
+      const ranging::WalkCurve curve = ranging::walk_curve(free, 600);
+      const auto at = std::lower_bound(curve.log_overdrive.begin(), curve.log_overdrive.end(),
+                                       options.initial->saturation_log_overdrive);
+      const double onset_width =
+          at == curve.log_overdrive.end()
+              ? onset_mid
+              : curve.width_ns[static_cast<std::size_t>(at - curve.log_overdrive.begin())];
+      Eigen::VectorXd p(5);
+      p << best.p(0), std::log(options.initial->pulse_sigma_ns),
+          std::log(options.initial->pole_time_constant_ns),
+          std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3)), onset_width;
+      clipped_starts.push_back(p);
+    }
+    if (clipped_starts.empty()) {
+      Eigen::VectorXd p(5);
+      p << best.p(0), best.p(1), best.p(2), 0.0, onset_mid;
+      clipped_starts.push_back(p);
+    }
+    LmResult clipped_best;
+    for (const Eigen::VectorXd& start : clipped_starts) {
+      LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
+      iterations += lm.iterations;
+      if (lm.sse < clipped_best.sse) clipped_best = lm;
+    }
+    if (!std::isfinite(clipped_best.sse)) {
+      throw std::invalid_argument("walk fit: clipping did not fit");
+    }
+    best = clipped_best;
+  }
+  result.shape = shape_of(best.p);
+  result.constant_m = best.p(0);
+  result.rms_m = std::sqrt(best.sse / static_cast<double>(problem.rows.size()));
+  result.iterations = iterations;
+  result.converged = best.converged;
+  return result;
+}
+
+std::string WalkFitResult::summary() const {
+  char buffer[320];
+  std::snprintf(
+      buffer, sizeof buffer,
+      "walk shape: pulse sigma %.4f ns, pole time constant %.4f ns, clipping %s, "
+      "recovery %.3f ns/neper; %zu rows (%zu clipped), widths [%.3f, %.3f] ns, "
+      "RMS %.3f mm, %d LM iterations%s%s",
+      shape.pulse_sigma_ns, shape.pole_time_constant_ns,
+      std::isfinite(shape.saturation_log_overdrive)
+          ? ("at ln(A/V) " + std::to_string(shape.saturation_log_overdrive)).c_str()
+          : "not observed",
+      shape.recovery_ns_per_neper, rows, saturated_rows, width_min_ns, width_max_ns, rms_m * 1e3,
+      iterations, converged ? "" : " (not converged)",
+      partial_rows > 0
+          ? ("; " + std::to_string(partial_rows) + " partial-echo rows not fitted").c_str()
+          : "");
+  return buffer;
+}
+
+}  // namespace tofkit::calib

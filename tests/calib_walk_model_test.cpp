@@ -1,0 +1,381 @@
+// The physical walk model (issue 8): a pulse shape through a fixed threshold,
+// fitted on the paper's protocol (plates at one distance plus a temperature
+// run) and judged on a field of distances, reflectances and temperatures
+// beyond the plates' pulse widths. The device is reached only through its
+// public API and config keys; the fit sees only its records.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "cli_runner.hpp"
+#include "tofkit/calib/chain_fit.hpp"
+#include "tofkit/calib/walk_fit.hpp"
+#include "tofkit/device/device_config.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/measurement_grid.hpp"
+#include "tofkit/io/model_json.hpp"
+#include "tofkit/io/raw_csv.hpp"
+#include "tofkit/ranging/walk_model.hpp"
+
+namespace tofkit {
+namespace {
+
+void set_key(device::DeviceConfig& config, const std::string& key, double value) {
+  for (auto& field : device::config_fields(config)) {
+    if (field.key != key) continue;
+    if (auto* d = std::get_if<double*>(&field.value)) **d = value;
+    if (auto* i = std::get_if<int*>(&field.value)) **i = static_cast<int>(value);
+    if (auto* b = std::get_if<bool*>(&field.value)) **b = value != 0;
+    return;
+  }
+  FAIL() << "no config key " << key;
+}
+
+/// The "other parts" device of calib_other_device_test.cpp.
+device::DeviceConfig other_parts() {
+  device::DeviceConfig config = device::preset("paper");
+  set_key(config, "receiver.bandwidth_mhz", 100.0);
+  set_key(config, "laser.pulse_width_ns", 1.6);
+  set_key(config, "receiver.apd_gain", 60.0);
+  set_key(config, "discriminator.threshold_v", 0.05);
+  set_key(config, "tdc.lsb_ps", 40.0);
+  set_key(config, "tdc.code_density_hits", 1 << 20);
+  EXPECT_TRUE(device::validate(config).empty());
+  return config;
+}
+
+/// A third set of parts: slower receiver, wider pulse, lower threshold.
+device::DeviceConfig slow_wide_parts() {
+  device::DeviceConfig config = other_parts();
+  set_key(config, "receiver.bandwidth_mhz", 60.0);
+  set_key(config, "laser.pulse_width_ns", 3.0);
+  set_key(config, "discriminator.threshold_v", 0.03);
+  EXPECT_TRUE(device::validate(config).empty());
+  return config;
+}
+
+/// A fourth: faster receiver, shorter pulse, higher threshold.
+device::DeviceConfig fast_parts() {
+  device::DeviceConfig config = other_parts();
+  set_key(config, "receiver.bandwidth_mhz", 200.0);
+  set_key(config, "laser.pulse_width_ns", 1.0);
+  set_key(config, "discriminator.threshold_v", 0.08);
+  EXPECT_TRUE(device::validate(config).empty());
+  return config;
+}
+
+struct Figures {
+  double worst_unclipped_m = 0;                ///< >= 90 % valid rows whose echo did not clip
+  double worst_clipped_m = 0;                  ///< >= 90 % valid rows whose echo clipped
+  double worst_in_domain_m = 0;                ///< rows without a correction flag
+  double worst_outside_unclipped_m = 0;        ///< unclipped rows flagged out of domain
+  double hinge_worst_outside_unclipped_m = 0;  ///< the grayvalue chain on those rows
+  std::size_t rows = 0, clipped = 0, outside = 0, outside_unflagged = 0;
+  calib::ChainFitResult fit;
+};
+
+/// The paper protocol of calib_other_device_test.cpp (plates at 3.0 m, rho
+/// 0.04-0.9 x 5 at 20 C; rho 0.3 at 0-45 C), with `clipped_plates` adding five
+/// plates at 1.0 m (rho 0.3-0.9, x 5) whose echoes clip; tested in the same
+/// power-on over 0.7-7.4 m x rho 0.06-0.85 x 8-37 C.
+Figures run_protocol(const device::DeviceConfig& config, bool clipped_plates) {
+  const device::VirtualRangefinder device(config);
+  std::vector<experiments::PlannedMeasurement> calibration, test;
+  for (double rho : {0.04, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 0.75, 0.9}) {
+    for (int repeat = 0; repeat < 5; ++repeat)
+      calibration.push_back(experiments::plate(3.0, rho, 20.0));
+  }
+  for (double t = 0; t <= 45; t += 2.5) {
+    for (int repeat = 0; repeat < 5; ++repeat)
+      calibration.push_back(experiments::plate(3.0, 0.3, t));
+  }
+  if (clipped_plates) {
+    for (double rho : {0.3, 0.45, 0.6, 0.75, 0.9}) {
+      for (int repeat = 0; repeat < 5; ++repeat)
+        calibration.push_back(experiments::plate(1.0, rho, 20.0));
+    }
+  }
+  for (double d = 0.7; d <= 7.4 + 1e-9; d += 0.67) {
+    for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
+      for (double t = 8; t <= 37 + 1e-9; t += 5.8) test.push_back(experiments::plate(d, rho, t));
+    }
+  }
+  std::vector<experiments::PlannedMeasurement> plan = calibration;
+  plan.insert(plan.end(), test.begin(), test.end());
+  const auto rows = experiments::run(device, plan, 1);
+  const std::vector<ranging::Record> fit_rows(
+      rows.begin(), rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()));
+  const std::vector<ranging::Record> test_rows(
+      rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()), rows.end());
+  calib::ChainFitOptions options;
+  options.steps = calib::parse_chain_steps("offset,walk,temperature");
+  Figures f;
+  f.fit = calib::fit_chain(fit_rows, options);
+  const calib::ChainFitResult hinge = calib::fit_chain(fit_rows);
+  const ranging::Step& walk_step = f.fit.pipeline.steps()[1];
+  for (const auto& r : test_rows) {
+    if (!(r.raw.shots_valid >= 0.9 * config.measurement.shots)) continue;
+    const ranging::Range range = f.fit.pipeline.apply(r.raw);
+    const double error = std::fabs(r.truth.distance_m - range.distance_m);
+    EXPECT_TRUE(std::isfinite(error));
+    ++f.rows;
+    const bool clipped = (r.raw.flags & ranging::kRawSaturated) != 0;
+    const bool outside = !walk_step.domain.contains(r.raw.pulse_width_ns);
+    if (outside) {
+      ++f.outside;
+      if ((range.correction_flags & ranging::kCorrOutOfDomain) == 0) ++f.outside_unflagged;
+    }
+    if (range.correction_flags == 0) f.worst_in_domain_m = std::max(f.worst_in_domain_m, error);
+    if (clipped) {
+      ++f.clipped;
+      f.worst_clipped_m = std::max(f.worst_clipped_m, error);
+    } else {
+      f.worst_unclipped_m = std::max(f.worst_unclipped_m, error);
+      if (outside) {
+        f.worst_outside_unclipped_m = std::max(f.worst_outside_unclipped_m, error);
+        const ranging::Range h = hinge.pipeline.apply(r.raw);
+        f.hinge_worst_outside_unclipped_m = std::max(f.hinge_worst_outside_unclipped_m,
+                                                     std::fabs(r.truth.distance_m - h.distance_m));
+      }
+    }
+  }
+  std::printf(
+      "%s: %zu rows >= 90 %% valid (%zu clipped, %zu outside the plates' widths): worst "
+      "unclipped %.3f mm, clipped %.3f mm, in-domain %.3f mm; outside and unclipped: walk "
+      "%.3f mm, grayvalue hinge %.3f mm\n  %s",
+      clipped_plates ? "with clipped plates" : "paper protocol", f.rows, f.clipped, f.outside,
+      f.worst_unclipped_m * 1e3, f.worst_clipped_m * 1e3, f.worst_in_domain_m * 1e3,
+      f.worst_outside_unclipped_m * 1e3, f.hinge_worst_outside_unclipped_m * 1e3,
+      f.fit.walk->summary().c_str());
+  std::printf("\n");
+  return f;
+}
+
+// The plates at 3.0 m never clip, so the clipping onset and recovery are not
+// observable from the paper protocol: the walk model then corrects every
+// unclipped echo (weaker and stronger than the plates') by the shape, within
+// 5 mm, where the hinge's linear continuation does worse.
+TEST(WalkModel, PaperProtocolCorrectsUnclippedEchoesBeyondThePlatesWidths) {
+  const Figures f = run_protocol(other_parts(), false);
+  EXPECT_EQ(f.fit.walk->saturated_rows, 0u);
+  EXPECT_FALSE(std::isfinite(f.fit.walk->shape.saturation_log_overdrive));
+  EXPECT_LE(f.worst_unclipped_m, 0.005) << f.fit.summary();
+  EXPECT_LE(f.worst_in_domain_m, 0.003) << f.fit.summary();
+  EXPECT_GT(f.outside, f.rows / 10);   // the test reaches beyond the plates' widths
+  EXPECT_EQ(f.outside_unflagged, 0u);  // and those rows are still flagged
+  EXPECT_LT(f.worst_outside_unclipped_m, f.hinge_worst_outside_unclipped_m);
+}
+
+// With a few plates close enough to clip, the onset and recovery are fitted
+// and every row with >= 90 % valid shots is within 5 mm.
+TEST(WalkModel, WithClippedPlatesEveryRowIsWithinFiveMillimetres) {
+  const Figures f = run_protocol(other_parts(), true);
+  EXPECT_GT(f.fit.walk->saturated_rows, 0u);
+  EXPECT_GT(f.clipped, 0u);
+  EXPECT_LE(f.worst_unclipped_m, 0.005) << f.fit.summary();
+  EXPECT_LE(f.worst_clipped_m, 0.005) << f.fit.summary();
+  EXPECT_LE(f.worst_in_domain_m, 0.003) << f.fit.summary();
+  EXPECT_EQ(f.outside_unflagged, 0u);
+}
+
+// Not tuned to one device: slower receiver, twice the pulse width, lower
+// threshold; and faster receiver, shorter pulse, higher threshold.
+TEST(WalkModel, HoldsOnOtherDevices) {
+  for (const device::DeviceConfig& config : {slow_wide_parts(), fast_parts()}) {
+    const Figures paper = run_protocol(config, false);
+    EXPECT_LE(paper.worst_unclipped_m, 0.005) << paper.fit.summary();
+    EXPECT_LE(paper.worst_in_domain_m, 0.003) << paper.fit.summary();
+    EXPECT_GT(paper.outside, paper.rows / 10);
+    EXPECT_EQ(paper.outside_unflagged, 0u);
+    const Figures clipped = run_protocol(config, true);
+    EXPECT_LE(clipped.worst_unclipped_m, 0.005) << clipped.fit.summary();
+    EXPECT_LE(clipped.worst_clipped_m, 0.005) << clipped.fit.summary();
+    EXPECT_LE(clipped.worst_in_domain_m, 0.003) << clipped.fit.summary();
+    EXPECT_GT(clipped.clipped, 0u);
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Oracle: rows generated from a known shape over a narrow band of echo
+// strengths; the fit must predict the walk far outside it.
+
+constexpr double kMetresPerNs = 0.1499;
+
+double interpolate(const std::vector<double>& x, const std::vector<double>& y, double at) {
+  const auto it = std::upper_bound(x.begin(), x.end(), at);
+  const auto k = static_cast<std::size_t>(
+      std::clamp<std::ptrdiff_t>(it - x.begin(), 1, static_cast<std::ptrdiff_t>(x.size()) - 1));
+  return y[k - 1] + (at - x[k - 1]) / (x[k] - x[k - 1]) * (y[k] - y[k - 1]);
+}
+
+TEST(WalkModel, FitRecoversAKnownShapeAndExtrapolates) {
+  const ranging::WalkShape truth{0.6, 1.1};
+  const ranging::WalkCurve curve = ranging::walk_curve(truth);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> noise(0.0, 2e-4);
+  std::vector<double> w, e;
+  for (double log_a = 1.5; log_a <= 3.5; log_a += 0.05) {
+    w.push_back(interpolate(curve.log_overdrive, curve.width_ns, log_a));
+    e.push_back(-0.2 - kMetresPerNs * interpolate(curve.log_overdrive, curve.rise_ns, log_a) +
+                noise(rng));
+  }
+  const calib::WalkFitResult fit = calib::fit_walk(w, e, {}, 5.0, kMetresPerNs);
+  EXPECT_NEAR(fit.shape.pulse_sigma_ns, truth.pulse_sigma_ns, 0.05) << fit.summary();
+  EXPECT_NEAR(fit.shape.pole_time_constant_ns, truth.pole_time_constant_ns, 0.1) << fit.summary();
+  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
+  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
+  for (double log_a = 0.2; log_a <= 8.0; log_a += 0.2) {  // far beyond 1.5..3.5
+    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
+    const double true_walk =
+        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
+    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
+        << "ln a " << log_a << ", width " << width << " ns";
+  }
+}
+
+// The same with clipping: rows above ln a = 4 flagged clipped (2 ns of extra
+// width per e-fold), and a few partial-echo rows with a wrong error that must
+// not be fitted. The recovery is found and the walk predicted for echoes far
+// stronger than any fitted.
+TEST(WalkModel, FitRecoversClippingFromFlaggedRows) {
+  const ranging::WalkShape truth{0.6, 1.1, 4.0, 2.0};
+  const ranging::WalkCurve curve = ranging::walk_curve(truth);
+  std::mt19937_64 rng(6);
+  std::normal_distribution<double> noise(0.0, 2e-4);
+  std::vector<double> w, e;
+  std::vector<std::uint8_t> status;
+  for (double log_a = 1.5; log_a <= 6.0; log_a += 0.05) {
+    w.push_back(interpolate(curve.log_overdrive, curve.width_ns, log_a));
+    e.push_back(-0.2 - kMetresPerNs * interpolate(curve.log_overdrive, curve.rise_ns, log_a) +
+                noise(rng));
+    status.push_back(log_a > 4.0 ? calib::kWalkRowClipped : 0);
+  }
+  for (int k = 0; k < 5; ++k) {  // partial echoes, 50 mm off: left out
+    w.push_back(1.0 + 0.1 * k);
+    e.push_back(0.05);
+    status.push_back(calib::kWalkRowPartial);
+  }
+  const calib::WalkFitResult fit = calib::fit_walk(w, e, status, 5.0, kMetresPerNs);
+  EXPECT_EQ(fit.partial_rows, 5u);
+  EXPECT_GT(fit.saturated_rows, 30u);
+  // Only the map width -> walk is observable, not the scale of ln a: the
+  // shape and onset trade off a little (e.g. sigma 0.62, tau 1.23, onset 3.5),
+  // the recovery (extra width per e-fold) much less.
+  EXPECT_NEAR(fit.shape.recovery_ns_per_neper, truth.recovery_ns_per_neper, 0.5) << fit.summary();
+  EXPECT_LE(fit.rms_m, 3e-4) << fit.summary();
+  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
+  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
+  for (double log_a = 0.2; log_a <= 9.0; log_a += 0.2) {
+    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
+    const double true_walk =
+        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
+    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
+        << "ln a " << log_a << ", width " << width << " ns";
+  }
+}
+
+TEST(WalkModel, CurveIsMonotoneAndClippingWidens) {
+  ranging::WalkShape shape{0.7, 1.0};
+  const ranging::WalkCurve free = ranging::walk_curve(shape);
+  for (std::size_t k = 1; k < free.width_ns.size(); ++k) {
+    EXPECT_GT(free.width_ns[k], free.width_ns[k - 1]);
+    EXPECT_LE(free.rise_ns[k], free.rise_ns[k - 1]);  // stronger: earlier
+  }
+  shape.saturation_log_overdrive = 4.0;
+  shape.recovery_ns_per_neper = 2.0;
+  const ranging::WalkCurve clipped = ranging::walk_curve(shape);
+  // At ln a = 6 the clipped echo is 2 ns/neper x 2 nepers wider; its rise is unchanged.
+  const double w_free = interpolate(free.log_overdrive, free.width_ns, 6.0);
+  const double w_clip = interpolate(clipped.log_overdrive, clipped.width_ns, 6.0);
+  EXPECT_NEAR(w_clip - w_free, 4.0, 0.01);
+  EXPECT_NEAR(interpolate(clipped.log_overdrive, clipped.rise_ns, 6.0),
+              interpolate(free.log_overdrive, free.rise_ns, 6.0), 1e-9);
+}
+
+// ---------------------------------------------------------------------------
+// The command line: `tofkit fit --chain offset,walk,temperature` on a CSV, the
+// model file read back, and a bad key refused.
+
+class WalkCli : public test::CliFixture {
+ protected:
+  WalkCli() : CliFixture("tofkit_walk_cli_") {}
+};
+
+/// Records from a known shape (and a temperature line), echo strengths ln a in [lo, hi].
+std::vector<ranging::Record> shape_records(double log_lo, double log_hi, unsigned seed) {
+  const ranging::WalkCurve curve = ranging::walk_curve({0.6, 1.1});
+  const double k = ranging::metres_per_ns(ranging::TimeToDistance{});
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0.0, 2e-4);
+  std::vector<ranging::Record> out;
+  for (double log_a = log_lo; log_a <= log_hi + 1e-9; log_a += 0.1) {
+    for (double t = 0; t <= 40; t += 10) {
+      ranging::Record r;
+      r.truth = {3.0, 0.5, 0.0, t};
+      r.raw.pulse_width_ns = interpolate(curve.log_overdrive, curve.width_ns, log_a);
+      r.raw.temperature_c = t;
+      r.raw.amplitude = 0.05 * std::exp(log_a);
+      const double error = -0.2 - k * interpolate(curve.log_overdrive, curve.rise_ns, log_a) -
+                           0.003 * (t - 20.0) + noise(rng);
+      r.raw.distance_raw_m = 3.0 - error;
+      r.raw.tof_ns = r.raw.distance_raw_m / k;
+      r.raw.shots_valid = 100;
+      out.push_back(r);
+    }
+  }
+  return out;
+}
+
+TEST_F(WalkCli, FitWalkChainCorrectsBeyondItsDomainAndRoundTrips) {
+  io::write_raw_csv(path("calib.csv"), shape_records(1.5, 3.5, 1));
+  io::write_raw_csv(path("test.csv"), shape_records(0.3, 7.0, 2));
+  const test::CliResult fit = run("fit --in " + path("calib.csv") + " --out " + path("model.json") +
+                                  " --chain offset,walk,temperature --confidence none");
+  ASSERT_EQ(fit.status, 0) << fit.err;
+  const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+  ASSERT_EQ(model.steps().size(), 3u);
+  EXPECT_EQ(model.steps()[1].kind, ranging::StepKind::kWalk);
+  // The file round-trips: written again, it is the same text.
+  const nlohmann::json again = io::pipeline_to_json(model);
+  nlohmann::json file;
+  std::ifstream(path("model.json")) >> file;
+  file.erase("fit");
+  EXPECT_EQ(again.dump(), file.dump());
+
+  const test::CliResult correct = run("correct --model " + path("model.json") + " --in " +
+                                      path("test.csv") + " --out " + path("corrected.csv"));
+  ASSERT_EQ(correct.status, 0) << correct.err;
+  const auto corrected = io::read_corrected_csv(path("corrected.csv"));
+  const auto test_rows = shape_records(0.3, 7.0, 2);
+  ASSERT_EQ(corrected.size(), test_rows.size());
+  std::size_t flagged = 0;
+  for (std::size_t i = 0; i < test_rows.size(); ++i) {
+    const ranging::Range in_memory = model.apply(test_rows[i].raw);
+    EXPECT_NEAR(corrected[i].range.distance_m, in_memory.distance_m, 1e-9);
+    EXPECT_NEAR(corrected[i].range.distance_m, 3.0, 0.002)
+        << "width " << test_rows[i].raw.pulse_width_ns;
+    if (corrected[i].range.correction_flags & ranging::kCorrOutOfDomain) ++flagged;
+  }
+  EXPECT_GT(flagged, test_rows.size() / 2);
+
+  // A misspelt key in the walk step is refused, naming it; nothing is written.
+  file["steps"][1]["shape"]["pulse_sigma"] = 1.0;
+  std::ofstream(path("bad.json")) << file.dump(2);
+  const test::CliResult bad = run("correct --model " + path("bad.json") + " --in " +
+                                  path("test.csv") + " --out " + path("bad.csv"));
+  EXPECT_EQ(bad.status, 1);
+  EXPECT_NE(bad.err.find("steps[1].shape.pulse_sigma"), std::string::npos) << bad.err;
+  EXPECT_FALSE(std::filesystem::exists(path("bad.csv")));
+}
+
+}  // namespace
+}  // namespace tofkit
