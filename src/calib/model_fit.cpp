@@ -256,7 +256,7 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     std::vector<NormalEquations> fold_eq;
     std::vector<char> use(cx.size());
     for (std::size_t fold = 0; fold < kFolds; ++fold) {
-      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = cgroup[i] % kFolds != fold;
+      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = fold_of(cgroup[i], kFolds) != fold;
       fold_eq.push_back(accumulate(t.size(), hats, cr, use));
     }
     for (int decade_half = -10; decade_half <= 6; ++decade_half) {
@@ -265,7 +265,7 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
       for (std::size_t fold = 0; fold < kFolds; ++fold) {
         const Eigen::VectorXd v = solve_nodes(fold_eq[fold], lambda);
         for (std::size_t i = 0; i < cx.size(); ++i) {
-          if (cgroup[i] % kFolds != fold) continue;
+          if (fold_of(cgroup[i], kFolds) != fold) continue;
           const double e = cr[i] - hat_value(hats[i], v);
           sse += e * e;
         }
@@ -580,7 +580,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          (group[i] % folds == k ? test : train).push_back(records[i]);
+          (fold_of(group[i], folds) == k ? test : train).push_back(records[i]);
         }
         residuals.add(fit_correction(train, o, nullptr, nullptr), test);
       }
