@@ -281,9 +281,24 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
   if (info) *info = {0, 0, best, without};
   if (best_nodes == 0) return chain;
   const std::vector<double> t = nodes_at(best_nodes);
-  const Eigen::VectorXd v = solve_nodes(
-      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1)), best_lambda);
-  if (info) *info = {static_cast<int>(t.size()), best_lambda, best, without};
+  const NormalEquations all =
+      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1));
+  const Eigen::VectorXd v = solve_nodes(all, best_lambda);
+  if (info) {
+    // Effective parameters: trace of the hat matrix A (A'A + lambda s P)^-1 A'
+    // = trace((A'A + lambda s P)^-1 A'A), P the second-difference penalty.
+    Eigen::MatrixXd penalized = all.normal;
+    const Eigen::Index k = penalized.rows();
+    const double scale = penalized.trace() / static_cast<double>(k);
+    for (Eigen::Index j = 0; j + 2 < k; ++j) {
+      const double d[3] = {1, -2, 1};
+      for (int p = 0; p < 3; ++p)
+        for (int q = 0; q < 3; ++q) penalized(j + p, j + q) += best_lambda * scale * d[p] * d[q];
+    }
+    penalized.diagonal().array() += 1e-12 * scale;
+    const double edf = penalized.ldlt().solve(all.normal).trace();
+    *info = {static_cast<int>(t.size()), best_lambda, best, without, edf};
+  }
   // g + d as one piecewise-linear function: nodes at the union of both knot sets.
   const ranging::Step& old = chain.steps()[grayvalue];
   std::vector<double> u = t;
@@ -451,6 +466,93 @@ struct Residuals {
   }
 };
 
+/// The correction's effective parameter count: the surface's (trace of its
+/// hat matrix, or its rank), the chain's offset, its walk refinement's trace
+/// or its hinges' parameters (intercept, slope and one per knot).
+double effective_parameters(const ModelFitSummary& s) {
+  double p = 0;
+  if (s.surface) p += s.surface->effective_parameters;
+  if (s.chain) {
+    p += 1;  // offset
+    const auto hinge = [](const std::optional<HingeFitResult>& h) {
+      return h ? 2.0 + static_cast<double>(h->knots.size()) : 0.0;
+    };
+    p += s.walk && s.walk->nodes > 0 ? s.walk->effective_parameters : hinge(s.chain->grayvalue);
+    p += hinge(s.chain->temperature);
+  }
+  return p;
+}
+
+/// noise_systematic: in-sample residuals of the kept model on every row,
+/// grouped by truth; the intensity axis the correction reads.
+void fit_repeats_confidence(std::span<const ranging::Record> records, const ModelFitOptions& o,
+                            ModelFitResult& result) {
+  bool pulse_width = result.summary.chain.has_value() && o.chain->grayvalue;
+  if (result.summary.surface) pulse_width = result.summary.surface_intensity == "pulse_width_ns";
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group_of = truth_groups(records, groups);
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(records.size());
+  for (const auto& r : records) raw.push_back(r.raw);
+  std::vector<ranging::Range> corrected(raw.size());
+  result.pipeline.apply(raw, corrected);
+  std::vector<double> range, intensity, residual;
+  std::vector<std::uint32_t> group;
+  std::vector<char> seen(groups, 0);
+  std::size_t used_groups = 0;
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    const double e = records[i].truth.distance_m - corrected[i].distance_m;
+    const double x = pulse_width ? raw[i].pulse_width_ns : raw[i].amplitude;
+    if (!std::isfinite(e) || !(x > 0) || !std::isfinite(x) ||
+        (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+      continue;
+    }
+    range.push_back(corrected[i].distance_m);
+    intensity.push_back(x);
+    residual.push_back(e);
+    group.push_back(static_cast<std::uint32_t>(group_of[i]));
+    if (!seen[group_of[i]]) {
+      seen[group_of[i]] = 1;
+      ++used_groups;
+    }
+  }
+  const double p = effective_parameters(result.summary);
+  const double g = static_cast<double>(used_groups);
+  NoiseSystematicOptions options;
+  options.intensity =
+      pulse_width ? ranging::IntensityInput::pulse_width : ranging::IntensityInput::amplitude;
+  std::string why;
+  if (!(g > p + 1)) {
+    why = format("%zu targets for %.1f effective parameters", used_groups, p);
+  } else {
+    options.optimism = (g + p) / (g - p);
+    try {
+      result.pipeline.set_confidence(
+          fit_noise_systematic_confidence({range, intensity, residual, group}, options));
+    } catch (const std::invalid_argument& e) {
+      why = e.what();
+    }
+  }
+  if (!why.empty()) {
+    if (o.confidence_required) throw std::invalid_argument("confidence noise-systematic: " + why);
+    result.report += "confidence: none (" + why + ")\n";
+    return;
+  }
+  ModelFitSummary::Confidence c;
+  c.kind = o.confidence;
+  c.rows = residual.size();
+  c.groups = used_groups;
+  c.held_out = error_stats(residual);
+  c.effective_parameters = p;
+  c.optimism = options.optimism;
+  result.report += format(
+      "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
+      "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f\n",
+      pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
+      c.optimism, p);
+  result.summary.confidence = c;
+}
+
 }  // namespace
 
 SurfaceSpec parse_surface_spec(std::string_view spec) {
@@ -492,8 +594,9 @@ ConfidenceKind parse_confidence_kind(std::string_view kind) {
   if (kind == "none") return ConfidenceKind::none;
   if (kind == "calibrated") return ConfidenceKind::calibrated;
   if (kind == "thesis") return ConfidenceKind::thesis;
+  if (kind == "noise-systematic") return ConfidenceKind::noise_systematic;
   throw std::invalid_argument("confidence " + std::string(kind) +
-                              ": expected none, calibrated or thesis");
+                              ": expected none, calibrated, thesis or noise-systematic");
 }
 
 std::string to_string(ConfidenceKind kind) {
@@ -502,6 +605,8 @@ std::string to_string(ConfidenceKind kind) {
       return "calibrated";
     case ConfidenceKind::thesis:
       return "thesis";
+    case ConfidenceKind::noise_systematic:
+      return "noise-systematic";
     case ConfidenceKind::none:
       break;
   }
@@ -528,7 +633,9 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   std::string& report = result.report;
   summary.rows = records.size();
 
-  const bool hold_out = o.confidence != ConfidenceKind::none && o.confidence_hold_out_fraction > 0;
+  const bool from_repeats = o.confidence == ConfidenceKind::noise_systematic;
+  const bool hold_out =
+      o.confidence != ConfidenceKind::none && !from_repeats && o.confidence_hold_out_fraction > 0;
   std::vector<ranging::Record> fit_part, confidence_part;
   std::size_t groups = 0;
   long every_kth = 0;
@@ -555,6 +662,12 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   summary.rows_fit = fit_rows.size();
 
   result.pipeline = fit_correction(fit_rows, o, &summary, &report);
+
+  if (from_repeats) {
+    fit_repeats_confidence(records, o, result);
+    summary.residual_rms_m = result.pipeline.residual_rms_m();
+    return result;
+  }
 
   Residuals residuals;
   bool fit_confidence = o.confidence != ConfidenceKind::none;

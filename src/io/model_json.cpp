@@ -255,7 +255,8 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
     j["walk_refinement"] = {{"nodes", s.walk->nodes},
                             {"smoothing", s.walk->smoothing},
                             {"cv_rms_m", s.walk->cv_rms_m},
-                            {"cv_rms_without_m", s.walk->cv_rms_without_m}};
+                            {"cv_rms_without_m", s.walk->cv_rms_without_m},
+                            {"effective_parameters", s.walk->effective_parameters}};
   }
   if (s.surface) {
     const calib::SurfaceFitResult& surface = *s.surface;
@@ -281,7 +282,10 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
                        {"rows", c.rows},
                        {"groups", c.groups},
                        {"held_out_residual", stats_json(c.held_out)}};
-    if (c.every_kth_group > 0) {
+    if (c.kind == calib::ConfidenceKind::noise_systematic) {
+      j["confidence"]["effective_parameters"] = c.effective_parameters;
+      j["confidence"]["optimism"] = c.optimism;
+    } else if (c.every_kth_group > 0) {
       j["confidence"]["held_out_every_kth_group"] = c.every_kth_group;
     } else {
       j["confidence"]["folds"] = c.folds;

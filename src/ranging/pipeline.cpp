@@ -133,14 +133,19 @@ void fill_sigma(const ConfidenceModel* confidence, double residual_rms_m, BlockB
   } else {
     double* range = b.scratch_a.data();
     double* amplitude = b.scratch_b.data();
+    // The model's intensity axis: the amplitude, or the pulse width (which
+    // keeps growing where the amplitude reading clips).
+    const double* intensity = confidence->intensity_input() == IntensityInput::pulse_width
+                                  ? b.pulse_width.data()
+                                  : b.amplitude.data();
     for (std::size_t i = 0; i < n; ++i) {
       range[i] = std::isfinite(b.distance[i]) ? b.distance[i] : 1.0;
-      amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : 1.0;
+      amplitude[i] = std::isfinite(intensity[i]) ? intensity[i] : 1.0;
     }
     confidence->sigma(std::span<const double>(range, n), std::span<const double>(amplitude, n),
                       std::span<double>(sigma, n));
     for (std::size_t i = 0; i < n; ++i) {
-      if (!std::isfinite(b.amplitude[i])) sigma[i] = kNaN;
+      if (!std::isfinite(intensity[i])) sigma[i] = kNaN;
     }
   }
   for (std::size_t i = 0; i < n; ++i) {
