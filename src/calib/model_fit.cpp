@@ -339,8 +339,9 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
 
 /// The correction (base or chain, then the surface on its residual) fitted on
 /// `rows`; the summary and report only when given (the model that is kept).
-ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
-                                 ModelFitSummary* summary, std::string* report) {
+ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
+                                      const ModelFitOptions& o, ModelFitSummary* summary,
+                                      std::string* report) {
   ranging::Pipeline pipeline = o.base ? *o.base : ranging::Pipeline(o.time_to_distance);
   if (o.chain) {
     ChainFitOptions chain_options = o.chain_options;
@@ -442,6 +443,136 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   return pipeline;
 }
 
+/// The periodic step on the residual of `main` (rows outside its domain or
+/// without a finite tof left out): a Fourier series in tof_ns modulo the
+/// period, its harmonic count (0 .. kMaxHarmonics) chosen by grouped 5-fold
+/// cross-validation. Returns the harmonics (empty: none chosen).
+constexpr int kMaxHarmonics = 8;
+
+std::vector<double> fit_periodic(const ranging::Pipeline& main,
+                                 std::span<const ranging::Record> rows, double period_ns,
+                                 ModelFitSummary::Periodic* info) {
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(rows.size());
+  for (const auto& r : rows) raw.push_back(r.raw);
+  std::vector<ranging::Range> corrected(raw.size());
+  main.apply(raw, corrected);
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group_of = truth_groups(rows, groups);
+  std::vector<double> phase, e;
+  std::vector<std::size_t> fold;
+  constexpr std::size_t kFolds = 5;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const double r = rows[i].truth.distance_m - corrected[i].distance_m;
+    if (!std::isfinite(r) || !std::isfinite(raw[i].tof_ns) ||
+        (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+      continue;
+    }
+    phase.push_back(2.0 * 3.14159265358979323846 * std::fmod(raw[i].tof_ns, period_ns) / period_ns);
+    e.push_back(r);
+    fold.push_back(fold_of(group_of[i], kFolds));
+  }
+  const auto n = static_cast<Eigen::Index>(e.size());
+  // Columns: a constant (the main correction's business; fitted, not kept),
+  // then cos and sin of each harmonic.
+  Eigen::MatrixXd x(n, 1 + 2 * kMaxHarmonics);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    x(i, 0) = 1.0;
+    for (int h = 1; h <= kMaxHarmonics; ++h) {
+      x(i, 2 * h - 1) = std::cos(h * phase[static_cast<std::size_t>(i)]);
+      x(i, 2 * h) = std::sin(h * phase[static_cast<std::size_t>(i)]);
+    }
+  }
+  const Eigen::Map<const Eigen::VectorXd> y(e.data(), n);
+  double best = y.squaredNorm(), without = -1;
+  int best_h = 0;
+  if (groups >= kFolds && n >= 40) {
+    for (int h = 0; h <= kMaxHarmonics; ++h) {
+      const Eigen::Index cols = 1 + 2 * h;
+      double sse = 0;
+      for (std::size_t f = 0; f < kFolds; ++f) {
+        std::vector<Eigen::Index> train, test;
+        for (Eigen::Index i = 0; i < n; ++i)
+          (fold[static_cast<std::size_t>(i)] == f ? test : train).push_back(i);
+        if (test.empty() || train.size() < static_cast<std::size_t>(3 * cols)) continue;
+        const Eigen::MatrixXd a = x(train, Eigen::seq(0, cols - 1));
+        const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train).eval());
+        sse += (y(test) - x(test, Eigen::seq(0, cols - 1)) * c).squaredNorm();
+      }
+      if (h == 0) {
+        without = sse;
+        best = sse;
+      } else if (sse < best) {
+        best = sse;
+        best_h = h;
+      }
+    }
+  }
+  if (info && without >= 0) {
+    info->harmonics = best_h;
+    info->cv_rms_m = std::sqrt(best / static_cast<double>(n));
+    info->cv_rms_without_m = std::sqrt(without / static_cast<double>(n));
+  }
+  if (best_h == 0) return {};
+  const Eigen::Index cols = 1 + 2 * best_h;
+  const Eigen::VectorXd c = x.leftCols(cols).colPivHouseholderQr().solve(y);
+  return std::vector<double>(c.data() + 1, c.data() + cols);
+}
+
+/// The correction: the main one (chain and/or surface), and with
+/// o.tdc_period_ns a periodic step in front of it, fitted by backfitting: the
+/// periodic part on the main correction's residual, the main correction again
+/// on rows whose time of flight the periodic part has corrected, twice.
+ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
+                                 ModelFitSummary* summary, std::string* report) {
+  if (!(o.tdc_period_ns > 0)) return fit_main_correction(rows, o, summary, report);
+  const double metres_per_ns = ranging::metres_per_ns(o.time_to_distance);
+  std::vector<ranging::Record> adjusted(rows.begin(), rows.end());
+  ranging::Pipeline main = fit_main_correction(rows, o, nullptr, nullptr);
+  std::vector<double> harmonics;
+  ModelFitSummary::Periodic info;
+  constexpr int kRounds = 2;
+  for (int round = 0; round <= kRounds; ++round) {
+    harmonics = fit_periodic(main, rows, o.tdc_period_ns, &info);
+    if (harmonics.empty() || round == kRounds) break;
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const double c = ranging::periodic_correction(o.tdc_period_ns, harmonics, rows[i].raw.tof_ns);
+      adjusted[i].raw.tof_ns = rows[i].raw.tof_ns + c / metres_per_ns;
+      adjusted[i].raw.distance_raw_m = rows[i].raw.distance_raw_m + c;
+    }
+    const bool last = round + 1 == kRounds;
+    main = fit_main_correction(adjusted, o, last ? summary : nullptr, last ? report : nullptr);
+  }
+  if (harmonics.empty()) {
+    // Not chosen: the main correction alone, fitted (and summarised) on the rows as they are.
+    main = fit_main_correction(rows, o, summary, report);
+    if (summary) summary->periodic = info;
+    if (report) {
+      *report +=
+          format("periodic (TDC clock period %.4g ns): none chosen (cross-validated RMS %.3f mm)\n",
+                 o.tdc_period_ns, info.cv_rms_without_m * 1e3);
+    }
+    return main;
+  }
+  ranging::Pipeline pipeline(main.time_to_distance());
+  ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, harmonics);
+  step.fit.rows = rows.size();
+  pipeline.add_step(std::move(step));
+  for (const ranging::Step& s : main.steps()) pipeline.add_step(s);
+  pipeline.set_residual_rms_m(main.residual_rms_m());
+  if (summary) summary->periodic = info;
+  if (report) {
+    double amplitude2 = 0;
+    for (double c : harmonics) amplitude2 += c * c;
+    *report += format(
+        "periodic (TDC clock period %.4g ns): %d harmonic(s), rms %.3f mm, cross-validated RMS "
+        "%.3f mm (without %.3f mm)\n",
+        o.tdc_period_ns, info.harmonics, std::sqrt(0.5 * amplitude2) * 1e3, info.cv_rms_m * 1e3,
+        info.cv_rms_without_m * 1e3);
+  }
+  return pipeline;
+}
+
 /// Residuals of a model on rows it was not fitted on.
 struct Residuals {
   std::vector<double> range, amplitude, residual;
@@ -468,7 +599,8 @@ struct Residuals {
 
 /// The correction's effective parameter count: the surface's (trace of its
 /// hat matrix, or its rank), the chain's offset, its walk refinement's trace
-/// or its hinges' parameters (intercept, slope and one per knot).
+/// or its hinges' parameters (intercept, slope and one per knot), and two per
+/// harmonic of a periodic step.
 double effective_parameters(const ModelFitSummary& s) {
   double p = 0;
   if (s.surface) p += s.surface->effective_parameters;
@@ -480,6 +612,7 @@ double effective_parameters(const ModelFitSummary& s) {
     p += s.walk && s.walk->nodes > 0 ? s.walk->effective_parameters : hinge(s.chain->grayvalue);
     p += hinge(s.chain->temperature);
   }
+  if (s.periodic) p += 2.0 * s.periodic->harmonics;
   return p;
 }
 
@@ -622,6 +755,9 @@ void ModelFitOptions::validate() const {
     throw std::invalid_argument("confidence_hold_out_fraction must be in (0, 0.5] (0: none)");
   }
   if (confidence_folds < 2) throw std::invalid_argument("confidence_folds must be >= 2");
+  if (!(tdc_period_ns >= 0) || !std::isfinite(tdc_period_ns)) {
+    throw std::invalid_argument("tdc_period_ns must be finite and >= 0 (0: no periodic step)");
+  }
   if (surface.kind == SurfaceKind::polynomial) polynomial.validate();
   if (surface.kind == SurfaceKind::bspline) bspline.validate();
 }

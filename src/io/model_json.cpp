@@ -96,6 +96,11 @@ json step_to_json(const ranging::Step& step) {
     case ranging::StepKind::kSurface:
       j["surface"] = surface_to_json(*step.surface);
       break;
+    case ranging::StepKind::kPeriodic:
+      j["input"] = "tof_ns";
+      j["period_ns"] = step.period_ns;
+      j["harmonics_m"] = step.harmonics_m;
+      break;
   }
   j["fit"] = fit_to_json(step.fit);
   return j;
@@ -132,6 +137,10 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
     }
     case ranging::StepKind::kSurface:
       step.surface = surface_from_json(field(j, "surface", where), where + ".surface");
+      break;
+    case ranging::StepKind::kPeriodic:
+      step.period_ns = number(j, "period_ns", where);
+      step.harmonics_m = numbers(j, "harmonics_m", where);
       break;
   }
   step.fit = fit_from_json(j, where);
@@ -257,6 +266,11 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
                             {"cv_rms_m", s.walk->cv_rms_m},
                             {"cv_rms_without_m", s.walk->cv_rms_without_m},
                             {"effective_parameters", s.walk->effective_parameters}};
+  }
+  if (s.periodic) {
+    j["periodic"] = {{"harmonics", s.periodic->harmonics},
+                     {"cv_rms_m", s.periodic->cv_rms_m},
+                     {"cv_rms_without_m", s.periodic->cv_rms_without_m}};
   }
   if (s.surface) {
     const calib::SurfaceFitResult& surface = *s.surface;

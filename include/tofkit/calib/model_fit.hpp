@@ -71,6 +71,14 @@ struct ModelFitOptions {
   /// refinement when it does not lower the cross-validated error). The
   /// hinge's few knots cannot follow a walk curve that bends everywhere.
   bool refine_walk = false;
+  /// > 0: the TDC's coarse clock period (1e3 / tdc.coarse_clock_mhz). With the
+  /// laser fired on the clock, the interpolator's residual nonlinearity leaves
+  /// a range error periodic in the time of flight; a periodic step (Fourier
+  /// series in tof_ns modulo the period, 0-8 harmonics chosen by grouped
+  /// cross-validation) is fitted in front of the chain / surface by
+  /// backfitting. Needs targets whose stops cover the period's phases (the
+  /// walk spreads them). 0: none.
+  double tdc_period_ns = 0;
   /// Start from this already fitted pipeline instead of fitting a chain (the
   /// surface then fits its residual); exclusive with `chain`. It stays fixed
   /// in every cross-fitting fold.
@@ -114,6 +122,14 @@ struct ModelFitSummary {
     double effective_parameters = 0;  ///< trace of the refinement's hat matrix
   };
   std::optional<WalkRefinement> walk;
+  /// tdc_period_ns: harmonics chosen (0: none) and the cross-validated RMS
+  /// with them and without a periodic step.
+  struct Periodic {
+    int harmonics = 0;
+    double cv_rms_m = 0;
+    double cv_rms_without_m = 0;
+  };
+  std::optional<Periodic> periodic;
   std::optional<SurfaceFitResult> surface;
   std::string surface_spec;
   bool surface_temperature = false;
