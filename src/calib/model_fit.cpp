@@ -557,6 +557,7 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   ranging::Pipeline pipeline(main.time_to_distance());
   ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, harmonics);
   step.fit.rows = rows.size();
+  step.fit.residual_rms_m = main.residual_rms_m();  // of the whole fit, periodic part included
   pipeline.add_step(std::move(step));
   for (const ranging::Step& s : main.steps()) pipeline.add_step(s);
   pipeline.set_residual_rms_m(main.residual_rms_m());
