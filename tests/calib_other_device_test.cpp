@@ -65,31 +65,44 @@ device::DeviceConfig other_parts() {
 // (measurement.power_on_offset_ps, 1.5 mm rms) is a between-session error that
 // plates cannot calibrate (measured: 3.4 mm worst when the test runs after
 // another power-on), so it is not a calibration figure.
+struct PaperData {
+  std::vector<ranging::Record> calibration, test;
+};
+
+const PaperData& paper_data() {
+  static const PaperData data = [] {
+    const device::VirtualRangefinder device(other_parts());
+    std::vector<experiments::PlannedMeasurement> calibration, test;
+    for (double rho : {0.04, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 0.75, 0.9}) {
+      for (int repeat = 0; repeat < 5; ++repeat) {
+        calibration.push_back(experiments::plate(3.0, rho, 20.0));
+      }
+    }
+    for (double t = 0; t <= 45; t += 2.5) {
+      for (int repeat = 0; repeat < 5; ++repeat) {
+        calibration.push_back(experiments::plate(3.0, 0.3, t));
+      }
+    }
+    for (double d = 0.7; d <= 7.4 + 1e-9; d += 0.67) {
+      for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
+        for (double t = 8; t <= 37 + 1e-9; t += 5.8) test.push_back(experiments::plate(d, rho, t));
+      }
+    }
+    std::vector<experiments::PlannedMeasurement> plan = calibration;
+    plan.insert(plan.end(), test.begin(), test.end());
+    const auto rows = experiments::run(device, plan, 1);
+    PaperData out;
+    out.calibration.assign(rows.begin(),
+                           rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()));
+    out.test.assign(rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()), rows.end());
+    return out;
+  }();
+  return data;
+}
+
 TEST(CalibrationOnOtherParts, PaperProtocolChainIsWithinThreeMillimetresInItsDomain) {
-  const device::VirtualRangefinder device(other_parts());
-  std::vector<experiments::PlannedMeasurement> calibration, test;
-  for (double rho : {0.04, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6, 0.75, 0.9}) {
-    for (int repeat = 0; repeat < 5; ++repeat) {
-      calibration.push_back(experiments::plate(3.0, rho, 20.0));
-    }
-  }
-  for (double t = 0; t <= 45; t += 2.5) {
-    for (int repeat = 0; repeat < 5; ++repeat) {
-      calibration.push_back(experiments::plate(3.0, 0.3, t));
-    }
-  }
-  for (double d = 0.7; d <= 7.4 + 1e-9; d += 0.67) {
-    for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
-      for (double t = 8; t <= 37 + 1e-9; t += 5.8) test.push_back(experiments::plate(d, rho, t));
-    }
-  }
-  std::vector<experiments::PlannedMeasurement> plan = calibration;
-  plan.insert(plan.end(), test.begin(), test.end());
-  const auto rows = experiments::run(device, plan, 1);
-  const std::vector<ranging::Record> fit_rows(
-      rows.begin(), rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()));
-  const std::vector<ranging::Record> test_rows(
-      rows.begin() + static_cast<std::ptrdiff_t>(calibration.size()), rows.end());
+  const std::vector<ranging::Record>& fit_rows = paper_data().calibration;
+  const std::vector<ranging::Record>& test_rows = paper_data().test;
   const calib::ChainFitResult fit = calib::fit_chain(fit_rows);
   std::size_t in_domain = 0, echoes = 0;
   double worst = 0;
@@ -121,6 +134,12 @@ constexpr int kGridShots = 500;
 
 struct GridData {
   std::vector<ranging::Record> calibration, test;
+  /// More held-out targets for the coverage: 34 distances a quarter of the
+  /// grid step off its nodes (0.625-8.875 m) x 9 reflectances x 6 repeats.
+  /// With the 14 targets per tercile of `test` a 95 % coverage has a binomial
+  /// sd of 2.4 % (more, since a target's repeats share its systematic error),
+  /// as wide as the 93-97 % band; here about 100 targets per tercile.
+  std::vector<ranging::Record> coverage;
 };
 
 const GridData& grid_data() {
@@ -142,11 +161,21 @@ const GridData& grid_data() {
         }
       }
     }
+    const std::size_t test_end = plan.size();
+    // Appended, so the rows above keep their random streams.
+    for (double d = 0.625; d <= 8.875 + 1e-9; d += 0.25) {
+      for (double rho : {0.09, 0.16, 0.2, 0.3, 0.35, 0.5, 0.55, 0.7, 0.75}) {
+        for (int repeat = 0; repeat < 6; ++repeat) {
+          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+        }
+      }
+    }
     std::vector<ranging::Record> rows = experiments::run(device, plan, 7);
+    const auto at = [&](std::size_t k) { return rows.begin() + static_cast<std::ptrdiff_t>(k); };
     GridData out;
-    out.calibration.assign(rows.begin(),
-                           rows.begin() + static_cast<std::ptrdiff_t>(calibration_rows));
-    out.test.assign(rows.begin() + static_cast<std::ptrdiff_t>(calibration_rows), rows.end());
+    out.calibration.assign(rows.begin(), at(calibration_rows));
+    out.test.assign(at(calibration_rows), at(test_end));
+    out.coverage.assign(at(test_end), rows.end());
     return out;
   }();
   return data;
@@ -206,10 +235,18 @@ HeldOutFigures held_out_figures(const ranging::Pipeline& pipeline,
   return f;
 }
 
-calib::ModelFitResult fit_grid(
-    bool chain, bool refine_walk = true,
-    calib::SurfaceIntensity intensity = calib::SurfaceIntensity::choose) {
+/// The TDC's coarse clock period, as its datasheet gives it to the calibration.
+double tdc_period_ns() {
+  return 1e3 / other_parts().tdc.coarse_clock_mhz;
+}
+
+calib::ModelFitResult fit_grid(bool chain, bool refine_walk = true,
+                               calib::SurfaceIntensity intensity = calib::SurfaceIntensity::choose,
+                               calib::ConfidenceKind confidence = calib::ConfidenceKind::calibrated,
+                               double periodic_ns = 0) {
   calib::ModelFitOptions options;
+  options.confidence = confidence;
+  options.tdc_period_ns = periodic_ns;
   options.surface_intensity = intensity;
   if (chain) {
     options.chain = calib::ChainSteps{true, true, false};
@@ -221,55 +258,92 @@ calib::ModelFitResult fit_grid(
 }
 
 // The issue's acceptance on held-out rows: systematic residual no larger than
-// the noise of one row, and sigma covering 93-97 % within 2 sigma overall and
-// in each amplitude tercile.
-void expect_noise_level_and_covering_sigma(const char* label, const calib::ModelFitResult& fit) {
+// the noise of one row (on `test`), and sigma covering 93-97 % within 2 sigma
+// overall and in each amplitude tercile (on the larger `coverage` set). The
+// correction has the periodic TDC step in front; the confidence is the
+// noise-systematic kind (noise from the repeats, systematic
+// from the targets' mean residuals times the optimism, on the correction's
+// intensity axis); the default calibrated kind's figures are printed beside it.
+void expect_noise_level_and_covering_sigma(bool chain) {
+  const char* label = chain ? "chain" : "B-spline";
+  const calib::ModelFitResult calibrated = fit_grid(chain);
+  const calib::ModelFitResult fit =
+      fit_grid(chain, true, calib::SurfaceIntensity::choose,
+               calib::ConfidenceKind::noise_systematic, tdc_period_ns());
   const HeldOutFigures f = held_out_figures(fit.pipeline, grid_data().test);
-  std::printf("%s: %s\n%s", label, f.summary().c_str(), fit.report.c_str());
+  const HeldOutFigures c = held_out_figures(fit.pipeline, grid_data().coverage);
+  const HeldOutFigures d = held_out_figures(calibrated.pipeline, grid_data().coverage);
+  std::printf("%s: %s\ncoverage set, noise-systematic: %s\ncoverage set, calibrated: %s\n%s", label,
+              f.summary().c_str(), c.summary().c_str(), d.summary().c_str(), fit.report.c_str());
   EXPECT_LE(f.systematic_m, f.noise_m) << f.summary();
-  EXPECT_GE(f.within_2sigma, 0.93) << f.summary();
-  EXPECT_LE(f.within_2sigma, 0.97) << f.summary();
-  for (double c : f.within_2sigma_by_tercile) {
-    EXPECT_GE(c, 0.93) << f.summary();
-    EXPECT_LE(c, 0.97) << f.summary();
+  EXPECT_GE(c.within_2sigma, 0.93) << c.summary();
+  EXPECT_LE(c.within_2sigma, 0.97) << c.summary();
+  for (double share : c.within_2sigma_by_tercile) {
+    EXPECT_GE(share, 0.93) << c.summary();
+    EXPECT_LE(share, 0.97) << c.summary();
   }
 }
 
-// DISABLED (issue 8 open): with the intensity axis chosen by cross-validation
-// (pulse width), measured 0.344 mm systematic against 0.248 mm of noise;
-// 98.4 % within 2 sigma (terciles 100 / 95.2 / 100 %; rms sigma 0.65 / 0.42 /
-// 1.99 mm against rms errors 0.48 / 0.39 / 0.36 mm). The top tercile is off:
-// the amplitude clips at 4 V, so every saturated row shares one sigma, fitted
-// on out-of-fold residuals whose 0.5 m targets, held out, are extrapolated in
-// (range, pulse width) and miss by 2-8 mm. The repeats' scatter (0.33 / 0.22 /
-// 0.17 mm by tercile) matches the held-out noise (0.32 / 0.24 / 0.16 mm), but
-// even sigma^2 = noise^2(amplitude) + s^2 with the held-out systematic s as a
-// constant (0.30-0.35 mm) gives terciles 90 / 95-97 / 92-96 %: the systematic
-// differs between terciles (0.38 / 0.32 / 0.33 mm) and each has 14 targets.
-// Tried (not kept): sigma^2 = noise^2(amplitude), a log-quadratic gamma fit of
-// the calibration repeats' scatter, + s^2 from the out-of-fold group means
-// (median-robust, 1/SNR noise of each mean removed): s = 0.56 mm (0.46 mm
-// with held-out targets on the training folds' edges left out), 99.6-100 %
-// in every tercile for both models; it would take s^2 x 0.25-0.35 to land in
-// 93-97 %, and no estimate from the calibration rows gives that factor.
+// DISABLED (issue 8 open). Measured with the periodic TDC step (1 harmonic
+// chosen) and the noise-systematic confidence: 0.302 mm systematic against
+// 0.248 mm of noise on `test` (0.344 mm without the step); coverage set 94.9 %
+// within 2 sigma, terciles 93.2 / 99.1 / 92.5 % (the default calibrated
+// confidence without the step: 98.2 %, 98.5 / 97.1 / 99.1 %; before the
+// shuffled folds 98.4 %, 100 / 95.2 / 100 % on `test`). What limits the
+// systematic (decomposed by switching causes off in the twin, same seeds,
+// 4000-shot rows to take the noise out): the TDC's periodic error (the
+// 2^20-hit code-density residual, 0.28 mm rms at the raw range, plus the
+// bin-width tempco's sawtooth) about 0.15 mm of it, the surface's own form
+// error 0.35 mm at 4000 shots (near the echo threshold, at the saturation
+// knee, at the 0.5 m and 9 m edges). The middle tercile is over-covered: the
+// in-sample mean residuals there (0.26-0.43 mm) exceed the held-out
+// systematic (0.23 mm).
 TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
-  expect_noise_level_and_covering_sigma("B-spline", fit_grid(false));
+  expect_noise_level_and_covering_sigma(false);
 }
 
-// DISABLED (issue 8 open): with the walk refinement, measured 0.277 mm
-// systematic against 0.253 mm of noise; 97.2 % within 2 sigma (terciles 100 /
-// 91.7 / 100 %, 84 rows each; rms sigma 0.94 / 0.41 / 0.95 mm against rms
-// errors 0.38 / 0.44 / 0.23 mm). The out-of-fold residuals the confidence is
-// fitted on (0.78 mm RMS; held-out group means 0.53 mm by their median, edge
-// targets extrapolated) are wider than the final model's errors, so sigma is
-// too large at the ends; the order-2 log-variance pulls it too low in the
-// middle tercile, whose held-out systematic (0.38 mm) is twice the top one's
-// (0.17 mm). Even sigma^2 = noise^2(amplitude) (from the repeats' scatter,
-// which matches the held-out noise) + s^2 with the held-out systematic as a
-// constant gives terciles 97 / 92-95 / 100 %: one constant systematic cannot
-// cover every tercile.
+// DISABLED (issue 8 open): the systematic half passes (see
+// ChainWithThePeriodicStepReachesTheNoise: 0.234 mm against 0.252 mm); the
+// coverage does not quite. Measured with the periodic step and the
+// noise-systematic confidence (optimism 3.17 for p = 50 effective parameters
+// on 96 targets): coverage set 96.7 % within 2 sigma, terciles 96.8 / 98.1 /
+// 95.2 % (`test`: 96.0 %, 96.4 / 94.0 / 97.6 %); the default calibrated
+// confidence without the step 97.4 %, 99.8 / 93.5 / 98.8 %. Per tercile the
+// model's noise and systematic match the held-out ones within about 20 %, but
+// the systematic errors are not Gaussian, so matching their RMS covers 96-98 %
+// at 2 sigma.
 TEST(CalibrationOnOtherParts, DISABLED_ChainOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
-  expect_noise_level_and_covering_sigma("chain", fit_grid(true));
+  expect_noise_level_and_covering_sigma(true);
+}
+
+// With the laser fired on the TDC's clock, the residual INL of the fine codes
+// (code density with 2^20 hits) and the bin-width error leave a range error
+// periodic in the time of flight (period 1 / f_coarse = 5 ns, 0.75 m); the
+// walk spreads the grid's stops over the whole period, so a periodic step in
+// tof modulo the clock period can learn it. It must be chosen by
+// cross-validation and bring the chain's held-out systematic residual within
+// the noise of one row (measured: 0.285 -> 0.234 mm against 0.252 mm).
+TEST(CalibrationOnOtherParts, ChainWithThePeriodicStepReachesTheNoise) {
+  const HeldOutFigures without = held_out_figures(fit_grid(true).pipeline, grid_data().test);
+  const calib::ModelFitResult fit = fit_grid(true, true, calib::SurfaceIntensity::choose,
+                                             calib::ConfidenceKind::calibrated, tdc_period_ns());
+  const HeldOutFigures with = held_out_figures(fit.pipeline, grid_data().test);
+  std::printf("without: %s\nwith the periodic step: %s\n%s", without.summary().c_str(),
+              with.summary().c_str(), fit.report.c_str());
+  ASSERT_TRUE(fit.summary.periodic.has_value());
+  EXPECT_GT(fit.summary.periodic->harmonics, 0);
+  EXPECT_LT(fit.summary.periodic->cv_rms_m, fit.summary.periodic->cv_rms_without_m);
+  ASSERT_FALSE(fit.pipeline.steps().empty());
+  EXPECT_EQ(fit.pipeline.steps().front().kind, ranging::StepKind::kPeriodic);
+  EXPECT_LT(with.systematic_m, without.systematic_m);
+  EXPECT_LE(with.systematic_m, with.noise_m);
+  // The model file keeps the step.
+  const ranging::Pipeline loaded =
+      io::pipeline_from_json(io::pipeline_to_json(fit.pipeline), "model.json");
+  for (const auto& r : grid_data().test) {
+    const ranging::Range x = fit.pipeline.apply(r.raw), y = loaded.apply(r.raw);
+    if (std::isfinite(x.distance_m)) EXPECT_NEAR(x.distance_m, y.distance_m, 1e-12);
+  }
 }
 
 // The hinge's three knots cannot follow the walk's curvature (2.5 mm
@@ -315,6 +389,45 @@ TEST(CalibrationOnOtherParts, BSplineChoosesThePulseWidthAxisWhereTheAmplitudeCl
       continue;
     }
     EXPECT_NEAR(x.distance_m, y.distance_m, 1e-12);
+  }
+}
+
+// DISABLED (issue 8 open): the paper protocol's sigma on its test rows
+// (0.7-7.4 m x 0.06-0.85 x 8-37 C, flagged rows included). Measured: fit_chain
+// (sigma = residual RMS 0.51 mm, grown outside the steps' domains by
+// Pipeline::kOutOfDomainSigmaGrowth) covers 44.1 % within 2 sigma (terciles
+// 23.4 / 60.5 / 48.4 %; in-domain rows alone 54.1 %, 35 / 58 / 69 %);
+// fit_model's calibrated confidence 68.5 % (36.3 / 79.0 / 90.3 %);
+// noise-systematic 53.8 % (41.1 / 71.8 / 48.4 %). The in-domain error is
+// 0.7-0.9 mm RMS at every test distance, 3.38 m included, against 0.25 mm on
+// the calibration plates: not an error of range but of the chain's additive
+// form, a walk and a temperature hinge fitted on two one-dimensional sweeps
+// (reflectance at 20 C, temperature at rho 0.3), which cannot see how the
+// walk changes with temperature (the APD bias tracking error changes the gain
+// with temperature). The cross-fitted residuals (0.81 mm RMS) do see it, but
+// the calibrated model's amplitude axis cannot place it (low tercile 36 %). A
+// periodic TDC step does not help here (at one distance the walk and the
+// clock phase are confounded: a spurious 0.66 mm harmonic, in-domain errors
+// 0.9-1.3 mm). Flagged rows (28 mm RMS: the hinges continued linearly far
+// outside the pulse widths the plates covered) need a growth of sigma with
+// the distance outside that these rows cannot estimate.
+TEST(CalibrationOnOtherParts, DISABLED_PaperProtocolSigmaCoversItsTestRows) {
+  const calib::ChainFitResult chain = calib::fit_chain(paper_data().calibration);
+  calib::ModelFitOptions options;
+  options.chain = calib::ChainSteps{true, true, true};
+  const calib::ModelFitResult calibrated = calib::fit_model(paper_data().calibration, options);
+  options.confidence = calib::ConfidenceKind::noise_systematic;
+  const calib::ModelFitResult repeats = calib::fit_model(paper_data().calibration, options);
+  const HeldOutFigures f = held_out_figures(chain.pipeline, paper_data().test);
+  std::printf("fit_chain: %s\nfit_model, calibrated: %s\nfit_model, noise-systematic: %s\n",
+              f.summary().c_str(),
+              held_out_figures(calibrated.pipeline, paper_data().test).summary().c_str(),
+              held_out_figures(repeats.pipeline, paper_data().test).summary().c_str());
+  EXPECT_GE(f.within_2sigma, 0.93) << f.summary();
+  EXPECT_LE(f.within_2sigma, 0.97) << f.summary();
+  for (double share : f.within_2sigma_by_tercile) {
+    EXPECT_GE(share, 0.93) << f.summary();
+    EXPECT_LE(share, 0.97) << f.summary();
   }
 }
 

@@ -602,5 +602,43 @@ TEST(FirmwareExport, CHeaderReproducesTheChain) {
   fs::remove_all(dir);
 }
 
+// The periodic step adds a_1 cos(2 pi t / T) + b_1 sin(2 pi t / T) + ... with
+// t the raw time of flight (closed form at chosen times: a quarter period
+// apart the terms swap), leaves rows without a tof alone, keeps its
+// coefficients through the model file, and refuses bad coefficients and the
+// fixed-point export.
+TEST(PeriodicStep, AddsItsFourierSeriesInTheTimeOfFlight) {
+  const double period = 5.0;
+  Pipeline p;
+  p.add_step(make_periodic_step(period, {0.001, 0.0005, 0.0002, 0.0}));
+  RawMeasurement raw;
+  raw.shots_valid = 100;
+  raw.pulse_width_ns = 5.0;
+  raw.amplitude = 1.0;
+  raw.temperature_c = 25.0;
+  const double mpn = metres_per_ns(TimeToDistance{});
+  // t = 20 ns: phase 0 -> a_1 + a_2; t = 21.25 ns: a quarter period -> b_1 - a_2.
+  raw.tof_ns = 20.0;
+  EXPECT_NEAR(p.apply(raw).distance_m, 20.0 * mpn + 0.0012, 1e-12);
+  raw.tof_ns = 21.25;
+  EXPECT_NEAR(p.apply(raw).distance_m, 21.25 * mpn + 0.0005 - 0.0002, 1e-12);
+  // One period later, the same correction.
+  raw.tof_ns = 26.25;
+  EXPECT_NEAR(p.apply(raw).distance_m - 26.25 * mpn, 0.0003, 1e-12);
+  raw.tof_ns = kNaN;
+  raw.distance_raw_m = 3.0;
+  EXPECT_NEAR(p.apply(raw).distance_m, 3.0, 1e-12);
+
+  const Pipeline loaded = io::pipeline_from_json(io::pipeline_to_json(p), "model.json");
+  ASSERT_EQ(loaded.steps().size(), 1u);
+  EXPECT_EQ(loaded.steps()[0].kind, StepKind::kPeriodic);
+  EXPECT_EQ(loaded.steps()[0].harmonics_m, p.steps()[0].harmonics_m);
+  EXPECT_EQ(loaded.steps()[0].period_ns, period);
+
+  EXPECT_THROW(p.add_step(make_periodic_step(0.0, {0.001, 0.0})), std::invalid_argument);
+  EXPECT_THROW(p.add_step(make_periodic_step(period, {0.001})), std::invalid_argument);
+  EXPECT_THROW((void)FixedPointChain::from_pipeline(p, FixedPointFormat{}), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace tofkit::ranging

@@ -123,5 +123,37 @@ TEST(Statistics, EvaluateGroupsByKey) {
                std::invalid_argument);
 }
 
+// Folds of a distance-major grid (6 reflectances per distance, 18 distances):
+// with group % 5 every fold would be a set of diagonals, and no distance
+// would lose more than two of its reflectances at once. The shuffled folds
+// must be deterministic, in range, about balanced (108 groups: 21.6 each,
+// binomial sd 4.2), and not the modulo.
+TEST(Statistics, FoldsAreShuffledDeterministicallyAndBalanced) {
+  constexpr std::size_t kGroups = 108, kFolds = 5;
+  std::vector<std::size_t> count(kFolds, 0);
+  std::size_t same_as_modulo = 0, distances_losing_three = 0;
+  for (std::size_t distance = 0; distance < 18; ++distance) {
+    std::vector<std::size_t> lost(kFolds, 0);
+    for (std::size_t rho = 0; rho < 6; ++rho) {
+      const std::size_t g = distance * 6 + rho;
+      const std::size_t f = fold_of(g, kFolds);
+      ASSERT_LT(f, kFolds);
+      EXPECT_EQ(f, fold_of(g, kFolds));
+      ++count[f];
+      ++lost[f];
+      same_as_modulo += f == g % kFolds ? 1 : 0;
+    }
+    for (std::size_t n : lost) distances_losing_three += n >= 3 ? 1 : 0;
+  }
+  for (std::size_t n : count) {
+    EXPECT_GE(n, 10u);
+    EXPECT_LE(n, 34u);
+  }
+  EXPECT_LT(same_as_modulo, kGroups / 2);
+  // Random folds sometimes take three of a distance's six targets (the modulo never does).
+  EXPECT_GT(distances_losing_three, 0u);
+  EXPECT_EQ(fold_of(7, 1), 0u);
+}
+
 }  // namespace
 }  // namespace tofkit::calib

@@ -31,6 +31,7 @@ struct FitOptions {
   double rcond = 1e-2;  // thesis: 1e-2
   bool surface_temperature = false;
   bool refine_walk = false;
+  bool tdc_periodic = false;
   std::string intensity = "auto";  // bspline: auto (CV) | amplitude | pulse-width
   std::string confidence = "calibrated";
   bool confidence_given = false;
@@ -176,6 +177,10 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   }
   options.surface_temperature = o.surface_temperature;
   options.refine_walk = o.refine_walk;
+  if (o.tdc_periodic && !o.firmware.empty()) {
+    throw std::invalid_argument(
+        "--tdc-periodic adds a periodic step; --firmware exports the paper's chain only");
+  }
   try {
     options.surface_intensity = calib::parse_surface_intensity(o.intensity);
   } catch (const std::invalid_argument& e) {
@@ -191,6 +196,7 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   options.confidence_folds = o.confidence_folds;
   if (o.confidence_fraction_given) options.confidence_hold_out_fraction = o.confidence_fraction;
   const device::DeviceConfig config = ctx.load_config();
+  if (o.tdc_periodic) options.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
   options.time_to_distance = checked_time_to_distance(ctx);
   require_output_directory(o.out, "--out");
   if (!o.firmware.empty()) require_output_directory(o.firmware + ".json", "--firmware");
@@ -253,6 +259,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
   sub.add_flag("--refine-walk", o->refine_walk,
                "chain: refine the grayvalue step by a dense penalized piecewise-linear correction "
                "in pulse width (nodes at quantiles; count and smoothing by grouped 5-fold CV)");
+  sub.add_flag("--tdc-periodic", o->tdc_periodic,
+               "fit a periodic step in the time of flight modulo the TDC's coarse clock period "
+               "(1e3 / tdc.coarse_clock_mhz of the config): the interpolator's residual "
+               "nonlinearity with a clock-synchronous laser; harmonics by grouped CV");
   sub.add_option("--knots", o->knots,
                  "bspline: knot intervals per axis, RxA[xT], or auto (chosen by generalized "
                  "cross-validation)")
@@ -264,8 +274,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
       sub.add_option(
              "--confidence", o->confidence,
              "confidence model: calibrated (default: sigma over amplitude and range, fitted "
-             "on out-of-fold residuals), thesis (Section 4.8) or none")
-          ->check(CLI::IsMember({"none", "thesis", "calibrated"}))
+             "on out-of-fold residuals), noise-systematic (noise from the repeats' scatter plus "
+             "the targets' systematic error times (G + p) / (G - p), on the correction's "
+             "intensity axis), thesis (Section 4.8) or none")
+          ->check(CLI::IsMember({"none", "thesis", "calibrated", "noise-systematic"}))
           ->capture_default_str();
   CLI::Option* fraction =
       sub.add_option("--confidence-fraction", o->confidence_fraction,

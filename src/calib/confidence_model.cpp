@@ -292,6 +292,197 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   return std::make_shared<const CalibratedConfidence>(std::move(p));
 }
 
+// -------------------------------------------------------- noise + systematic
+
+namespace {
+
+/// log E[y] = X beta by gamma quasi-likelihood with a log link and prior
+/// weights w (McCullagh & Nelder ch. 8): Fisher scoring with step halving.
+VectorXd gamma_log_fit(const MatrixXd& design, const VectorXd& y, const VectorXd& w) {
+  const Index terms = design.cols();
+  const double mean_y = (w.array() * y.array()).sum() / w.sum();
+  VectorXd beta = VectorXd::Zero(terms);
+  beta(0) = std::log(mean_y);
+  const double eta_lo = std::log(mean_y) - 60.0, eta_hi = std::log(mean_y) + 60.0;
+  const auto objective = [&](const VectorXd& b, VectorXd& eta) {
+    eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
+    return (w.array() * (y.array() * (-eta.array()).exp() + eta.array())).sum();
+  };
+  const VectorXd root_w = w.cwiseSqrt();
+  const Eigen::ColPivHouseholderQR<MatrixXd> qr(root_w.asDiagonal() * design);
+  VectorXd eta;
+  double loss = objective(beta, eta);
+  for (int iteration = 0; iteration < 100; ++iteration) {
+    const VectorXd z = eta.array() + y.array() * (-eta.array()).exp() - 1.0;
+    const VectorXd step = qr.solve(root_w.asDiagonal() * z) - beta;
+    double t = 1.0;
+    VectorXd trial_eta;
+    double trial_loss = objective(beta + step, trial_eta);
+    while (trial_loss > loss && t > 1e-6) {
+      t *= 0.5;
+      trial_loss = objective(beta + t * step, trial_eta);
+    }
+    if (trial_loss > loss) break;
+    beta += t * step;
+    eta = trial_eta;
+    const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
+    loss = trial_loss;
+    if (converged) break;
+  }
+  return beta;
+}
+
+MatrixXd power_design(const std::vector<double>& x, int order) {
+  MatrixXd d(static_cast<Index>(x.size()), order + 1);
+  for (std::size_t i = 0; i < x.size(); ++i) {
+    double power = 1;
+    for (int k = 0; k <= order; ++k, power *= x[i]) d(static_cast<Index>(i), k) = power;
+  }
+  return d;
+}
+
+}  // namespace
+
+void NoiseSystematicOptions::validate() const {
+  if (order < 0 || order > 6) {
+    throw std::invalid_argument("NoiseSystematicOptions.order must be in [0, 6]");
+  }
+  if (!(optimism >= 1) || !std::isfinite(optimism)) {
+    throw std::invalid_argument("NoiseSystematicOptions.optimism must be finite and >= 1");
+  }
+}
+
+std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
+    const NoiseSystematicFitData& data, const NoiseSystematicOptions& options) {
+  options.validate();
+  const std::string who = "fit_noise_systematic_confidence";
+  const std::size_t n = data.residual_m.size();
+  if (data.range_m.size() != n || data.intensity.size() != n || data.group.size() != n) {
+    throw std::invalid_argument(who +
+                                ": range_m, intensity, residual_m and group differ in length");
+  }
+  if (n == 0) throw std::invalid_argument(who + ": no rows");
+  SurfaceDomain d;
+  d.amplitude_min = d.range_min_m = std::numeric_limits<double>::infinity();
+  d.amplitude_max = d.range_max_m = -std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < n; ++k) {
+    if (!std::isfinite(data.residual_m[k]) || !std::isfinite(data.range_m[k]) ||
+        !(data.intensity[k] > 0) || !std::isfinite(data.intensity[k])) {
+      throw std::invalid_argument(who + ": row " + std::to_string(k) +
+                                  " needs a finite residual and range and a positive intensity");
+    }
+    d.amplitude_min = std::min(d.amplitude_min, data.intensity[k]);
+    d.amplitude_max = std::max(d.amplitude_max, data.intensity[k]);
+    d.range_min_m = std::min(d.range_min_m, data.range_m[k]);
+    d.range_max_m = std::max(d.range_max_m, data.range_m[k]);
+  }
+  if (!(d.amplitude_min < d.amplitude_max)) {
+    throw std::invalid_argument(who + ": no spread in intensity");
+  }
+  // sigma does not depend on range here; the range domain only has to be valid.
+  if (!(d.range_min_m < d.range_max_m)) d.range_max_m = d.range_min_m + 1.0;
+
+  CalibratedConfidenceParams p;
+  p.intensity = options.intensity;
+  p.log_amplitude = true;
+  p.domain = d;
+  p.rows = n;
+  p.amplitude_scaling = AxisScaling::over(std::log(d.amplitude_min), std::log(d.amplitude_max));
+  p.range_scaling = AxisScaling::over(d.range_min_m, d.range_max_m);
+
+  // Per target: rows, mean log intensity, mean and sample variance of the residual.
+  struct Target {
+    std::size_t rows = 0;
+    double u = 0, sum = 0, sum2 = 0;
+  };
+  std::vector<Target> targets;
+  std::vector<std::size_t> index_of;  // group id -> index in targets (+1; 0: none yet)
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::uint32_t g = data.group[k];
+    if (g >= index_of.size()) index_of.resize(g + 1, 0);
+    if (index_of[g] == 0) {
+      targets.emplace_back();
+      index_of[g] = targets.size();
+    }
+    Target& t = targets[index_of[g] - 1];
+    ++t.rows;
+    t.u += std::log(data.intensity[k]);
+    t.sum += data.residual_m[k];
+  }
+  for (Target& t : targets) {
+    t.u /= static_cast<double>(t.rows);
+    t.sum /= static_cast<double>(t.rows);  // now the mean
+  }
+  for (std::size_t k = 0; k < n; ++k) {
+    Target& t = targets[index_of[data.group[k]] - 1];
+    t.sum2 += (data.residual_m[k] - t.sum) * (data.residual_m[k] - t.sum);
+  }
+  std::vector<double> x_rep, var, dof, x_all, mean2, rows_of;
+  for (const Target& t : targets) {
+    const double x = p.amplitude_scaling.apply(t.u);
+    x_all.push_back(x);
+    mean2.push_back(t.sum * t.sum);
+    rows_of.push_back(static_cast<double>(t.rows));
+    if (t.rows < 2) continue;
+    x_rep.push_back(x);
+    var.push_back(t.sum2 / static_cast<double>(t.rows - 1));
+    dof.push_back(static_cast<double>(t.rows - 1));
+  }
+  const auto order_for = [&](std::size_t count) {
+    return std::min(options.order, static_cast<int>(count / 10) - 1);
+  };
+  const int noise_order = order_for(x_rep.size());
+  if (noise_order < 0) {
+    throw std::invalid_argument(who + ": " + std::to_string(x_rep.size()) +
+                                " targets with repeats; at least 10 are needed for the noise");
+  }
+  double var_sum = 0;
+  for (double v : var) var_sum += v;
+  if (!(var_sum > 0)) throw std::invalid_argument(who + ": the repeats do not scatter");
+  const VectorXd noise = gamma_log_fit(power_design(x_rep, noise_order),
+                                       Eigen::Map<const VectorXd>(var.data(), Index(var.size())),
+                                       Eigen::Map<const VectorXd>(dof.data(), Index(dof.size())));
+  const auto noise2_at = [&](double x) {
+    double v = 0, power = 1;
+    for (Index k = 0; k < noise.size(); ++k, power *= x) v += noise(k) * power;
+    return std::exp(v);
+  };
+  // Systematic: E[mean^2] = s^2 + noise^2 / n; a small floor keeps the log
+  // fit defined where the noise explains a target's mean entirely.
+  double mean2_avg = 0;
+  for (double m : mean2) mean2_avg += m;
+  mean2_avg /= static_cast<double>(mean2.size());
+  std::vector<double> s2(x_all.size());
+  for (std::size_t i = 0; i < x_all.size(); ++i) {
+    s2[i] = std::max(mean2[i] - noise2_at(x_all[i]) / rows_of[i], 1e-3 * mean2_avg + 1e-18);
+  }
+  const int systematic_order = std::max(0, order_for(x_all.size()));
+  const VectorXd systematic = gamma_log_fit(power_design(x_all, systematic_order),
+                                            Eigen::Map<const VectorXd>(s2.data(), Index(s2.size())),
+                                            VectorXd::Ones(Index(s2.size())));
+  for (Index k = 0; k < noise.size(); ++k) {
+    p.exponents.push_back({static_cast<int>(k), 0});
+    p.coefficients.push_back(noise(k));
+  }
+  for (Index k = 0; k < systematic.size(); ++k) {
+    p.systematic_exponents.push_back({static_cast<int>(k), 0});
+    // A new target's systematic error: the calibration targets' times the optimism.
+    p.systematic_coefficients.push_back(systematic(k) + (k == 0 ? std::log(options.optimism) : 0));
+  }
+  std::vector<double> u_sorted;
+  for (std::size_t k = 0; k < n; ++k) u_sorted.push_back(std::log(data.intensity[k]));
+  p.band_coordinate = {order_statistic(u_sorted, n / 2)};
+  p.band_scale = {1.0};
+  p.target_coverage_2sigma = 0.95;
+  auto model = std::make_shared<const CalibratedConfidence>(p);
+  std::vector<double> sigma(n);
+  model->sigma(data.range_m, data.intensity, sigma);
+  std::size_t covered = 0;
+  for (std::size_t k = 0; k < n; ++k) covered += std::abs(data.residual_m[k]) <= 2 * sigma[k];
+  p.fit_coverage_2sigma = static_cast<double>(covered) / static_cast<double>(n);
+  return std::make_shared<const CalibratedConfidence>(std::move(p));
+}
+
 // ---------------------------------------------------------------- coverage
 
 std::string ConfidenceCoverage::summary() const {

@@ -256,7 +256,7 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     std::vector<NormalEquations> fold_eq;
     std::vector<char> use(cx.size());
     for (std::size_t fold = 0; fold < kFolds; ++fold) {
-      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = cgroup[i] % kFolds != fold;
+      for (std::size_t i = 0; i < cx.size(); ++i) use[i] = fold_of(cgroup[i], kFolds) != fold;
       fold_eq.push_back(accumulate(t.size(), hats, cr, use));
     }
     for (int decade_half = -10; decade_half <= 6; ++decade_half) {
@@ -265,7 +265,7 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
       for (std::size_t fold = 0; fold < kFolds; ++fold) {
         const Eigen::VectorXd v = solve_nodes(fold_eq[fold], lambda);
         for (std::size_t i = 0; i < cx.size(); ++i) {
-          if (cgroup[i] % kFolds != fold) continue;
+          if (fold_of(cgroup[i], kFolds) != fold) continue;
           const double e = cr[i] - hat_value(hats[i], v);
           sse += e * e;
         }
@@ -281,9 +281,24 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
   if (info) *info = {0, 0, best, without};
   if (best_nodes == 0) return chain;
   const std::vector<double> t = nodes_at(best_nodes);
-  const Eigen::VectorXd v = solve_nodes(
-      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1)), best_lambda);
-  if (info) *info = {static_cast<int>(t.size()), best_lambda, best, without};
+  const NormalEquations all =
+      accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1));
+  const Eigen::VectorXd v = solve_nodes(all, best_lambda);
+  if (info) {
+    // Effective parameters: trace of the hat matrix A (A'A + lambda s P)^-1 A'
+    // = trace((A'A + lambda s P)^-1 A'A), P the second-difference penalty.
+    Eigen::MatrixXd penalized = all.normal;
+    const Eigen::Index k = penalized.rows();
+    const double scale = penalized.trace() / static_cast<double>(k);
+    for (Eigen::Index j = 0; j + 2 < k; ++j) {
+      const double d[3] = {1, -2, 1};
+      for (int p = 0; p < 3; ++p)
+        for (int q = 0; q < 3; ++q) penalized(j + p, j + q) += best_lambda * scale * d[p] * d[q];
+    }
+    penalized.diagonal().array() += 1e-12 * scale;
+    const double edf = penalized.ldlt().solve(all.normal).trace();
+    *info = {static_cast<int>(t.size()), best_lambda, best, without, edf};
+  }
   // g + d as one piecewise-linear function: nodes at the union of both knot sets.
   const ranging::Step& old = chain.steps()[grayvalue];
   std::vector<double> u = t;
@@ -324,8 +339,9 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
 
 /// The correction (base or chain, then the surface on its residual) fitted on
 /// `rows`; the summary and report only when given (the model that is kept).
-ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
-                                 ModelFitSummary* summary, std::string* report) {
+ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
+                                      const ModelFitOptions& o, ModelFitSummary* summary,
+                                      std::string* report) {
   ranging::Pipeline pipeline = o.base ? *o.base : ranging::Pipeline(o.time_to_distance);
   if (o.chain) {
     ChainFitOptions chain_options = o.chain_options;
@@ -427,6 +443,137 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   return pipeline;
 }
 
+/// The periodic step on the residual of `main` (rows outside its domain or
+/// without a finite tof left out): a Fourier series in tof_ns modulo the
+/// period, its harmonic count (0 .. kMaxHarmonics) chosen by grouped 5-fold
+/// cross-validation. Returns the harmonics (empty: none chosen).
+constexpr int kMaxHarmonics = 8;
+
+std::vector<double> fit_periodic(const ranging::Pipeline& main,
+                                 std::span<const ranging::Record> rows, double period_ns,
+                                 ModelFitSummary::Periodic* info) {
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(rows.size());
+  for (const auto& r : rows) raw.push_back(r.raw);
+  std::vector<ranging::Range> corrected(raw.size());
+  main.apply(raw, corrected);
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group_of = truth_groups(rows, groups);
+  std::vector<double> phase, e;
+  std::vector<std::size_t> fold;
+  constexpr std::size_t kFolds = 5;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const double r = rows[i].truth.distance_m - corrected[i].distance_m;
+    if (!std::isfinite(r) || !std::isfinite(raw[i].tof_ns) ||
+        (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+      continue;
+    }
+    phase.push_back(2.0 * 3.14159265358979323846 * std::fmod(raw[i].tof_ns, period_ns) / period_ns);
+    e.push_back(r);
+    fold.push_back(fold_of(group_of[i], kFolds));
+  }
+  const auto n = static_cast<Eigen::Index>(e.size());
+  // Columns: a constant (the main correction's business; fitted, not kept),
+  // then cos and sin of each harmonic.
+  Eigen::MatrixXd x(n, 1 + 2 * kMaxHarmonics);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    x(i, 0) = 1.0;
+    for (int h = 1; h <= kMaxHarmonics; ++h) {
+      x(i, 2 * h - 1) = std::cos(h * phase[static_cast<std::size_t>(i)]);
+      x(i, 2 * h) = std::sin(h * phase[static_cast<std::size_t>(i)]);
+    }
+  }
+  const Eigen::Map<const Eigen::VectorXd> y(e.data(), n);
+  double best = y.squaredNorm(), without = -1;
+  int best_h = 0;
+  if (groups >= kFolds && n >= 40) {
+    for (int h = 0; h <= kMaxHarmonics; ++h) {
+      const Eigen::Index cols = 1 + 2 * h;
+      double sse = 0;
+      for (std::size_t f = 0; f < kFolds; ++f) {
+        std::vector<Eigen::Index> train, test;
+        for (Eigen::Index i = 0; i < n; ++i)
+          (fold[static_cast<std::size_t>(i)] == f ? test : train).push_back(i);
+        if (test.empty() || train.size() < static_cast<std::size_t>(3 * cols)) continue;
+        const Eigen::MatrixXd a = x(train, Eigen::seq(0, cols - 1));
+        const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train).eval());
+        sse += (y(test) - x(test, Eigen::seq(0, cols - 1)) * c).squaredNorm();
+      }
+      if (h == 0) {
+        without = sse;
+        best = sse;
+      } else if (sse < best) {
+        best = sse;
+        best_h = h;
+      }
+    }
+  }
+  if (info && without >= 0) {
+    info->harmonics = best_h;
+    info->cv_rms_m = std::sqrt(best / static_cast<double>(n));
+    info->cv_rms_without_m = std::sqrt(without / static_cast<double>(n));
+  }
+  if (best_h == 0) return {};
+  const Eigen::Index cols = 1 + 2 * best_h;
+  const Eigen::VectorXd c = x.leftCols(cols).colPivHouseholderQr().solve(y);
+  return std::vector<double>(c.data() + 1, c.data() + cols);
+}
+
+/// The correction: the main one (chain and/or surface), and with
+/// o.tdc_period_ns a periodic step in front of it, fitted by backfitting: the
+/// periodic part on the main correction's residual, the main correction again
+/// on rows whose time of flight the periodic part has corrected, twice.
+ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const ModelFitOptions& o,
+                                 ModelFitSummary* summary, std::string* report) {
+  if (!(o.tdc_period_ns > 0)) return fit_main_correction(rows, o, summary, report);
+  const double metres_per_ns = ranging::metres_per_ns(o.time_to_distance);
+  std::vector<ranging::Record> adjusted(rows.begin(), rows.end());
+  ranging::Pipeline main = fit_main_correction(rows, o, nullptr, nullptr);
+  std::vector<double> harmonics;
+  ModelFitSummary::Periodic info;
+  constexpr int kRounds = 2;
+  for (int round = 0; round <= kRounds; ++round) {
+    harmonics = fit_periodic(main, rows, o.tdc_period_ns, &info);
+    if (harmonics.empty() || round == kRounds) break;
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const double c = ranging::periodic_correction(o.tdc_period_ns, harmonics, rows[i].raw.tof_ns);
+      adjusted[i].raw.tof_ns = rows[i].raw.tof_ns + c / metres_per_ns;
+      adjusted[i].raw.distance_raw_m = rows[i].raw.distance_raw_m + c;
+    }
+    const bool last = round + 1 == kRounds;
+    main = fit_main_correction(adjusted, o, last ? summary : nullptr, last ? report : nullptr);
+  }
+  if (harmonics.empty()) {
+    // Not chosen: the main correction alone, fitted (and summarised) on the rows as they are.
+    main = fit_main_correction(rows, o, summary, report);
+    if (summary) summary->periodic = info;
+    if (report) {
+      *report +=
+          format("periodic (TDC clock period %.4g ns): none chosen (cross-validated RMS %.3f mm)\n",
+                 o.tdc_period_ns, info.cv_rms_without_m * 1e3);
+    }
+    return main;
+  }
+  ranging::Pipeline pipeline(main.time_to_distance());
+  ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, harmonics);
+  step.fit.rows = rows.size();
+  step.fit.residual_rms_m = main.residual_rms_m();  // of the whole fit, periodic part included
+  pipeline.add_step(std::move(step));
+  for (const ranging::Step& s : main.steps()) pipeline.add_step(s);
+  pipeline.set_residual_rms_m(main.residual_rms_m());
+  if (summary) summary->periodic = info;
+  if (report) {
+    double amplitude2 = 0;
+    for (double c : harmonics) amplitude2 += c * c;
+    *report += format(
+        "periodic (TDC clock period %.4g ns): %d harmonic(s), rms %.3f mm, cross-validated RMS "
+        "%.3f mm (without %.3f mm)\n",
+        o.tdc_period_ns, info.harmonics, std::sqrt(0.5 * amplitude2) * 1e3, info.cv_rms_m * 1e3,
+        info.cv_rms_without_m * 1e3);
+  }
+  return pipeline;
+}
+
 /// Residuals of a model on rows it was not fitted on.
 struct Residuals {
   std::vector<double> range, amplitude, residual;
@@ -450,6 +597,95 @@ struct Residuals {
     }
   }
 };
+
+/// The correction's effective parameter count: the surface's (trace of its
+/// hat matrix, or its rank), the chain's offset, its walk refinement's trace
+/// or its hinges' parameters (intercept, slope and one per knot), and two per
+/// harmonic of a periodic step.
+double effective_parameters(const ModelFitSummary& s) {
+  double p = 0;
+  if (s.surface) p += s.surface->effective_parameters;
+  if (s.chain) {
+    p += 1;  // offset
+    const auto hinge = [](const std::optional<HingeFitResult>& h) {
+      return h ? 2.0 + static_cast<double>(h->knots.size()) : 0.0;
+    };
+    p += s.walk && s.walk->nodes > 0 ? s.walk->effective_parameters : hinge(s.chain->grayvalue);
+    p += hinge(s.chain->temperature);
+  }
+  if (s.periodic) p += 2.0 * s.periodic->harmonics;
+  return p;
+}
+
+/// noise_systematic: in-sample residuals of the kept model on every row,
+/// grouped by truth; the intensity axis the correction reads.
+void fit_repeats_confidence(std::span<const ranging::Record> records, const ModelFitOptions& o,
+                            ModelFitResult& result) {
+  bool pulse_width = result.summary.chain.has_value() && o.chain->grayvalue;
+  if (result.summary.surface) pulse_width = result.summary.surface_intensity == "pulse_width_ns";
+  std::size_t groups = 0;
+  const std::vector<std::size_t> group_of = truth_groups(records, groups);
+  std::vector<ranging::RawMeasurement> raw;
+  raw.reserve(records.size());
+  for (const auto& r : records) raw.push_back(r.raw);
+  std::vector<ranging::Range> corrected(raw.size());
+  result.pipeline.apply(raw, corrected);
+  std::vector<double> range, intensity, residual;
+  std::vector<std::uint32_t> group;
+  std::vector<char> seen(groups, 0);
+  std::size_t used_groups = 0;
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    const double e = records[i].truth.distance_m - corrected[i].distance_m;
+    const double x = pulse_width ? raw[i].pulse_width_ns : raw[i].amplitude;
+    if (!std::isfinite(e) || !(x > 0) || !std::isfinite(x) ||
+        (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
+      continue;
+    }
+    range.push_back(corrected[i].distance_m);
+    intensity.push_back(x);
+    residual.push_back(e);
+    group.push_back(static_cast<std::uint32_t>(group_of[i]));
+    if (!seen[group_of[i]]) {
+      seen[group_of[i]] = 1;
+      ++used_groups;
+    }
+  }
+  const double p = effective_parameters(result.summary);
+  const double g = static_cast<double>(used_groups);
+  NoiseSystematicOptions options;
+  options.intensity =
+      pulse_width ? ranging::IntensityInput::pulse_width : ranging::IntensityInput::amplitude;
+  std::string why;
+  if (!(g > p + 1)) {
+    why = format("%zu targets for %.1f effective parameters", used_groups, p);
+  } else {
+    options.optimism = (g + p) / (g - p);
+    try {
+      result.pipeline.set_confidence(
+          fit_noise_systematic_confidence({range, intensity, residual, group}, options));
+    } catch (const std::invalid_argument& e) {
+      why = e.what();
+    }
+  }
+  if (!why.empty()) {
+    if (o.confidence_required) throw std::invalid_argument("confidence noise-systematic: " + why);
+    result.report += "confidence: none (" + why + ")\n";
+    return;
+  }
+  ModelFitSummary::Confidence c;
+  c.kind = o.confidence;
+  c.rows = residual.size();
+  c.groups = used_groups;
+  c.held_out = error_stats(residual);
+  c.effective_parameters = p;
+  c.optimism = options.optimism;
+  result.report += format(
+      "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
+      "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f\n",
+      pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
+      c.optimism, p);
+  result.summary.confidence = c;
+}
 
 }  // namespace
 
@@ -492,8 +728,9 @@ ConfidenceKind parse_confidence_kind(std::string_view kind) {
   if (kind == "none") return ConfidenceKind::none;
   if (kind == "calibrated") return ConfidenceKind::calibrated;
   if (kind == "thesis") return ConfidenceKind::thesis;
+  if (kind == "noise-systematic") return ConfidenceKind::noise_systematic;
   throw std::invalid_argument("confidence " + std::string(kind) +
-                              ": expected none, calibrated or thesis");
+                              ": expected none, calibrated, thesis or noise-systematic");
 }
 
 std::string to_string(ConfidenceKind kind) {
@@ -502,6 +739,8 @@ std::string to_string(ConfidenceKind kind) {
       return "calibrated";
     case ConfidenceKind::thesis:
       return "thesis";
+    case ConfidenceKind::noise_systematic:
+      return "noise-systematic";
     case ConfidenceKind::none:
       break;
   }
@@ -517,6 +756,9 @@ void ModelFitOptions::validate() const {
     throw std::invalid_argument("confidence_hold_out_fraction must be in (0, 0.5] (0: none)");
   }
   if (confidence_folds < 2) throw std::invalid_argument("confidence_folds must be >= 2");
+  if (!(tdc_period_ns >= 0) || !std::isfinite(tdc_period_ns)) {
+    throw std::invalid_argument("tdc_period_ns must be finite and >= 0 (0: no periodic step)");
+  }
   if (surface.kind == SurfaceKind::polynomial) polynomial.validate();
   if (surface.kind == SurfaceKind::bspline) bspline.validate();
 }
@@ -528,7 +770,9 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   std::string& report = result.report;
   summary.rows = records.size();
 
-  const bool hold_out = o.confidence != ConfidenceKind::none && o.confidence_hold_out_fraction > 0;
+  const bool from_repeats = o.confidence == ConfidenceKind::noise_systematic;
+  const bool hold_out =
+      o.confidence != ConfidenceKind::none && !from_repeats && o.confidence_hold_out_fraction > 0;
   std::vector<ranging::Record> fit_part, confidence_part;
   std::size_t groups = 0;
   long every_kth = 0;
@@ -556,6 +800,12 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
 
   result.pipeline = fit_correction(fit_rows, o, &summary, &report);
 
+  if (from_repeats) {
+    fit_repeats_confidence(records, o, result);
+    summary.residual_rms_m = result.pipeline.residual_rms_m();
+    return result;
+  }
+
   Residuals residuals;
   bool fit_confidence = o.confidence != ConfidenceKind::none;
   std::string note;
@@ -580,7 +830,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          (group[i] % folds == k ? test : train).push_back(records[i]);
+          (fold_of(group[i], folds) == k ? test : train).push_back(records[i]);
         }
         residuals.add(fit_correction(train, o, nullptr, nullptr), test);
       }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <map>
 #include <stdexcept>
@@ -82,6 +83,16 @@ ErrorStats error_stats(std::span<const double> error_m) {
 double improvement_pct(double before, double after) {
   if (!std::isfinite(before) || !std::isfinite(after) || before == 0) return ranging::kNaN;
   return 100.0 * (before - after) / before;  // Eqs. 4.10-4.11
+}
+
+std::size_t fold_of(std::size_t group, std::size_t folds) {
+  // SplitMix64's finalizer (Steele, Lea & Flood 2014): consecutive group
+  // numbers map to well-mixed 64-bit values.
+  std::uint64_t z = static_cast<std::uint64_t>(group) + 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  z ^= z >> 31;
+  return folds > 0 ? static_cast<std::size_t>(z % folds) : 0;
 }
 
 TercileEdges amplitude_terciles(std::span<const double> amplitude) {

@@ -13,6 +13,7 @@
 
 #include "tofkit/calib/bspline_surface.hpp"
 #include "tofkit/calib/polynomial_surface.hpp"
+#include "tofkit/calib/statistics.hpp"
 
 namespace tofkit::calib {
 
@@ -498,7 +499,7 @@ struct Fold {
   Columns columns;
 };
 
-/// K folds of whole groups (group % K); empty when the data carry no groups
+/// K folds of whole groups (fold_of: shuffled); empty when the data carry no groups
 /// or fewer than K distinct groups (GCV is used then).
 std::vector<Fold> make_folds(const Columns& c) {
   constexpr std::uint32_t kFolds = 5;
@@ -509,7 +510,7 @@ std::vector<Fold> make_folds(const Columns& c) {
   if (std::unique(distinct.begin(), distinct.end()) - distinct.begin() < kFolds) return folds;
   folds.resize(kFolds);
   for (std::size_t k = 0; k < c.rows; ++k) {
-    Fold& f = folds[c.group[k] % kFolds];
+    Fold& f = folds[fold_of(c.group[k], kFolds)];
     f.range.push_back(c.range[k]);
     f.amplitude.push_back(c.amplitude[k]);
     if (c.temperature) f.temperature.push_back(c.temperature[k]);

@@ -122,6 +122,11 @@ json step_to_json(const ranging::Step& step) {
                      {"max", finite_or_null(step.domain.max)}};
       break;
     }
+    case ranging::StepKind::kPeriodic:
+      j["input"] = "tof_ns";
+      j["period_ns"] = step.period_ns;
+      j["harmonics_m"] = step.harmonics_m;
+      break;
   }
   j["fit"] = fit_to_json(step.fit);
   return j;
@@ -190,6 +195,10 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
           number_or(d, "max", where + ".domain", std::numeric_limits<double>::infinity());
       break;
     }
+    case ranging::StepKind::kPeriodic:
+      step.period_ns = number(j, "period_ns", where);
+      step.harmonics_m = numbers(j, "harmonics_m", where);
+      break;
   }
   step.fit = fit_from_json(j, where);
   try {
@@ -323,7 +332,13 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
     j["walk_refinement"] = {{"nodes", s.walk->nodes},
                             {"smoothing", s.walk->smoothing},
                             {"cv_rms_m", s.walk->cv_rms_m},
-                            {"cv_rms_without_m", s.walk->cv_rms_without_m}};
+                            {"cv_rms_without_m", s.walk->cv_rms_without_m},
+                            {"effective_parameters", s.walk->effective_parameters}};
+  }
+  if (s.periodic) {
+    j["periodic"] = {{"harmonics", s.periodic->harmonics},
+                     {"cv_rms_m", s.periodic->cv_rms_m},
+                     {"cv_rms_without_m", s.periodic->cv_rms_without_m}};
   }
   if (s.surface) {
     const calib::SurfaceFitResult& surface = *s.surface;
@@ -349,7 +364,10 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
                        {"rows", c.rows},
                        {"groups", c.groups},
                        {"held_out_residual", stats_json(c.held_out)}};
-    if (c.every_kth_group > 0) {
+    if (c.kind == calib::ConfidenceKind::noise_systematic) {
+      j["confidence"]["effective_parameters"] = c.effective_parameters;
+      j["confidence"]["optimism"] = c.optimism;
+    } else if (c.every_kth_group > 0) {
       j["confidence"]["held_out_every_kth_group"] = c.every_kth_group;
     } else {
       j["confidence"]["folds"] = c.folds;

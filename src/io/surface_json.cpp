@@ -317,32 +317,58 @@ json calibrated_json(const calib::CalibratedConfidence& m) {
   const auto& p = m.params();
   json exps = json::array();
   for (const auto& e : p.exponents) exps.push_back(json::array({e[0], e[1]}));
-  return {{"kind", "calibrated"},
-          {"version", kVersion},
-          {"log_amplitude", p.log_amplitude},
-          {"exponents", exps},
-          {"coefficients", p.coefficients},
-          {"scaling",
-           {{"amplitude", scaling_json(p.amplitude_scaling)},
-            {"range_m", scaling_json(p.range_scaling)}}},
-          {"domain", domain_json(p.domain, false)},
-          {"bands", {{"coordinate", p.band_coordinate}, {"scale", p.band_scale}}},
-          {"target_coverage_2sigma", p.target_coverage_2sigma},
-          {"fit", {{"rows", p.rows}, {"coverage_2sigma", p.fit_coverage_2sigma}}}};
+  json out = {{"kind", "calibrated"},
+              {"version", kVersion},
+              {"log_amplitude", p.log_amplitude},
+              {"exponents", exps},
+              {"coefficients", p.coefficients},
+              {"scaling",
+               {{"amplitude", scaling_json(p.amplitude_scaling)},
+                {"range_m", scaling_json(p.range_scaling)}}},
+              {"domain", domain_json(p.domain, false)},
+              {"bands", {{"coordinate", p.band_coordinate}, {"scale", p.band_scale}}},
+              {"target_coverage_2sigma", p.target_coverage_2sigma},
+              {"fit", {{"rows", p.rows}, {"coverage_2sigma", p.fit_coverage_2sigma}}}};
+  // Written only when used, so files of the amplitude-only form stay as they were.
+  if (p.intensity == ranging::IntensityInput::pulse_width) out["intensity"] = "pulse_width_ns";
+  if (!p.systematic_coefficients.empty()) {
+    json sys_exps = json::array();
+    for (const auto& e : p.systematic_exponents) sys_exps.push_back(json::array({e[0], e[1]}));
+    out["systematic"] = {{"exponents", sys_exps}, {"coefficients", p.systematic_coefficients}};
+  }
+  return out;
 }
 
 std::shared_ptr<const calib::ConfidenceModel> calibrated_from_json(const json& j,
                                                                    const std::string& where) {
   calib::CalibratedConfidenceParams p;
   p.log_amplitude = boolean(j, "log_amplitude", where);
-  const json& exps = field(j, "exponents", where);
-  if (!exps.is_array()) fail(where + ".exponents", "expected an array");
-  for (std::size_t k = 0; k < exps.size(); ++k) {
-    const std::string here = where + ".exponents[" + std::to_string(k) + "]";
-    if (!exps[k].is_array() || exps[k].size() != 2) fail(here, "expected 2 powers");
-    p.exponents.push_back({integer(exps[k][0], here), integer(exps[k][1], here)});
-  }
+  const auto read_exponents = [](const json& parent, const std::string& at) {
+    const json& exps = field(parent, "exponents", at);
+    if (!exps.is_array()) fail(at + ".exponents", "expected an array");
+    std::vector<std::array<int, 2>> out;
+    for (std::size_t k = 0; k < exps.size(); ++k) {
+      const std::string here = at + ".exponents[" + std::to_string(k) + "]";
+      if (!exps[k].is_array() || exps[k].size() != 2) fail(here, "expected 2 powers");
+      out.push_back({integer(exps[k][0], here), integer(exps[k][1], here)});
+    }
+    return out;
+  };
+  p.exponents = read_exponents(j, where);
   p.coefficients = numbers(j, "coefficients", where);
+  if (j.contains("systematic")) {
+    const json& sys = j["systematic"];
+    if (!sys.is_object()) fail(where + ".systematic", "expected an object");
+    p.systematic_exponents = read_exponents(sys, where + ".systematic");
+    p.systematic_coefficients = numbers(sys, "coefficients", where + ".systematic");
+  }
+  if (j.contains("intensity")) {
+    const json& v = j["intensity"];
+    if (v == "pulse_width_ns")
+      p.intensity = ranging::IntensityInput::pulse_width;
+    else if (v != "amplitude")
+      fail(where + ".intensity", "expected \"amplitude\" or \"pulse_width_ns\"");
+  }
   const json& scaling = field(j, "scaling", where);
   p.amplitude_scaling = read_scaling(scaling, "amplitude", where + ".scaling");
   p.range_scaling = read_scaling(scaling, "range_m", where + ".scaling");

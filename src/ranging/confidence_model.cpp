@@ -106,15 +106,26 @@ CalibratedConfidence::CalibratedConfidence(CalibratedConfidenceParams params)
     throw std::invalid_argument(
         who + ": exponents and coefficients must be non-empty and of equal length");
   }
-  for (std::size_t k = 0; k < p.exponents.size(); ++k) {
-    const auto [a, b] = p.exponents[k];
-    if (a < 0 || b < 0 || a > 7 || b > 7) {
-      throw std::invalid_argument(who + ": exponents[" + std::to_string(k) + "] must be in [0, 7]");
-    }
-    if (!std::isfinite(p.coefficients[k])) {
-      throw std::invalid_argument(who + ": coefficients[" + std::to_string(k) + "] is not finite");
-    }
+  if (p.systematic_exponents.size() != p.systematic_coefficients.size()) {
+    throw std::invalid_argument(
+        who + ": systematic_exponents and systematic_coefficients must be of equal length");
   }
+  const auto check_terms = [&](const std::vector<std::array<int, 2>>& exps,
+                               const std::vector<double>& c, const std::string& prefix) {
+    for (std::size_t k = 0; k < exps.size(); ++k) {
+      const auto [a, b] = exps[k];
+      if (a < 0 || b < 0 || a > 7 || b > 7) {
+        throw std::invalid_argument(who + ": " + prefix + "exponents[" + std::to_string(k) +
+                                    "] must be in [0, 7]");
+      }
+      if (!std::isfinite(c[k])) {
+        throw std::invalid_argument(who + ": " + prefix + "coefficients[" + std::to_string(k) +
+                                    "] is not finite");
+      }
+    }
+  };
+  check_terms(p.exponents, p.coefficients, "");
+  check_terms(p.systematic_exponents, p.systematic_coefficients, "systematic_");
   for (const AxisScaling* s : {&p.amplitude_scaling, &p.range_scaling}) {
     if (!std::isfinite(s->center) || !std::isfinite(s->half_width) || !(s->half_width > 0)) {
       throw std::invalid_argument(who + ": scalings need a finite center and positive half_width");
@@ -159,9 +170,12 @@ void CalibratedConfidence::sigma(std::span<const double> range_m, std::span<cons
     const double a = clamp_to(amplitude[k], d.amplitude_min, d.amplitude_max);
     const double u = p.log_amplitude ? std::log(a) : a;
     const double y = p.range_scaling.apply(clamp_to(range_m[k], d.range_min_m, d.range_max_m));
-    const double log_e2 =
-        polynomial_2d(p.exponents, p.coefficients, p.amplitude_scaling.apply(u), y);
-    sigma_m[k] = band_factor(p.band_coordinate, p.band_scale, u) * std::exp(0.5 * log_e2);
+    const double x = p.amplitude_scaling.apply(u);
+    double e2 = std::exp(polynomial_2d(p.exponents, p.coefficients, x, y));
+    // Noise and systematic error are independent: their variances add.
+    if (!p.systematic_coefficients.empty())
+      e2 += std::exp(polynomial_2d(p.systematic_exponents, p.systematic_coefficients, x, y));
+    sigma_m[k] = band_factor(p.band_coordinate, p.band_scale, u) * std::sqrt(e2);
   }
 }
 

@@ -142,7 +142,7 @@ FixedPointChain FixedPointChain::from_pipeline(const Pipeline& pipeline,
                                kMicrometresPerMetre * coefficient_scale,
                            "tof_scale_q", format);
   long double constant = 0;
-  bool seen[5] = {false, false, false, false, false};
+  bool seen[6] = {false, false, false, false, false, false};
   for (const Step& step : pipeline.steps()) {
     const auto index = static_cast<std::size_t>(step.kind);
     if (seen[index]) {
@@ -164,13 +164,12 @@ FixedPointChain FixedPointChain::from_pipeline(const Pipeline& pipeline,
             quantize_hinge(step, format.temperature_lsb_c, format, "temperature", c.temperature);
         break;
       case StepKind::kSurface:
-        throw std::invalid_argument(
-            "fixed-point chain: a surface step cannot be exported (only offset, grayvalue and "
-            "temperature steps)");
       case StepKind::kWalk:
-        throw std::invalid_argument(
-            "fixed-point chain: a walk step cannot be exported (only offset, grayvalue and "
-            "temperature steps)");
+      case StepKind::kPeriodic:
+        throw std::invalid_argument("fixed-point chain: a " +
+                                    std::string(step_kind_name(step.kind)) +
+                                    " step cannot be exported (only offset, grayvalue and "
+                                    "temperature steps)");
     }
   }
   if (!(std::fabs(constant) < 9.0e18L)) {

@@ -18,6 +18,7 @@ constexpr std::size_t kBlock = 256;
 
 struct BlockBuffers {
   std::array<double, kBlock> distance;
+  std::array<double, kBlock> tof;
   std::array<double, kBlock> pulse_width;
   std::array<double, kBlock> temperature;
   std::array<double, kBlock> amplitude;
@@ -146,14 +147,19 @@ void fill_sigma(const ConfidenceModel* confidence, double residual_rms_m, BlockB
   } else {
     double* range = b.scratch_a.data();
     double* amplitude = b.scratch_b.data();
+    // The model's intensity axis: the amplitude, or the pulse width (which
+    // keeps growing where the amplitude reading clips).
+    const double* intensity = confidence->intensity_input() == IntensityInput::pulse_width
+                                  ? b.pulse_width.data()
+                                  : b.amplitude.data();
     for (std::size_t i = 0; i < n; ++i) {
       range[i] = std::isfinite(b.distance[i]) ? b.distance[i] : 1.0;
-      amplitude[i] = std::isfinite(b.amplitude[i]) ? b.amplitude[i] : 1.0;
+      amplitude[i] = std::isfinite(intensity[i]) ? intensity[i] : 1.0;
     }
     confidence->sigma(std::span<const double>(range, n), std::span<const double>(amplitude, n),
                       std::span<double>(sigma, n));
     for (std::size_t i = 0; i < n; ++i) {
-      if (!std::isfinite(b.amplitude[i])) sigma[i] = kNaN;
+      if (!std::isfinite(intensity[i])) sigma[i] = kNaN;
     }
   }
   for (std::size_t i = 0; i < n; ++i) {
@@ -185,17 +191,20 @@ std::string_view step_kind_name(StepKind kind) {
       return "surface";
     case StepKind::kWalk:
       return "walk";
+    case StepKind::kPeriodic:
+      return "periodic";
   }
   return "unknown";
 }
 
 StepKind step_kind_from_name(std::string_view name) {
   for (StepKind kind : {StepKind::kOffset, StepKind::kGrayvalue, StepKind::kTemperature,
-                        StepKind::kSurface, StepKind::kWalk}) {
+                        StepKind::kSurface, StepKind::kWalk, StepKind::kPeriodic}) {
     if (step_kind_name(kind) == name) return kind;
   }
-  throw std::invalid_argument("unknown step kind \"" + std::string(name) +
-                              "\" (expected offset, grayvalue, temperature, surface or walk)");
+  throw std::invalid_argument(
+      "unknown step kind \"" + std::string(name) +
+      "\" (expected offset, grayvalue, temperature, surface, walk or periodic)");
 }
 
 void Step::validate() const {
@@ -226,6 +235,19 @@ void Step::validate() const {
       if (std::isnan(domain.min) || std::isnan(domain.max) || domain.min > domain.max) {
         throw std::invalid_argument("walk step: domain [" + format_number(domain.min) + ", " +
                                     format_number(domain.max) + "] is empty or NaN");
+      }
+      break;
+    case StepKind::kPeriodic:
+      if (!(period_ns > 0) || !std::isfinite(period_ns)) {
+        throw std::invalid_argument("periodic step: period_ns must be positive");
+      }
+      if (harmonics_m.empty() || harmonics_m.size() % 2 != 0) {
+        throw std::invalid_argument(
+            "periodic step: harmonics_m needs a cosine and a sine coefficient per harmonic");
+      }
+      for (double c : harmonics_m) {
+        if (!std::isfinite(c))
+          throw std::invalid_argument("periodic step: a harmonic is not finite");
       }
       break;
   }
@@ -267,6 +289,27 @@ Step make_walk_step(std::shared_ptr<const WalkModel> walk, InputDomain pulse_wid
   step.walk = std::move(walk);
   step.domain = pulse_width_domain_ns;
   return step;
+}
+
+Step make_periodic_step(double period_ns, std::vector<double> harmonics_m) {
+  Step step;
+  step.kind = StepKind::kPeriodic;
+  step.period_ns = period_ns;
+  step.harmonics_m = std::move(harmonics_m);
+  return step;
+}
+
+double periodic_correction(double period_ns, const std::vector<double>& harmonics_m,
+                           double tof_ns) {
+  if (!std::isfinite(tof_ns)) return 0.0;
+  // The phase from the remainder, so that large times keep their precision.
+  const double phase = 2.0 * 3.14159265358979323846 * std::fmod(tof_ns, period_ns) / period_ns;
+  double c = 0;
+  for (std::size_t h = 0; 2 * h + 1 < harmonics_m.size(); ++h) {
+    const double angle = static_cast<double>(h + 1) * phase;
+    c += harmonics_m[2 * h] * std::cos(angle) + harmonics_m[2 * h + 1] * std::sin(angle);
+  }
+  return c;
 }
 
 Pipeline::Pipeline(TimeToDistance time_to_distance) : time_to_distance_(time_to_distance) {
@@ -362,6 +405,7 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
       const bool echo = in.shots_valid[row] > 0 && (in.flags[row] & kRawNoEcho) == 0;
       const double start = std::isfinite(tof) ? tof * metres_per_ns_ : in.distance_raw_m[row];
       b.distance[i] = echo ? start : kNaN;
+      b.tof[i] = tof;
       b.flags[i] = echo ? 0u : kCorrNoEcho;
       b.outside[i] = 0.0;
       b.pulse_width[i] = in.pulse_width_ns[row];
@@ -388,6 +432,10 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
           break;
         case StepKind::kWalk:
           add_walk(*step.walk, step.domain, metres_per_ns_, b, n);
+          break;
+        case StepKind::kPeriodic:
+          for (std::size_t i = 0; i < n; ++i)
+            b.distance[i] += periodic_correction(step.period_ns, step.harmonics_m, b.tof[i]);
           break;
       }
     }
@@ -451,6 +499,10 @@ std::string Pipeline::summary() const {
         out << " " << step.surface->kind()
             << (step.surface->uses_temperature() ? " (range, amplitude, temperature)"
                                                  : " (range, amplitude)");
+        break;
+      case StepKind::kPeriodic:
+        out << " in tof modulo " << format_number(step.period_ns) << " ns, "
+            << step.harmonics_m.size() / 2 << " harmonic(s)";
         break;
     }
     if (step.fit.rows > 0) {

@@ -54,6 +54,37 @@ struct CalibratedConfidenceOptions {
 [[nodiscard]] std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     const ConfidenceFitData& data, const CalibratedConfidenceOptions& options = {});
 
+/// Data for a noise-plus-systematic confidence fit: the residuals of the final
+/// correction on its own calibration rows, grouped by target (repeats of one
+/// truth), and the intensity axis the correction reads.
+struct NoiseSystematicFitData {
+  std::span<const double> range_m;
+  std::span<const double> intensity;   ///< amplitude or pulse width (> 0)
+  std::span<const double> residual_m;  ///< true - corrected, in-sample
+  std::span<const std::uint32_t> group;
+};
+
+struct NoiseSystematicOptions {
+  int order = 2;  ///< degree of each log-variance polynomial in log intensity
+  /// Prediction error of a new target over the in-sample systematic error of
+  /// the calibration targets, >= 1: for a fit of p effective parameters on G
+  /// targets, (G + p) / (G - p) (Mallows' C_p / the optimism of the training
+  /// error, Hastie, Tibshirani & Friedman, ESL 2nd ed., Eq. 7.24).
+  double optimism = 1.0;
+  ranging::IntensityInput intensity = ranging::IntensityInput::amplitude;
+  /// Throws std::invalid_argument naming the bad field.
+  void validate() const;
+};
+
+/// sigma^2 = noise^2(I) + optimism * s^2(I), I the intensity (log scale): the
+/// noise of one row from the scatter of the targets' repeats (each target's
+/// sample variance, a gamma quasi-likelihood fit with its degrees of freedom
+/// as weights; averaging noise falls as 1/SNR), the systematic part from the
+/// targets' mean residuals less the noise of a mean (noise^2 / n), by the same
+/// fit. Needs repeats (>= 10 targets with two or more rows).
+[[nodiscard]] std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
+    const NoiseSystematicFitData& data, const NoiseSystematicOptions& options = {});
+
 /// How well a confidence model's sigma describes residuals: the share with
 /// |residual| <= 2 sigma, overall and per intensity tercile of these data.
 struct ConfidenceCoverage {

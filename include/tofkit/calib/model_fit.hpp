@@ -32,7 +32,12 @@ struct SurfaceSpec {
 [[nodiscard]] SurfaceSpec parse_surface_spec(std::string_view spec);
 [[nodiscard]] std::string to_string(const SurfaceSpec& spec);
 
-enum class ConfidenceKind { none, calibrated, thesis };
+/// calibrated: fitted on out-of-fold residuals, coverage calibrated per band;
+/// thesis: the thesis's cubic; noise_systematic: noise of one row from the
+/// repeats' scatter plus the correction's systematic error from the targets'
+/// mean residuals times the optimism (G + p) / (G - p), on the correction's
+/// own intensity axis (fit_noise_systematic_confidence).
+enum class ConfidenceKind { none, calibrated, thesis, noise_systematic };
 
 /// A B-spline surface's intensity axis: the amplitude (log scale), the pulse
 /// width, or (choose) the one with the lower grouped cross-validated RMS.
@@ -41,7 +46,7 @@ enum class SurfaceIntensity { choose, amplitude, pulse_width };
 /// "auto", "amplitude" or "pulse-width"; throws std::invalid_argument otherwise.
 [[nodiscard]] SurfaceIntensity parse_surface_intensity(std::string_view text);
 
-/// "none", "calibrated" or "thesis"; throws std::invalid_argument otherwise.
+/// "none", "calibrated", "thesis" or "noise-systematic"; throws std::invalid_argument otherwise.
 [[nodiscard]] ConfidenceKind parse_confidence_kind(std::string_view kind);
 [[nodiscard]] std::string to_string(ConfidenceKind kind);
 
@@ -66,6 +71,14 @@ struct ModelFitOptions {
   /// refinement when it does not lower the cross-validated error). The
   /// hinge's few knots cannot follow a walk curve that bends everywhere.
   bool refine_walk = false;
+  /// > 0: the TDC's coarse clock period (1e3 / tdc.coarse_clock_mhz). With the
+  /// laser fired on the clock, the interpolator's residual nonlinearity leaves
+  /// a range error periodic in the time of flight; a periodic step (Fourier
+  /// series in tof_ns modulo the period, 0-8 harmonics chosen by grouped
+  /// cross-validation) is fitted in front of the chain / surface by
+  /// backfitting. Needs targets whose stops cover the period's phases (the
+  /// walk spreads them). 0: none.
+  double tdc_period_ns = 0;
   /// Start from this already fitted pipeline instead of fitting a chain (the
   /// surface then fits its residual); exclusive with `chain`. It stays fixed
   /// in every cross-fitting fold.
@@ -106,8 +119,17 @@ struct ModelFitSummary {
     double smoothing = 0;
     double cv_rms_m = 0;
     double cv_rms_without_m = 0;
+    double effective_parameters = 0;  ///< trace of the refinement's hat matrix
   };
   std::optional<WalkRefinement> walk;
+  /// tdc_period_ns: harmonics chosen (0: none) and the cross-validated RMS
+  /// with them and without a periodic step.
+  struct Periodic {
+    int harmonics = 0;
+    double cv_rms_m = 0;
+    double cv_rms_without_m = 0;
+  };
+  std::optional<Periodic> periodic;
   std::optional<SurfaceFitResult> surface;
   std::string surface_spec;
   bool surface_temperature = false;
@@ -121,6 +143,10 @@ struct ModelFitSummary {
     int folds = 0;             ///< cross-fitting folds (0: hold-out)
     long every_kth_group = 0;  ///< hold-out: every k-th group (0: cross-fitting)
     ErrorStats held_out;       ///< of the out-of-fold / held-out residuals
+    /// noise_systematic: the correction's effective parameters p and the
+    /// optimism (G + p) / (G - p) applied to the systematic part.
+    double effective_parameters = 0;
+    double optimism = 0;
   };
   std::optional<Confidence> confidence;
   double residual_rms_m = 0;

@@ -34,6 +34,13 @@ struct ErrorStats {
 /// 100 (before - after) / before; NaN when before is 0 or either is NaN.
 [[nodiscard]] double improvement_pct(double before, double after);
 
+/// Cross-validation fold (0 .. folds - 1) of truth group `group`: a fixed
+/// hash of the group's number, not group % folds, so that folds do not follow
+/// the structure of a measurement plan (groups numbered distance-major over a
+/// grid would otherwise put whole diagonals of the grid into one fold).
+/// Deterministic: the same group always lands in the same fold.
+[[nodiscard]] std::size_t fold_of(std::size_t group, std::size_t folds);
+
 /// Amplitude terciles: rows with amplitude < lower are tercile 0, >= upper tercile 2.
 struct TercileEdges {
   double lower = ranging::kNaN;  ///< 1/3 quantile

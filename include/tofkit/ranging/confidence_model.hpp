@@ -20,7 +20,10 @@ class ConfidenceModel {
   /// "calibrated" (tofkit's: expected error over intensity and range, fitted on
   /// data not used for the correction fit).
   [[nodiscard]] virtual std::string kind() const = 0;
-  /// sigma_m[i] for each (range, amplitude) row.
+  /// What the model's intensity axis reads: the amplitude (default) or the
+  /// echo pulse width; the pipeline passes that column as `amplitude`.
+  [[nodiscard]] virtual IntensityInput intensity_input() const { return IntensityInput::amplitude; }
+  /// sigma_m[i] for each (range, intensity) row.
   virtual void sigma(std::span<const double> range_m, std::span<const double> amplitude,
                      std::span<double> sigma_m) const = 0;
 };
@@ -51,11 +54,18 @@ class ThesisConfidence final : public ConfidenceModel {
 };
 
 /// Parameters of tofkit's calibrated metric:
-/// sigma = k(x) sqrt(exp(sum_j c_j x^a_j y^b_j)), x the scaled (log) intensity,
-/// y the scaled range, k piecewise linear in log over the band centres.
+/// sigma = k(x) sqrt(exp(sum_j c_j x^a_j y^b_j) + exp(sum_j s_j x^a'_j y^b'_j)),
+/// x the scaled (log) intensity, y the scaled range, k piecewise linear in log
+/// over the band centres. The second term (systematic_*) is optional: with it
+/// the first is the noise of one row and the second the systematic error of
+/// the correction (see calib::fit_noise_systematic_confidence).
 struct CalibratedConfidenceParams {
   std::vector<std::array<int, 2>> exponents;  ///< powers of (x, y), one per coefficient
   std::vector<double> coefficients;           ///< log E[e^2] in log m^2
+  /// Optional systematic term (empty: none): powers of (x, y) and coefficients.
+  std::vector<std::array<int, 2>> systematic_exponents;
+  std::vector<double> systematic_coefficients;           ///< log m^2
+  IntensityInput intensity = IntensityInput::amplitude;  ///< the column read as intensity
   bool log_amplitude = true;
   AxisScaling amplitude_scaling;  ///< maps the (log) intensity coordinate to x
   AxisScaling range_scaling;      ///< maps range to y
@@ -73,6 +83,7 @@ class CalibratedConfidence final : public ConfidenceModel {
   /// Validates (throws std::invalid_argument naming the field).
   explicit CalibratedConfidence(CalibratedConfidenceParams params);
   [[nodiscard]] std::string kind() const override { return "calibrated"; }
+  [[nodiscard]] IntensityInput intensity_input() const override { return params_.intensity; }
   void sigma(std::span<const double> range_m, std::span<const double> amplitude,
              std::span<double> sigma_m) const override;
   [[nodiscard]] const CalibratedConfidenceParams& params() const { return params_; }

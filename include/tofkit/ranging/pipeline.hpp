@@ -9,11 +9,16 @@
 ///
 /// Step kinds: `offset` (constant: trigger and receive-chain delays, paper
 /// Section 4), `grayvalue` (hinge in echo pulse width, Section 5.1),
-/// `temperature` (hinge in sensor temperature, Section 5.2) and `surface`
+/// `temperature` (hinge in sensor temperature, Section 5.2), `surface`
 /// (a correction surface over the distance before the step, amplitude and
-/// temperature; thesis Section 4.6) and `walk` (the physical walk of an echo
+/// temperature; thesis Section 4.6), `walk` (the physical walk of an echo
 /// shape through the threshold as a function of echo pulse width,
-/// ranging/walk_model.hpp: an alternative to `grayvalue` that extrapolates).
+/// ranging/walk_model.hpp: an alternative to `grayvalue` that extrapolates)
+/// and `periodic` (a Fourier series in the
+/// time of flight modulo the TDC's coarse clock period: with the laser fired
+/// on the clock, the stop's phase in that period selects the interpolator
+/// codes, so their residual nonlinearity and a bin-width error leave a range
+/// error that repeats every c / 2 f_coarse).
 
 #include <cstddef>
 #include <cstdint>
@@ -34,9 +39,9 @@
 
 namespace tofkit::ranging {
 
-enum class StepKind { kOffset, kGrayvalue, kTemperature, kSurface, kWalk };
+enum class StepKind { kOffset, kGrayvalue, kTemperature, kSurface, kWalk, kPeriodic };
 
-/// "offset", "grayvalue", "temperature", "surface", "walk".
+/// "offset", "grayvalue", "temperature", "surface", "walk", "periodic".
 [[nodiscard]] std::string_view step_kind_name(StepKind kind);
 /// Inverse of step_kind_name; throws std::invalid_argument on an unknown name.
 [[nodiscard]] StepKind step_kind_from_name(std::string_view name);
@@ -65,6 +70,11 @@ struct Step {
   std::shared_ptr<const CorrectionSurface> surface;  ///< kSurface
   /// kWalk: C = -(c_air / 2) (t_rise(pulse_width_ns) - t_rise(reference width)).
   std::shared_ptr<const WalkModel> walk;
+  /// kPeriodic: C = sum_h a_h cos(2 pi h t / T) + b_h sin(2 pi h t / T), t =
+  /// tof_ns, T = period_ns; harmonics_m = {a_1, b_1, a_2, b_2, ...} in m. A row
+  /// without a finite tof_ns gets no periodic correction.
+  double period_ns = 0;
+  std::vector<double> harmonics_m;
   StepFitInfo fit;
 
   /// Throws std::invalid_argument naming the problem.
@@ -80,6 +90,10 @@ struct Step {
 /// (outside: still corrected by the shape, flagged kCorrOutOfDomain).
 [[nodiscard]] Step make_walk_step(std::shared_ptr<const WalkModel> walk,
                                   InputDomain pulse_width_domain_ns);
+[[nodiscard]] Step make_periodic_step(double period_ns, std::vector<double> harmonics_m);
+/// The periodic step's correction at time of flight tof_ns (0 when not finite).
+[[nodiscard]] double periodic_correction(double period_ns, const std::vector<double>& harmonics_m,
+                                         double tof_ns);
 
 /// One input field read in place: element i is the T at `data` + i * `stride`
 /// bytes (a member of an array of structs, a column of a structured NumPy
