@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -38,6 +39,49 @@ TEST(CalibrationPlan, PlatesSpanTheFieldsPowersLogEvenly) {
     }
   }
   EXPECT_EQ(plan.temperatures_c.size(), 9u);
+}
+
+// One distance for every plate: the field's weakest and strongest echoes lie
+// equally far (in log power) beyond the plates' when the plates cannot span
+// the field, and no other distance does better (minimax extrapolation).
+TEST(CalibrationPlan, SingleDistanceCentresThePlatesPowersOnTheField) {
+  const physics::LinkConfig link = device::DeviceConfig{}.link;
+  CalibrationPlanOptions o;
+  o.range_min_m = 0.7;
+  o.range_max_m = 7.4;
+  o.reflectance_min = 0.06;
+  o.reflectance_max = 0.85;
+  o.single_distance = true;
+  const CalibrationPlan plan = plan_calibration(link, o);
+  ASSERT_EQ(plan.plates.size(), 10u);
+  for (const PlannedPlate& p : plan.plates) EXPECT_EQ(p.distance_m, plan.calibration_distance_m);
+  EXPECT_NEAR(plan.plates.front().reflectance, o.plate_reflectance_min, 1e-9);
+  EXPECT_NEAR(plan.plates.back().reflectance, o.plate_reflectance_max, 1e-9);
+  EXPECT_EQ(plan.temperature_plate.distance_m, plan.calibration_distance_m);
+  const auto worst_gap = [&](const CalibrationPlan& p) {
+    return std::max(std::log(p.field_power_max_w / p.plates.back().received_power_w),
+                    std::log(p.plates.front().received_power_w / p.field_power_min_w));
+  };
+  const double below = std::log(plan.plates.front().received_power_w / plan.field_power_min_w);
+  const double above = std::log(plan.field_power_max_w / plan.plates.back().received_power_w);
+  EXPECT_GT(below, 0.5);  // this field is wider than the plates (x1583 vs x47.5)
+  EXPECT_NEAR(below, above, 1e-6);
+  for (double factor : {0.8, 0.95, 1.05, 1.25}) {
+    CalibrationPlanOptions moved = o;
+    moved.calibration_distance_m = plan.calibration_distance_m * factor;
+    const CalibrationPlan other = plan_calibration(link, moved);
+    EXPECT_EQ(other.calibration_distance_m, moved.calibration_distance_m);
+    EXPECT_GT(worst_gap(other), worst_gap(plan) + 1e-3) << "at x" << factor;
+  }
+  // A field the plates over-span: plates only over the field's powers.
+  o.reflectance_min = 0.5;
+  o.range_max_m = 0.9;
+  const CalibrationPlan narrow = plan_calibration(link, o);
+  EXPECT_NEAR(narrow.plates.front().received_power_w / narrow.field_power_min_w, 1.0, 1e-6);
+  EXPECT_NEAR(narrow.plates.back().received_power_w / narrow.field_power_max_w, 1.0, 1e-6);
+  // A distance at which no plate reaches the field: refused.
+  o.calibration_distance_m = 100.0;
+  EXPECT_THROW((void)plan_calibration(link, o), std::invalid_argument);
 }
 
 TEST(CalibrationPlan, RejectsAnEmptyField) {

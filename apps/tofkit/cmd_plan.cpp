@@ -36,8 +36,9 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
       number(o.plan.range_min_m), number(o.plan.range_max_m), number(o.plan.reflectance_min),
       number(o.plan.reflectance_max), plan.field_power_min_w, plan.field_power_max_w,
       plan.field_power_max_w / plan.field_power_min_w);
-  fmt::print("# {} plates at log-even powers; calibration distance {} m where a plate allows\n",
-             plan.plates.size(), number(plan.calibration_distance_m));
+  fmt::print("# {} plates at log-even powers; calibration distance {} m{}\n", plan.plates.size(),
+             number(plan.calibration_distance_m),
+             o.plan.single_distance ? " (every plate)" : " where a plate allows");
   if (o.bench) {
     fmt::print("{:>4} {:>10} {:>12} {:>14} {:>10}\n", "#", "distance_m", "reflectance", "power_W",
                "SNR");
@@ -101,6 +102,9 @@ const bool registered = register_command("plan", [](CLI::App& sub, AppContext& c
   sub.add_option("--count", o->count, "repeats per plate in the measure lines")
       ->check(CLI::Range(1, 100000))
       ->capture_default_str();
+  sub.add_flag("--single-distance", p.single_distance,
+               "all plates at one distance: the one centring the plates' powers on the field's "
+               "(or --at)");
   sub.add_flag("--bench", o->bench, "print a table to follow on a bench instead");
   sub.callback([o, &ctx] {
     try {

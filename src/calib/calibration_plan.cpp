@@ -28,6 +28,15 @@ double distance_for_power(const physics::LinkConfig& link, double reflectance, d
   return std::exp(0.5 * (lo + hi));
 }
 
+/// The single distance of the plan: the plates' log-power span centred on the
+/// field's (Pr is proportional to reflectance, so the plate of the geometric mean
+/// reflectance returns the geometric mean power there).
+double centred_distance(const physics::LinkConfig& link, const CalibrationPlanOptions& o,
+                        double field_min_w, double field_max_w) {
+  return distance_for_power(link, std::sqrt(o.plate_reflectance_min * o.plate_reflectance_max),
+                            std::sqrt(field_min_w * field_max_w));
+}
+
 PlannedPlate plate(const physics::LinkConfig& link, double distance_m, double reflectance) {
   PlannedPlate p;
   p.distance_m = distance_m;
@@ -71,17 +80,33 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
   CalibrationPlan plan;
   plan.field_power_min_w = power_w(link, options.range_max_m, options.reflectance_min);
   plan.field_power_max_w = power_w(link, options.range_min_m, options.reflectance_max);
+  const bool centred = options.single_distance && std::isnan(options.calibration_distance_m);
   const double at =
-      std::isnan(options.calibration_distance_m)
+      centred ? centred_distance(link, options, plan.field_power_min_w, plan.field_power_max_w)
+      : std::isnan(options.calibration_distance_m)
           ? std::round(10.0 * std::sqrt(options.range_min_m * options.range_max_m)) / 10.0
           : options.calibration_distance_m;
   plan.calibration_distance_m = at;
   const double unit_power = power_w(link, at, 1.0);  // a perfect reflector at `at`
-  const double log_lo = std::log(plan.field_power_min_w);
-  const double log_hi = std::log(plan.field_power_max_w);
+  double log_lo = std::log(plan.field_power_min_w);
+  double log_hi = std::log(plan.field_power_max_w);
+  if (options.single_distance) {
+    // The part of the field's powers the plates reach at `at`.
+    log_lo = std::max(log_lo, std::log(unit_power * options.plate_reflectance_min));
+    log_hi = std::min(log_hi, std::log(unit_power * options.plate_reflectance_max));
+    if (!(log_hi > log_lo)) {
+      throw std::invalid_argument(
+          "plan: calibration_distance_m: no plate reflectance there reaches the field's powers");
+    }
+  }
   for (int k = 0; k < options.plates; ++k) {
     const double power = std::exp(log_lo + (log_hi - log_lo) * k / (options.plates - 1));
     const double rho = power / unit_power;
+    if (options.single_distance) {  // in range up to rounding
+      plan.plates.push_back(plate(
+          link, at, std::clamp(rho, options.plate_reflectance_min, options.plate_reflectance_max)));
+      continue;
+    }
     if (rho >= options.plate_reflectance_min && rho <= options.plate_reflectance_max) {
       plan.plates.push_back(plate(link, at, rho));
       continue;

@@ -14,6 +14,13 @@
 /// (nearer for stronger echoes, farther for weaker ones). A temperature run
 /// (one mid-power plate over the field's temperatures) completes the paper's
 /// protocol.
+///
+/// With `single_distance`, every plate stands at one distance (the paper's
+/// protocol): by default the one that centres the plates' log-power span
+/// (plate_reflectance_min..max) on the field's, so that the field's weakest and
+/// strongest echoes lie equally far (in log power) beyond the plates' when the
+/// plates cannot span the field (minimax extrapolation); the plates then take
+/// log-even reflectances over the part of the field's powers they reach.
 
 #include <limits>
 #include <string>
@@ -31,6 +38,9 @@ struct CalibrationPlanOptions {
   /// Where the plates stand when they can; NaN: the geometric mean of the
   /// field's ranges (rounded to 0.1 m).
   double calibration_distance_m = std::numeric_limits<double>::quiet_NaN();
+  /// All plates at one distance (see the file comment); `calibration_distance_m`
+  /// overrides the centred distance.
+  bool single_distance = false;
   int plates = 10;                      ///< target powers (plate positions)
   double plate_reflectance_min = 0.02;  ///< darkest plate available
   double plate_reflectance_max = 0.95;  ///< brightest plate available
