@@ -301,8 +301,12 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       if (result.walk) walk_options.initial = result.walk->shape;
       // Searched afresh while the walk still moves by more than 0.1 mm (the
       // first passes see e with a rough h, and may start in a poor valley);
-      // then only refined from the previous pass.
+      // then only refined from the previous pass. Given a start, only refined.
       walk_options.multistart = !result.walk || last_walk_change > 1e-4;
+      if (options.walk_initial) {
+        if (!result.walk) walk_options.initial = options.walk_initial;
+        walk_options.multistart = false;
+      }
       const WalkFitResult walk = fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options);
       walk_model.emplace(walk.shape, ref_g);
       const Eigen::VectorXd values = walk_values(spw);

@@ -827,12 +827,19 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
                    "(distances / plates / temperatures), the data have %zu",
                    folds, folds, groups));
       }
+      // A walk step's nonlinear fit starts each fold from the full fit's
+      // shape (its multistart search is what costs; the folds' data are most
+      // of the full data, so the valley is the same).
+      ModelFitOptions fold_options = o;
+      if (summary.chain && summary.chain->walk && !fold_options.chain_options.walk_initial) {
+        fold_options.chain_options.walk_initial = summary.chain->walk->shape;
+      }
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {
           (fold_of(group[i], folds) == k ? test : train).push_back(records[i]);
         }
-        residuals.add(fit_correction(train, o, nullptr, nullptr), test);
+        residuals.add(fit_correction(train, fold_options, nullptr, nullptr), test);
       }
     } catch (const std::invalid_argument& e) {
       if (o.confidence_required) throw;

@@ -63,6 +63,11 @@ struct ChainFitOptions {
   /// the coefficients are then refitted on all rows. Keeps the fit linear in
   /// rows: the knot search (many robust 1-D fits) no longer grows with them.
   std::size_t knot_search_rows = 50000;
+  /// Walk step: the shape every backfitting pass's walk fit starts from,
+  /// refined from there only (no multistart search). For refits of nearly the
+  /// same data (e.g. cross-fitting folds, started from the full fit's shape),
+  /// where the search for the right valley is already done. nullopt: searched.
+  std::optional<ranging::WalkShape> walk_initial;
 };
 
 struct ChainFitResult {
