@@ -354,9 +354,9 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // sigma_m on the planned protocol's test rows (measured, not the acceptance's
 // 93-97 %: one distance at 20 C plus a temperature run at one power cannot show
 // the confidence fit the errors of other distances at other temperatures; the
-// shortfall is in domain). Out-of-domain rows
-// (flagged) are covered at least as well as in-domain ones with both kinds:
-// their shortfall is not a sigma kept from inside the domain.
+// shortfall is in domain). Out-of-domain rows (flagged) are covered at least
+// as well as in-domain ones with both kinds: their shortfall is not a sigma
+// kept from inside the domain.
 TEST(WalkModel, SigmaCoverageOnThePlannedProtocol) {
   const device::DeviceConfig config = other_parts();
   const ProtocolRows data = protocol_rows(config, Protocol::kPlannedOneDistance);
