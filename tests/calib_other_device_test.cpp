@@ -284,20 +284,24 @@ void expect_noise_level_and_covering_sigma(bool chain) {
   }
 }
 
-// DISABLED (issue 8 open). Measured with the periodic TDC step (1 harmonic
-// chosen) and the noise-systematic confidence: 0.302 mm systematic against
-// 0.248 mm of noise on `test` (0.344 mm without the step); coverage set 94.9 %
-// within 2 sigma, terciles 93.2 / 99.1 / 92.5 % (the default calibrated
-// confidence without the step: 98.2 %, 98.5 / 97.1 / 99.1 %; before the
-// shuffled folds 98.4 %, 100 / 95.2 / 100 % on `test`). What limits the
-// systematic (decomposed by switching causes off in the twin, same seeds,
-// 4000-shot rows to take the noise out): the TDC's periodic error (the
-// 2^20-hit code-density residual, 0.28 mm rms at the raw range, plus the
-// bin-width tempco's sawtooth) about 0.15 mm of it, the surface's own form
-// error 0.35 mm at 4000 shots (near the echo threshold, at the saturation
-// knee, at the 0.5 m and 9 m edges). The middle tercile is over-covered: the
-// in-sample mean residuals there (0.26-0.43 mm) exceed the held-out
-// systematic (0.23 mm).
+// DISABLED (issue 8 open): the systematic half passes (see
+// BSplineWithThePeriodicStepReachesTheNoise: 0.241 mm against 0.248 mm, with
+// each axis's penalty weight chosen by cross-validation and the folds scored
+// inside their training domain; 0.302 mm before); the coverage does not.
+// Measured with the periodic TDC step and the noise-systematic confidence
+// (in-sample mean residuals times the optimism): coverage set 95.2 % within 2
+// sigma, terciles 94.9 / 99.1 / 91.6 % (`test`: 98.4 %, 97.6 / 97.6 / 100 %);
+// the default calibrated confidence 98.3 %, 98.3 / 96.9 / 99.8 %. The coverage
+// set has targets the surface does not reach (systematic 1.30 mm RMS there
+// against 0.25 mm for the chain): +-1-1.5 mm at 0.6-1.9 m for bright targets
+// (the saturation knee in pulse width, between 12 equal knot intervals) and
+// -21 mm at 8.375 m, rho 0.16 (3 of 6 repeats with an echo, at the threshold).
+// Tried for the sigma: the systematic part from cross-fitted residuals
+// (5 or 20 folds of whole targets, mean less the noise of a mean, no optimism
+// factor): 99.6 % (99.0 / 99.8 / 100 %) and 98.8 % (97.6 / 99.7 / 99.1 %) on the
+// coverage set, the chain 99.4 % and 99.5 %: a grid node held out is predicted
+// across a gap of two grid steps, a new target between nodes is not, so
+// cross-fitting overstates the error of interpolation on this design.
 TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
   expect_noise_level_and_covering_sigma(false);
 }
@@ -314,6 +318,24 @@ TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaC
 // at 2 sigma.
 TEST(CalibrationOnOtherParts, DISABLED_ChainOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
   expect_noise_level_and_covering_sigma(true);
+}
+
+// The B-spline surface on the same grid, with the periodic step: each axis's
+// second-difference penalty weighted separately (the walk bends in pulse
+// width, the range axis stays straight) and the folds scored only inside the
+// domain their training rows span (a surface is not applied outside it) must
+// bring the held-out systematic residual within the noise of one row
+// (measured: 0.241 mm against 0.248 mm; one common penalty, folds scored on
+// every row: 0.302 mm).
+TEST(CalibrationOnOtherParts, BSplineWithThePeriodicStepReachesTheNoise) {
+  const calib::ModelFitResult fit = fit_grid(false, true, calib::SurfaceIntensity::choose,
+                                             calib::ConfidenceKind::calibrated, tdc_period_ns());
+  const HeldOutFigures f = held_out_figures(fit.pipeline, grid_data().test);
+  std::printf("%s\n%s", f.summary().c_str(), fit.report.c_str());
+  ASSERT_TRUE(fit.summary.surface.has_value());
+  EXPECT_EQ(fit.summary.surface_intensity, "pulse_width_ns");
+  ASSERT_TRUE(fit.summary.periodic.has_value());
+  EXPECT_LE(f.systematic_m, f.noise_m) << f.summary();
 }
 
 // With the laser fired on the TDC's clock, the residual INL of the fine codes

@@ -321,12 +321,13 @@ MatrixXd second_difference_gram(int n) {
   return d.transpose() * d;
 }
 
-/// Sum over axes of the second-difference penalty on the coefficient grid
-/// along that axis (Eilers & Marx 1996; Kronecker sum D_r'D_r (x) I + I (x) D_a'D_a ...).
-MatrixXd penalty_matrix(const Grid& grid) {
+/// The second-difference penalty on the coefficient grid along one axis
+/// (Eilers & Marx 1996; D_r'D_r (x) I, I (x) D_a'D_a ...); their sum over the
+/// axes, each with its own weight, is the surface's penalty.
+MatrixXd penalty_matrix(const Grid& grid, int axis) {
   const Index p = static_cast<Index>(grid.parameters);
   MatrixXd penalty = MatrixXd::Zero(p, p);
-  for (int axis = 0; axis < grid.dims; ++axis) {
+  {
     const MatrixXd dtd = second_difference_gram(grid.axes[axis].basis_count());
     for (std::size_t i0 = 0; i0 < grid.extent[0]; ++i0) {
       for (std::size_t i1 = 0; i1 < grid.extent[1]; ++i1) {
@@ -356,7 +357,8 @@ struct PenalizedSolution {
 };
 
 PenalizedSolution solve_penalized(const MatrixXd& gram, const VectorXd& rhs, double yy,
-                                  const MatrixXd& penalty, double lambda, bool with_condition) {
+                                  const MatrixXd& penalty, double lambda, bool with_condition,
+                                  bool with_edf = true) {
   const Index p = gram.rows();
   // A tiny ridge keeps the system positive definite when the data leave part of
   // the penalty's null space (planes) undetermined.
@@ -370,7 +372,7 @@ PenalizedSolution solve_penalized(const MatrixXd& gram, const VectorXd& rhs, dou
   }
   PenalizedSolution s;
   s.coefficients = llt.solve(rhs);
-  s.effective_parameters = llt.solve(gram).trace();
+  if (with_edf) s.effective_parameters = llt.solve(gram).trace();
   // RSS = y'y - 2 c'B'y + c'B'Bc.
   s.rss =
       std::max(0.0, yy - 2.0 * s.coefficients.dot(rhs) + s.coefficients.dot(gram * s.coefficients));
@@ -497,6 +499,9 @@ std::size_t distinct_values(const double* x, std::size_t n) {
 struct Fold {
   std::vector<double> range, amplitude, temperature, error;
   Columns columns;
+  /// The rows it is scored on (inside its training domain).
+  std::vector<double> scored_range, scored_amplitude, scored_temperature, scored_error;
+  Columns scored;
 };
 
 /// K folds of whole groups (fold_of: shuffled); empty when the data carry no groups
@@ -509,8 +514,49 @@ std::vector<Fold> make_folds(const Columns& c) {
   std::sort(distinct.begin(), distinct.end());
   if (std::unique(distinct.begin(), distinct.end()) - distinct.begin() < kFolds) return folds;
   folds.resize(kFolds);
+  // Each fold is scored only on its rows inside the bounding box of the other
+  // folds' rows (the domain its training surface would have): outside, the
+  // surface is flagged out of domain, and scoring its extrapolation there
+  // would choose knots and smoothing for the edges instead of the interior.
+  struct Box {
+    double lo[3] = {std::numeric_limits<double>::infinity(),
+                    std::numeric_limits<double>::infinity(),
+                    std::numeric_limits<double>::infinity()};
+    double hi[3] = {-lo[0], -lo[1], -lo[2]};
+  };
+  std::vector<Box> trained(kFolds);
+  const auto values = [&](std::size_t k, double* v) {
+    v[0] = c.range[k];
+    v[1] = c.amplitude[k];
+    v[2] = c.temperature ? c.temperature[k] : 0.0;
+  };
   for (std::size_t k = 0; k < c.rows; ++k) {
-    Fold& f = folds[fold_of(c.group[k], kFolds)];
+    const std::uint32_t own = fold_of(c.group[k], kFolds);
+    double v[3];
+    values(k, v);
+    for (std::uint32_t f = 0; f < kFolds; ++f) {
+      if (f == own) continue;
+      for (int a = 0; a < 3; ++a) {
+        trained[f].lo[a] = std::min(trained[f].lo[a], v[a]);
+        trained[f].hi[a] = std::max(trained[f].hi[a], v[a]);
+      }
+    }
+  }
+  for (std::size_t k = 0; k < c.rows; ++k) {
+    const std::uint32_t own = fold_of(c.group[k], kFolds);
+    Fold& f = folds[own];
+    double v[3];
+    values(k, v);
+    bool inside = true;
+    for (int a = 0; a < 3; ++a) {
+      inside = inside && v[a] >= trained[own].lo[a] && v[a] <= trained[own].hi[a];
+    }
+    if (inside) {
+      f.scored_range.push_back(c.range[k]);
+      f.scored_amplitude.push_back(c.amplitude[k]);
+      if (c.temperature) f.scored_temperature.push_back(c.temperature[k]);
+      f.scored_error.push_back(c.error[k]);
+    }
     f.range.push_back(c.range[k]);
     f.amplitude.push_back(c.amplitude[k]);
     if (c.temperature) f.temperature.push_back(c.temperature[k]);
@@ -524,15 +570,21 @@ std::vector<Fold> make_folds(const Columns& c) {
     f.columns.error = f.error.data();
     f.columns.group = nullptr;
     f.columns.rows = f.error.size();
+    f.scored = f.columns;
+    f.scored.range = f.scored_range.data();
+    f.scored.amplitude = f.scored_amplitude.data();
+    f.scored.temperature = c.temperature ? f.scored_temperature.data() : nullptr;
+    f.scored.error = f.scored_error.data();
+    f.scored.rows = f.scored_error.size();
   }
   return folds;
 }
 
 /// Normal equations of one fold.
 struct FoldSystem {
-  MatrixXd gram;
-  VectorXd rhs;
-  double yy = 0;
+  MatrixXd gram, scored_gram;
+  VectorXd rhs, scored_rhs;
+  double yy = 0, scored_yy = 0;
   bool empty = true;
 };
 
@@ -544,33 +596,53 @@ struct GridFit {
   Grid grid;
   PenalizedSolution solution;
   double smoothing = 0;
+  /// Relative weight of each axis's penalty (1: the common smoothing).
+  double axis_weight[3] = {1, 1, 1};
   double score = std::numeric_limits<double>::infinity();  // predicted mean squared error
 };
 
 GridFit fit_on_grid(const Columns& c, const std::vector<Fold>& folds, const Grid& grid,
-                    double smoothing, bool choose_smoothing, bool with_condition) {
+                    double smoothing, const double* axis_weight, bool choose_smoothing,
+                    bool with_condition) {
   MatrixXd gram;
   VectorXd rhs;
   accumulate_normal_equations(c, grid, gram, rhs);
   double yy = 0;
   for (std::size_t k = 0; k < c.rows; ++k) yy += c.error[k] * c.error[k];
-  const MatrixXd penalty = penalty_matrix(grid);
+  std::vector<MatrixXd> axis_penalty;
+  double penalty_trace = 0;
+  for (int axis = 0; axis < grid.dims; ++axis) {
+    axis_penalty.push_back(penalty_matrix(grid, axis));
+    penalty_trace += axis_penalty.back().trace();
+  }
+  const auto penalty_of = [&](const double* w) {
+    MatrixXd penalty = w[0] * axis_penalty[0];
+    for (int axis = 1; axis < grid.dims; ++axis) penalty += w[axis] * axis_penalty[axis];
+    return penalty;
+  };
   // Penalty weight relative to the data term, so `smoothing` does not depend
   // on the number of rows or the grid size.
-  const double scale = gram.trace() / penalty.trace();
+  const double scale = gram.trace() / penalty_trace;
   const double n = static_cast<double>(c.rows);
   std::vector<FoldSystem> systems(folds.size());
+  double scored_rows = 0;
   for (std::size_t f = 0; f < folds.size(); ++f) {
     if (folds[f].columns.rows == 0) continue;
     accumulate_normal_equations(folds[f].columns, grid, systems[f].gram, systems[f].rhs);
     for (double e : folds[f].error) systems[f].yy += e * e;
+    accumulate_normal_equations(folds[f].scored, grid, systems[f].scored_gram,
+                                systems[f].scored_rhs);
+    for (double e : folds[f].scored_error) systems[f].scored_yy += e * e;
+    scored_rows += static_cast<double>(folds[f].scored.rows);
     systems[f].empty = false;
   }
   // Predicted mean squared error of a smoothing weight: k-fold (held-out
   // SSE = yy_f - 2 c'r_f + c'G_f c with c fitted without fold f) or GCV,
   // n RSS / (n - edf)^2 (Craven & Wahba 1979).
-  const auto score_of = [&](double lambda, const PenalizedSolution& all) {
+  const auto score_of = [&](double lambda, const double* w) {
+    const MatrixXd penalty = penalty_of(w);
     if (systems.empty()) {
+      const PenalizedSolution all = solve_penalized(gram, rhs, yy, penalty, lambda, false);
       const double dof = n - all.effective_parameters;
       return dof > 0.5 ? n * all.rss / (dof * dof) : std::numeric_limits<double>::infinity();
     }
@@ -578,30 +650,47 @@ GridFit fit_on_grid(const Columns& c, const std::vector<Fold>& folds, const Grid
     for (const FoldSystem& f : systems) {
       if (f.empty) continue;
       const PenalizedSolution train =
-          solve_penalized(gram - f.gram, rhs - f.rhs, yy - f.yy, penalty, lambda, false);
+          solve_penalized(gram - f.gram, rhs - f.rhs, yy - f.yy, penalty, lambda, false, false);
       const VectorXd& b = train.coefficients;
-      sse += std::max(0.0, f.yy - 2.0 * b.dot(f.rhs) + b.dot(f.gram * b));
+      sse += std::max(0.0, f.scored_yy - 2.0 * b.dot(f.scored_rhs) + b.dot(f.scored_gram * b));
     }
-    return sse / n;
+    return scored_rows > 0 ? sse / scored_rows : std::numeric_limits<double>::infinity();
   };
   GridFit fit;
   fit.grid = grid;
   fit.smoothing = smoothing;
+  for (int axis = 0; axis < 3; ++axis) fit.axis_weight[axis] = axis_weight[axis];
   if (choose_smoothing) {
+    // The common smoothing over decades, then each axis's own weight relative
+    // to it (decades 1e-3 .. 1e3, one pass per axis): the surface may need to
+    // bend along one axis (the walk's knee in intensity) and stay straight
+    // along the other.
+    const double ones[3] = {1, 1, 1};
     for (int e = -7; e <= 1; ++e) {
       const double candidate = std::pow(10.0, e);
-      const double lambda = candidate * scale;
-      const double g =
-          score_of(lambda, systems.empty() ? solve_penalized(gram, rhs, yy, penalty, lambda, false)
-                                           : PenalizedSolution{});
+      const double g = score_of(candidate * scale, ones);
       if (g < fit.score) {
         fit.score = g;
         fit.smoothing = candidate;
+        for (double& w : fit.axis_weight) w = 1;
+      }
+    }
+    for (int axis = 0; axis < grid.dims; ++axis) {
+      double w[3] = {fit.axis_weight[0], fit.axis_weight[1], fit.axis_weight[2]};
+      for (int e = -3; e <= 3; ++e) {
+        if (e == 0) continue;
+        w[axis] = std::pow(10.0, e);
+        const double g = score_of(fit.smoothing * scale, w);
+        if (g < fit.score * (1.0 - 1e-9)) {
+          fit.score = g;
+          fit.axis_weight[axis] = w[axis];
+        }
       }
     }
   }
-  fit.solution = solve_penalized(gram, rhs, yy, penalty, fit.smoothing * scale, with_condition);
-  fit.score = score_of(fit.smoothing * scale, fit.solution);
+  fit.solution = solve_penalized(gram, rhs, yy, penalty_of(fit.axis_weight), fit.smoothing * scale,
+                                 with_condition);
+  fit.score = score_of(fit.smoothing * scale, fit.axis_weight);
   return fit;
 }
 
@@ -654,6 +743,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   // spread checked above).
   const bool choose_smoothing = options.choose_smoothing_by_gcv || options.choose_intervals_by_gcv;
   const std::vector<Fold> folds = make_folds(c);
+  const double ones[3] = {1, 1, 1};
   GridFit best;
   if (options.choose_intervals_by_gcv) {
     // Ladder of interval counts per axis, capped so an axis never has more
@@ -676,20 +766,22 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
       for (int ia : la) {
         for (int it : lt) {
           set_axes(ir, ia, it);
-          GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, true, false);
+          GridFit fit =
+              fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
           if (fit.score < best.score * (1.0 - 1e-9)) best = std::move(fit);
         }
       }
     }
     if (!std::isfinite(best.score)) {
       set_axes(lr.front(), la.front(), lt.front());
-      best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, true, false);
+      best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
     }
     set_axes(best.grid.axes[0].intervals, best.grid.axes[1].intervals, best.grid.axes[2].intervals);
-    best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, false, true);
+    best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true);
   } else {
     set_axes(options.intervals_range, options.intervals_amplitude, options.intervals_temperature);
-    best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, choose_smoothing, true);
+    best =
+        fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, choose_smoothing, true);
   }
   const PenalizedSolution& sol = best.solution;
   p.coefficients.assign(sol.coefficients.data(), sol.coefficients.data() + sol.coefficients.size());

@@ -16,7 +16,9 @@ struct SurfaceFitData {
   std::span<const double> error_m;
   /// Optional: the target (group of repeats) of every row. With groups, the
   /// B-spline's knots and smoothing are chosen by 5-fold cross-validation over
-  /// whole groups instead of GCV (repeats of one target are not independent).
+  /// whole groups instead of GCV (repeats of one target are not independent);
+  /// each fold is scored on its rows inside the bounding box of the other
+  /// folds' rows (the surface is not applied outside its domain).
   std::span<const std::uint32_t> group = {};
 };
 
@@ -43,7 +45,8 @@ struct BSplineFitOptions {
   ranging::IntensityInput intensity = ranging::IntensityInput::amplitude;
   /// Pick `smoothing` by generalized cross-validation over decades 1e-7 .. 1e1
   /// (Craven & Wahba 1979), or k-fold over groups when the data carry them,
-  /// instead of using the value above.
+  /// instead of using the value above; then each axis's penalty weight
+  /// relative to it (decades 1e-3 .. 1e3, one pass per axis) by the same score.
   bool choose_smoothing_by_gcv = false;
   /// Choose the knot intervals of each axis too, by the same generalized
   /// cross-validation, from a ladder of counts (3, 5, 8, 12 per axis; 2, 3, 5
