@@ -531,10 +531,10 @@ std::vector<Fold> make_folds(const Columns& c) {
     v[2] = c.temperature ? c.temperature[k] : 0.0;
   };
   for (std::size_t k = 0; k < c.rows; ++k) {
-    const std::uint32_t own = fold_of(c.group[k], kFolds);
+    const std::size_t own = fold_of(c.group[k], kFolds);
     double v[3];
     values(k, v);
-    for (std::uint32_t f = 0; f < kFolds; ++f) {
+    for (std::size_t f = 0; f < kFolds; ++f) {
       if (f == own) continue;
       for (int a = 0; a < 3; ++a) {
         trained[f].lo[a] = std::min(trained[f].lo[a], v[a]);
@@ -543,7 +543,7 @@ std::vector<Fold> make_folds(const Columns& c) {
     }
   }
   for (std::size_t k = 0; k < c.rows; ++k) {
-    const std::uint32_t own = fold_of(c.group[k], kFolds);
+    const std::size_t own = fold_of(c.group[k], kFolds);
     Fold& f = folds[own];
     double v[3];
     values(k, v);
