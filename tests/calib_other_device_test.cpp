@@ -15,6 +15,7 @@
 #include <variant>
 #include <vector>
 
+#include "other_parts_device.hpp"
 #include "tofkit/calib/chain_fit.hpp"
 #include "tofkit/calib/model_fit.hpp"
 #include "tofkit/calib/statistics.hpp"
@@ -26,36 +27,8 @@
 namespace tofkit {
 namespace {
 
-void set_key(device::DeviceConfig& config, const std::string& key, double value) {
-  for (auto& field : device::config_fields(config)) {
-    if (field.key != key) continue;
-    if (auto* d = std::get_if<double*>(&field.value)) **d = value;
-    if (auto* i = std::get_if<int*>(&field.value)) **i = static_cast<int>(value);
-    if (auto* b = std::get_if<bool*>(&field.value)) **b = value != 0;
-    return;
-  }
-  FAIL() << "no config key " << key;
-}
-
-/// Other parts: slower receiver, wider pulse, lower APD gain, higher threshold, finer TDC
-/// with code-density calibrated bins.
-device::DeviceConfig other_parts() {
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "receiver.bandwidth_mhz", 100.0);
-  set_key(config, "laser.pulse_width_ns", 1.6);
-  set_key(config, "receiver.apd_gain", 60.0);
-  set_key(config, "discriminator.threshold_v", 0.05);
-  set_key(config, "tdc.lsb_ps", 40.0);
-  // Its firmware calibrates the carry chain's bins by a code-density test
-  // (2^20 hits), as carry-chain TDC products do: the fine codes' INL, which
-  // with the laser fired on the clock would leave a periodic range error
-  // (period c / 2 f_coarse = 0.75 m) that plates at one distance cannot see,
-  // is left at the histogram's counting error (~0.06 LSB, 0.4 mm).
-  set_key(config, "tdc.code_density_hits", 1 << 20);
-
-  EXPECT_TRUE(device::validate(config).empty());
-  return config;
-}
+using test::other_parts;
+using test::set_key;
 
 // The TDC: this device's firmware calibrates the carry chain's bins by a
 // code-density test (other_parts()), so the synchronous laser's periodic INL

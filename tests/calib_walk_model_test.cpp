@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "cli_runner.hpp"
+#include "other_parts_device.hpp"
 #include "tofkit/calib/calibration_plan.hpp"
 #include "tofkit/calib/chain_fit.hpp"
 #include "tofkit/calib/model_fit.hpp"
@@ -35,29 +36,8 @@
 namespace tofkit {
 namespace {
 
-void set_key(device::DeviceConfig& config, const std::string& key, double value) {
-  for (auto& field : device::config_fields(config)) {
-    if (field.key != key) continue;
-    if (auto* d = std::get_if<double*>(&field.value)) **d = value;
-    if (auto* i = std::get_if<int*>(&field.value)) **i = static_cast<int>(value);
-    if (auto* b = std::get_if<bool*>(&field.value)) **b = value != 0;
-    return;
-  }
-  FAIL() << "no config key " << key;
-}
-
-/// The "other parts" device of calib_other_device_test.cpp.
-device::DeviceConfig other_parts() {
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "receiver.bandwidth_mhz", 100.0);
-  set_key(config, "laser.pulse_width_ns", 1.6);
-  set_key(config, "receiver.apd_gain", 60.0);
-  set_key(config, "discriminator.threshold_v", 0.05);
-  set_key(config, "tdc.lsb_ps", 40.0);
-  set_key(config, "tdc.code_density_hits", 1 << 20);
-  EXPECT_TRUE(device::validate(config).empty());
-  return config;
-}
+using test::other_parts;
+using test::set_key;
 
 /// A third set of parts: slower receiver, wider pulse, lower threshold.
 device::DeviceConfig slow_wide_parts() {
