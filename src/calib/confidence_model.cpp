@@ -22,6 +22,46 @@ using Eigen::Index;
 using Eigen::MatrixXd;
 using Eigen::VectorXd;
 
+/// log E[y] = X beta by gamma quasi-likelihood with a log link and prior
+/// weights w (McCullagh & Nelder, Generalized Linear Models, ch. 8): minimises
+/// sum w (y / mu + log mu) by Fisher scoring, z = eta + (y - mu) / mu regressed
+/// on X, halving steps that do not decrease the objective (it is convex in
+/// beta). Unlike least squares on log(y) it needs no epsilon for zero values
+/// and has no log bias.
+VectorXd gamma_log_fit(const MatrixXd& design, const VectorXd& y, const VectorXd& w) {
+  const Index terms = design.cols();
+  const double mean_y = (w.array() * y.array()).sum() / w.sum();
+  VectorXd beta = VectorXd::Zero(terms);
+  beta(0) = std::log(mean_y);
+  const double eta_lo = std::log(mean_y) - 60.0, eta_hi = std::log(mean_y) + 60.0;
+  const auto objective = [&](const VectorXd& b, VectorXd& eta) {
+    eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
+    return (w.array() * (y.array() * (-eta.array()).exp() + eta.array())).sum();
+  };
+  const VectorXd root_w = w.cwiseSqrt();
+  const Eigen::ColPivHouseholderQR<MatrixXd> qr(root_w.asDiagonal() * design);
+  VectorXd eta;
+  double loss = objective(beta, eta);
+  for (int iteration = 0; iteration < 100; ++iteration) {
+    const VectorXd z = eta.array() + y.array() * (-eta.array()).exp() - 1.0;
+    const VectorXd step = qr.solve(root_w.asDiagonal() * z) - beta;
+    double t = 1.0;
+    VectorXd trial_eta;
+    double trial_loss = objective(beta + step, trial_eta);
+    while (trial_loss > loss && t > 1e-6) {
+      t *= 0.5;
+      trial_loss = objective(beta + t * step, trial_eta);
+    }
+    if (trial_loss > loss) break;
+    beta += t * step;
+    eta = trial_eta;
+    const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
+    loss = trial_loss;
+    if (converged) break;
+  }
+  return beta;
+}
+
 /// Validates fit data; returns the amplitude and range extents.
 SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
                             const std::string& who) {
@@ -194,39 +234,11 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   mean_e2 /= static_cast<double>(n);
   if (!(mean_e2 > 0)) throw std::invalid_argument(who + ": every residual is zero");
 
-  // 1. log E[e^2] = X beta by gamma quasi-likelihood with a log link (McCullagh
-  //    & Nelder, Generalized Linear Models, ch. 8): minimise sum(e^2/mu + log mu)
-  //    by Fisher scoring, z = eta + (e^2 - mu)/mu regressed on X with unit
-  //    weights, halving steps that do not decrease the objective (it is convex
-  //    in beta). Unlike least squares on log(e^2) it needs no epsilon for zero
-  //    residuals and has no log bias.
-  const Eigen::ColPivHouseholderQR<MatrixXd> qr(design);
-  VectorXd beta = VectorXd::Zero(terms);
-  beta(0) = std::log(mean_e2);
-  const double eta_lo = std::log(mean_e2) - 60.0, eta_hi = std::log(mean_e2) + 60.0;
-  auto objective = [&](const VectorXd& b, VectorXd& eta) {
-    eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
-    return (e2.array() * (-eta.array()).exp() + eta.array()).sum();
-  };
-  VectorXd eta;
-  double loss = objective(beta, eta);
-  for (int iteration = 0; iteration < 100; ++iteration) {
-    const VectorXd z = eta.array() + e2.array() * (-eta.array()).exp() - 1.0;
-    const VectorXd step = qr.solve(z) - beta;
-    double t = 1.0;
-    VectorXd trial_eta;
-    double trial_loss = objective(beta + step, trial_eta);
-    while (trial_loss > loss && t > 1e-6) {
-      t *= 0.5;
-      trial_loss = objective(beta + t * step, trial_eta);
-    }
-    if (trial_loss > loss) break;
-    beta += t * step;
-    eta = trial_eta;
-    const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
-    loss = trial_loss;
-    if (converged) break;
-  }
+  // 1. log E[e^2] = X beta by gamma quasi-likelihood (unit weights).
+  const VectorXd beta = gamma_log_fit(design, e2, VectorXd::Ones(static_cast<Index>(n)));
+  // The fitted log-variance (within the fit's clamp of +-60 around the mean's log).
+  const VectorXd eta =
+      (design * beta).cwiseMax(std::log(mean_e2) - 60.0).cwiseMin(std::log(mean_e2) + 60.0);
   p.coefficients.assign(beta.data(), beta.data() + terms);
 
   // 2. Coverage per intensity band: bands of equal counts along u; k at each
@@ -295,42 +307,6 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
 // -------------------------------------------------------- noise + systematic
 
 namespace {
-
-/// log E[y] = X beta by gamma quasi-likelihood with a log link and prior
-/// weights w (McCullagh & Nelder ch. 8): Fisher scoring with step halving.
-VectorXd gamma_log_fit(const MatrixXd& design, const VectorXd& y, const VectorXd& w) {
-  const Index terms = design.cols();
-  const double mean_y = (w.array() * y.array()).sum() / w.sum();
-  VectorXd beta = VectorXd::Zero(terms);
-  beta(0) = std::log(mean_y);
-  const double eta_lo = std::log(mean_y) - 60.0, eta_hi = std::log(mean_y) + 60.0;
-  const auto objective = [&](const VectorXd& b, VectorXd& eta) {
-    eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
-    return (w.array() * (y.array() * (-eta.array()).exp() + eta.array())).sum();
-  };
-  const VectorXd root_w = w.cwiseSqrt();
-  const Eigen::ColPivHouseholderQR<MatrixXd> qr(root_w.asDiagonal() * design);
-  VectorXd eta;
-  double loss = objective(beta, eta);
-  for (int iteration = 0; iteration < 100; ++iteration) {
-    const VectorXd z = eta.array() + y.array() * (-eta.array()).exp() - 1.0;
-    const VectorXd step = qr.solve(root_w.asDiagonal() * z) - beta;
-    double t = 1.0;
-    VectorXd trial_eta;
-    double trial_loss = objective(beta + step, trial_eta);
-    while (trial_loss > loss && t > 1e-6) {
-      t *= 0.5;
-      trial_loss = objective(beta + t * step, trial_eta);
-    }
-    if (trial_loss > loss) break;
-    beta += t * step;
-    eta = trial_eta;
-    const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
-    loss = trial_loss;
-    if (converged) break;
-  }
-  return beta;
-}
 
 MatrixXd power_design(const std::vector<double>& x, int order) {
   MatrixXd d(static_cast<Index>(x.size()), order + 1);
