@@ -162,3 +162,29 @@ TEST_F(CliTest, ConfigDumpLoadsBackToTheSameDump) {
   EXPECT_NE(summary.out.find("tdc.lsb_ps = 30"), std::string::npos) << summary.out;
   EXPECT_NE(summary.out.find("--set"), std::string::npos) << summary.out;
 }
+
+// `plan --single-distance`: every plate line stands at one distance, the one
+// that centres the plates' log-power span (reflectance 0.02-0.95) on the
+// field's. Oracle (paper Eq. 6 at normal incidence, Pr ~ rho / R^2, the
+// receiver's field covering the footprint): d^4 = rho_p,min rho_p,max R_min^2
+// R_max^2 / (rho_min rho_max).
+TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
+  const auto r =
+      run("plan --range-min 0.7 --range-max 7.4 --reflectance-min 0.06 --reflectance-max 0.85 "
+          "--single-distance");
+  ASSERT_EQ(r.status, 0) << r.err;
+  std::vector<double> distances;
+  std::size_t pos = 0;
+  while ((pos = r.out.find("--distance ", pos)) != std::string::npos) {
+    pos += 11;
+    distances.push_back(std::stod(r.out.substr(pos, r.out.find(' ', pos) - pos)));
+  }
+  ASSERT_GE(distances.size(), 2u) << r.out;  // the plates and the temperature run
+  for (double d : distances) EXPECT_EQ(d, distances.front()) << r.out;
+  const double expected = std::pow(0.02 * 0.95 * 0.7 * 0.7 * 7.4 * 7.4 / (0.06 * 0.85), 0.25);
+  EXPECT_NEAR(distances.front(), expected, 0.01 * expected) << r.out;
+  // An empty field (range_min > range_max) is refused, naming the range.
+  const auto bad = run("plan --range-min 5 --range-max 2 --reflectance-min 0.06 --single-distance");
+  EXPECT_EQ(bad.status, 1);
+  EXPECT_NE(read("stderr.txt").find("range"), std::string::npos) << read("stderr.txt");
+}
