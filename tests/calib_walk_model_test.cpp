@@ -382,6 +382,21 @@ double interpolate(const std::vector<double>& x, const std::vector<double>& y, d
   return y[k - 1] + (at - x[k - 1]) / (x[k] - x[k - 1]) * (y[k] - y[k - 1]);
 }
 
+/// The fitted model predicts the true curve's walk (relative to the fit's
+/// reference width) within 1 mm for ln a from 0.2 to `log_a_max`.
+void expect_walk_of(const ranging::WalkCurve& curve, const calib::WalkFitResult& fit,
+                    double log_a_max) {
+  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
+  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
+  for (double log_a = 0.2; log_a <= log_a_max; log_a += 0.2) {
+    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
+    const double true_walk =
+        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
+    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
+        << "ln a " << log_a << ", width " << width << " ns";
+  }
+}
+
 TEST(WalkModel, FitRecoversAKnownShapeAndExtrapolates) {
   const ranging::WalkShape truth{0.6, 1.1};
   const ranging::WalkCurve curve = ranging::walk_curve(truth);
@@ -396,15 +411,7 @@ TEST(WalkModel, FitRecoversAKnownShapeAndExtrapolates) {
   const calib::WalkFitResult fit = calib::fit_walk(w, e, {}, 5.0, kMetresPerNs);
   EXPECT_NEAR(fit.shape.pulse_sigma_ns, truth.pulse_sigma_ns, 0.05) << fit.summary();
   EXPECT_NEAR(fit.shape.pole_time_constant_ns, truth.pole_time_constant_ns, 0.1) << fit.summary();
-  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
-  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
-  for (double log_a = 0.2; log_a <= 8.0; log_a += 0.2) {  // far beyond 1.5..3.5
-    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
-    const double true_walk =
-        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
-    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
-        << "ln a " << log_a << ", width " << width << " ns";
-  }
+  expect_walk_of(curve, fit, 8.0);  // far beyond 1.5..3.5
 }
 
 // The same with clipping: rows above ln a = 4 flagged clipped (2 ns of extra
@@ -437,15 +444,7 @@ TEST(WalkModel, FitRecoversClippingFromFlaggedRows) {
   // the recovery (extra width per e-fold) much less.
   EXPECT_NEAR(fit.shape.recovery_ns_per_neper, truth.recovery_ns_per_neper, 0.5) << fit.summary();
   EXPECT_LE(fit.rms_m, 3e-4) << fit.summary();
-  const ranging::WalkModel model(fit.shape, fit.reference_pulse_width_ns);
-  const double truth_ref = ranging::rise_at_width(curve, fit.reference_pulse_width_ns);
-  for (double log_a = 0.2; log_a <= 9.0; log_a += 0.2) {
-    const double width = interpolate(curve.log_overdrive, curve.width_ns, log_a);
-    const double true_walk =
-        -kMetresPerNs * (interpolate(curve.log_overdrive, curve.rise_ns, log_a) - truth_ref);
-    EXPECT_NEAR(-kMetresPerNs * model.relative_rise_ns(width), true_walk, 0.001)
-        << "ln a " << log_a << ", width " << width << " ns";
-  }
+  expect_walk_of(curve, fit, 9.0);
 }
 
 TEST(WalkModel, CurveIsMonotoneAndClippingWidens) {

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <numbers>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -74,14 +75,18 @@ struct SurfaceRows {
   std::vector<std::uint32_t> group;  ///< truth group (cross-validation over whole targets)
 };
 
+/// The pipeline's ranges for `records`, their raw columns read in place.
+std::vector<ranging::Range> corrected_ranges(const ranging::Pipeline& pipeline,
+                                             std::span<const ranging::Record> records) {
+  std::vector<ranging::Range> out(records.size());
+  if (!records.empty()) pipeline.apply(ranging::RawColumns::of(records), out);
+  return out;
+}
+
 SurfaceRows surface_rows(const ranging::Pipeline& pipeline,
                          std::span<const ranging::Record> records, bool use_temperature,
                          bool pulse_width) {
-  std::vector<ranging::RawMeasurement> raw;
-  raw.reserve(records.size());
-  for (const auto& r : records) raw.push_back(r.raw);
-  std::vector<ranging::Range> before(raw.size());
-  pipeline.apply(raw, before);
+  const std::vector<ranging::Range> before = corrected_ranges(pipeline, records);
   SurfaceRows rows;
   std::size_t groups = 0;
   const std::vector<std::size_t> group = truth_groups(records, groups);
@@ -198,21 +203,18 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     if (chain.steps()[s].kind == ranging::StepKind::kGrayvalue) grayvalue = s;
   }
   if (grayvalue == chain.steps().size()) return chain;
-  std::vector<ranging::RawMeasurement> raw;
-  for (const auto& r : rows) raw.push_back(r.raw);
-  std::vector<ranging::Range> corrected(raw.size());
-  chain.apply(raw, corrected);
+  const std::vector<ranging::Range> corrected = corrected_ranges(chain, rows);
   std::size_t groups = 0;
   const std::vector<std::size_t> group_of = truth_groups(rows, groups);
   std::vector<double> x, r;
   std::vector<std::size_t> group;
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const double e = rows[i].truth.distance_m - corrected[i].distance_m;
-    if (!std::isfinite(e) || !std::isfinite(raw[i].pulse_width_ns) ||
+    if (!std::isfinite(e) || !std::isfinite(rows[i].raw.pulse_width_ns) ||
         (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
       continue;
     }
-    x.push_back(raw[i].pulse_width_ns);
+    x.push_back(rows[i].raw.pulse_width_ns);
     r.push_back(e);
     group.push_back(group_of[i]);
   }
@@ -323,8 +325,7 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
     }
     refined.add_step(std::move(step));
   }
-  std::vector<ranging::Range> after(raw.size());
-  refined.apply(raw, after);
+  const std::vector<ranging::Range> after = corrected_ranges(refined, rows);
   double sse = 0;
   std::size_t n = 0;
   for (std::size_t i = 0; i < rows.size(); ++i) {
@@ -452,11 +453,7 @@ constexpr int kMaxHarmonics = 8;
 std::vector<double> fit_periodic(const ranging::Pipeline& main,
                                  std::span<const ranging::Record> rows, double period_ns,
                                  ModelFitSummary::Periodic* info) {
-  std::vector<ranging::RawMeasurement> raw;
-  raw.reserve(rows.size());
-  for (const auto& r : rows) raw.push_back(r.raw);
-  std::vector<ranging::Range> corrected(raw.size());
-  main.apply(raw, corrected);
+  const std::vector<ranging::Range> corrected = corrected_ranges(main, rows);
   std::size_t groups = 0;
   const std::vector<std::size_t> group_of = truth_groups(rows, groups);
   std::vector<double> phase, e;
@@ -464,11 +461,11 @@ std::vector<double> fit_periodic(const ranging::Pipeline& main,
   constexpr std::size_t kFolds = 5;
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const double r = rows[i].truth.distance_m - corrected[i].distance_m;
-    if (!std::isfinite(r) || !std::isfinite(raw[i].tof_ns) ||
+    if (!std::isfinite(r) || !std::isfinite(rows[i].raw.tof_ns) ||
         (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
       continue;
     }
-    phase.push_back(2.0 * 3.14159265358979323846 * std::fmod(raw[i].tof_ns, period_ns) / period_ns);
+    phase.push_back(2.0 * std::numbers::pi * std::fmod(rows[i].raw.tof_ns, period_ns) / period_ns);
     e.push_back(r);
     fold.push_back(fold_of(group_of[i], kFolds));
   }
@@ -579,20 +576,16 @@ struct Residuals {
   std::vector<double> range, amplitude, residual;
 
   void add(const ranging::Pipeline& model, std::span<const ranging::Record> rows) {
-    std::vector<ranging::RawMeasurement> raw;
-    raw.reserve(rows.size());
-    for (const auto& r : rows) raw.push_back(r.raw);
-    std::vector<ranging::Range> corrected(raw.size());
-    model.apply(raw, corrected);
-    for (std::size_t i = 0; i < raw.size(); ++i) {
+    const std::vector<ranging::Range> corrected = corrected_ranges(model, rows);
+    for (std::size_t i = 0; i < rows.size(); ++i) {
       const double e = rows[i].truth.distance_m - corrected[i].distance_m;
       // Out-of-domain rows would teach the in-domain sigma the extrapolation error.
-      if (!std::isfinite(e) || !std::isfinite(raw[i].amplitude) ||
+      if (!std::isfinite(e) || !std::isfinite(rows[i].raw.amplitude) ||
           (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
         continue;
       }
       range.push_back(corrected[i].distance_m);
-      amplitude.push_back(raw[i].amplitude);
+      amplitude.push_back(rows[i].raw.amplitude);
       residual.push_back(e);
     }
   }
@@ -625,18 +618,14 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   if (result.summary.surface) pulse_width = result.summary.surface_intensity == "pulse_width_ns";
   std::size_t groups = 0;
   const std::vector<std::size_t> group_of = truth_groups(records, groups);
-  std::vector<ranging::RawMeasurement> raw;
-  raw.reserve(records.size());
-  for (const auto& r : records) raw.push_back(r.raw);
-  std::vector<ranging::Range> corrected(raw.size());
-  result.pipeline.apply(raw, corrected);
+  const std::vector<ranging::Range> corrected = corrected_ranges(result.pipeline, records);
   std::vector<double> range, intensity, residual;
   std::vector<std::uint32_t> group;
   std::vector<char> seen(groups, 0);
   std::size_t used_groups = 0;
-  for (std::size_t i = 0; i < raw.size(); ++i) {
+  for (std::size_t i = 0; i < records.size(); ++i) {
     const double e = records[i].truth.distance_m - corrected[i].distance_m;
-    const double x = pulse_width ? raw[i].pulse_width_ns : raw[i].amplitude;
+    const double x = pulse_width ? records[i].raw.pulse_width_ns : records[i].raw.amplitude;
     if (!std::isfinite(e) || !(x > 0) || !std::isfinite(x) ||
         (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
       continue;

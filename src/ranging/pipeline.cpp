@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
+#include <numbers>
 #include <sstream>
 #include <stdexcept>
 #include <utility>
@@ -303,7 +304,7 @@ double periodic_correction(double period_ns, const std::vector<double>& harmonic
                            double tof_ns) {
   if (!std::isfinite(tof_ns)) return 0.0;
   // The phase from the remainder, so that large times keep their precision.
-  const double phase = 2.0 * 3.14159265358979323846 * std::fmod(tof_ns, period_ns) / period_ns;
+  const double phase = 2.0 * std::numbers::pi * std::fmod(tof_ns, period_ns) / period_ns;
   double c = 0;
   for (std::size_t h = 0; 2 * h + 1 < harmonics_m.size(); ++h) {
     const double angle = static_cast<double>(h + 1) * phase;

@@ -11,9 +11,9 @@
 /// onset, fitted as the pulse width where clipping starts, kept by the flags
 /// between the widest unclipped and the narrowest clipped echo (and turned into
 /// ln(V_sat / V) by the shape). Without
-/// clipped rows neither is observable: the shape then has no recovery term. Only the data are used (no device configuration): the shape
-/// is what makes the walk of weaker and stronger echoes than the calibration's
-/// predictable.
+/// clipped rows neither is observable: the shape then has no recovery term. Only the data are used
+/// (no device configuration): the shape is what makes the walk of weaker and stronger echoes than
+/// the calibration's predictable.
 
 #include <cstddef>
 #include <cstdint>
