@@ -593,7 +593,8 @@ struct Residuals {
 
 /// The correction's effective parameter count: the surface's (trace of its
 /// hat matrix, or its rank), the chain's offset, its walk refinement's trace
-/// or its hinges' parameters (intercept, slope and one per knot), and two per
+/// or its hinges' parameters (intercept, slope and one per knot), the walk
+/// model's shape parameters, and two per
 /// harmonic of a periodic step.
 double effective_parameters(const ModelFitSummary& s) {
   double p = 0;
@@ -605,6 +606,10 @@ double effective_parameters(const ModelFitSummary& s) {
     };
     p += s.walk && s.walk->nodes > 0 ? s.walk->effective_parameters : hinge(s.chain->grayvalue);
     p += hinge(s.chain->temperature);
+    // The walk model's shape: pulse sigma and pole, plus onset and recovery when clipping was
+    // fitted.
+    if (s.chain->walk)
+      p += std::isfinite(s.chain->walk->shape.saturation_log_overdrive) ? 4.0 : 2.0;
   }
   if (s.periodic) p += 2.0 * s.periodic->harmonics;
   return p;
@@ -614,7 +619,7 @@ double effective_parameters(const ModelFitSummary& s) {
 /// grouped by truth; the intensity axis the correction reads.
 void fit_repeats_confidence(std::span<const ranging::Record> records, const ModelFitOptions& o,
                             ModelFitResult& result) {
-  bool pulse_width = result.summary.chain.has_value() && o.chain->grayvalue;
+  bool pulse_width = result.summary.chain.has_value() && (o.chain->grayvalue || o.chain->walk);
   if (result.summary.surface) pulse_width = result.summary.surface_intensity == "pulse_width_ns";
   std::size_t groups = 0;
   const std::vector<std::size_t> group_of = truth_groups(records, groups);
