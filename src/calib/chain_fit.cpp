@@ -387,10 +387,12 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     result.pipeline.add_step(ranging::make_offset_step(result.offset_m));
   }
   if (steps.walk) {
-    result.pipeline.add_step(
-        ranging::make_walk_step(std::make_shared<const ranging::WalkModel>(*walk_model),
-                                // The widths the walk was fitted on (full echoes).
-                                {result.walk->width_min_ns, result.walk->width_max_ns}));
+    result.pipeline.add_step(ranging::make_walk_step(
+        std::make_shared<const ranging::WalkModel>(walk_model->shape(),
+                                                   walk_model->reference_pulse_width_ns(),
+                                                   result.walk->shape_covariance),
+        // The widths the walk was fitted on (full echoes).
+        {result.walk->width_min_ns, result.walk->width_max_ns}));
   }
   if (steps.grayvalue) {
     result.grayvalue->function = g;

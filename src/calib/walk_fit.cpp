@@ -145,6 +145,66 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
   return out;
 }
 
+/// The parameters' covariance at the optimum, over [constant,
+/// ranging::walk_parameters(shape)] (a reparameterization of the fit's own
+/// vector: the onset as ln a_sat rather than its width), by the Gauss-Newton
+/// approximation s^2 (J^T J)^+ with s^2 = SSE / (n - m) and a central-difference
+/// Jacobian; returns the shape's block (row-major), empty when it cannot be
+/// formed. Directions the rows do not constrain (J^T J singular there) get no
+/// variance.
+std::vector<double> shape_covariance(const Problem& problem, double constant,
+                                     const ranging::WalkShape& shape) {
+  const std::vector<double> q = ranging::walk_parameters(shape);
+  const auto k = static_cast<Eigen::Index>(q.size());
+  const auto n = static_cast<Eigen::Index>(problem.rows.size());
+  if (n <= k + 1) return {};
+  const auto residuals = [&](double c, const std::vector<double>& x, Eigen::VectorXd& r) {
+    ranging::WalkCurve curve;
+    try {
+      curve = ranging::walk_curve(ranging::walk_shape_of(x), 600);
+    } catch (const std::invalid_argument&) {
+      return false;
+    }
+    const double rise_ref = ranging::rise_at_width(curve, problem.reference);
+    r.resize(n);
+    for (Eigen::Index j = 0; j < n; ++j) {
+      const std::size_t i = problem.rows[static_cast<std::size_t>(j)];
+      r(j) = c - problem.metres_per_ns * (ranging::rise_at_width(curve, problem.w[i]) - rise_ref) -
+             problem.e[i];
+    }
+    return r.allFinite();
+  };
+  Eigen::VectorXd r0, r_plus, r_minus;
+  if (!residuals(constant, q, r0)) return {};
+  Eigen::MatrixXd jacobian(n, k + 1);
+  jacobian.col(0).setOnes();
+  for (Eigen::Index j = 0; j < k; ++j) {
+    const double h = 1e-4;
+    std::vector<double> plus = q, minus = q;
+    plus[static_cast<std::size_t>(j)] += h;
+    minus[static_cast<std::size_t>(j)] -= h;
+    if (!residuals(constant, plus, r_plus) || !residuals(constant, minus, r_minus)) return {};
+    jacobian.col(j + 1) = (r_plus - r_minus) / (2 * h);
+  }
+  const double s2 = r0.squaredNorm() / static_cast<double>(n - k - 1);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(jacobian.transpose() * jacobian);
+  const Eigen::VectorXd& lambda = eigen.eigenvalues();
+  Eigen::VectorXd inverse = Eigen::VectorXd::Zero(lambda.size());
+  for (Eigen::Index j = 0; j < lambda.size(); ++j) {
+    if (lambda(j) > 1e-10 * lambda.maxCoeff()) inverse(j) = 1.0 / lambda(j);
+  }
+  const Eigen::MatrixXd full =
+      s2 * eigen.eigenvectors() * inverse.asDiagonal() * eigen.eigenvectors().transpose();
+  std::vector<double> out(static_cast<std::size_t>(k * k));
+  for (Eigen::Index a = 0; a < k; ++a) {
+    for (Eigen::Index b = 0; b < k; ++b) {
+      // Symmetric by construction; averaged so that it is so to the last bit.
+      out[static_cast<std::size_t>(a * k + b)] = 0.5 * (full(a + 1, b + 1) + full(b + 1, a + 1));
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const double> error_m,
@@ -303,6 +363,7 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   result.shape = shape_of(best.p);
   result.constant_m = best.p(0);
   result.rms_m = std::sqrt(best.sse / static_cast<double>(problem.rows.size()));
+  result.shape_covariance = shape_covariance(problem, best.p(0), result.shape);
   result.iterations = iterations;
   result.converged = best.converged;
   return result;

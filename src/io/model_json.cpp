@@ -118,6 +118,7 @@ json step_to_json(const ranging::Step& step) {
                     {"saturation_log_overdrive", finite_or_null(shape.saturation_log_overdrive)},
                     {"recovery_ns_per_neper", shape.recovery_ns_per_neper}};
       j["reference_pulse_width_ns"] = step.walk->reference_pulse_width_ns();
+      if (step.walk->has_covariance()) j["shape_covariance"] = step.walk->covariance();
       j["domain"] = {{"min", finite_or_null(step.domain.min)},
                      {"max", finite_or_null(step.domain.max)}};
       break;
@@ -166,7 +167,8 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
       break;
     case ranging::StepKind::kWalk: {
       refuse_unknown_keys(j, where,
-                          {"kind", "input", "shape", "reference_pulse_width_ns", "domain", "fit"});
+                          {"kind", "input", "shape", "reference_pulse_width_ns", "shape_covariance",
+                           "domain", "fit"});
       if (text(j, "input", where) != "pulse_width_ns") {
         fail(where + ".input", "a walk step's input is \"pulse_width_ns\"");
       }
@@ -182,10 +184,18 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
           number_or(sj, "saturation_log_overdrive", sw, std::numeric_limits<double>::infinity());
       shape.recovery_ns_per_neper = number(sj, "recovery_ns_per_neper", sw);
       try {
-        step.walk = std::make_shared<const ranging::WalkModel>(
-            shape, number(j, "reference_pulse_width_ns", where));
+        shape.validate();
       } catch (const std::invalid_argument& e) {
         fail(sw, e.what());
+      }
+      // Optional (older files): row-major over ranging::walk_parameters(shape).
+      std::vector<double> covariance;
+      if (j.contains("shape_covariance")) covariance = numbers(j, "shape_covariance", where);
+      try {
+        step.walk = std::make_shared<const ranging::WalkModel>(
+            shape, number(j, "reference_pulse_width_ns", where), std::move(covariance));
+      } catch (const std::invalid_argument& e) {
+        fail(where + ".shape_covariance", e.what());
       }
       const json& d = field(j, "domain", where);
       refuse_unknown_keys(d, where + ".domain", {"min", "max"});

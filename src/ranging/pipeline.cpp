@@ -29,6 +29,9 @@ struct BlockBuffers {
   /// > 0 once an input is outside a step's domain: the largest distance
   /// outside, in widths of that domain (a double, so the checks vectorize).
   std::array<double, kBlock> outside;
+  /// Variance (m^2) a step knows it adds where it extrapolates (a walk step
+  /// with its shape's covariance), added to sigma^2 instead of the growth.
+  std::array<double, kBlock> extra_variance;
   std::array<std::uint32_t, kBlock> flags;
   std::array<std::uint8_t, kBlock> out_of_domain;
 };
@@ -72,13 +75,29 @@ void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double
 /// distance += -(c_air / 2) (t_rise(w) - t_rise(w_ref)): a late rising crossing
 /// reads long (walk, DESIGN.md "Discriminator"). Widths outside the fitted
 /// domain are marked but corrected by the shape (its physics extrapolates).
+/// With the shape's covariance, the uncertainty there is the walk's own: the
+/// variance of its prediction at w beyond that at the domain's nearer edge
+/// (inside, the confidence model measured the error already), so sigma grows
+/// as the fitted shape's uncertainty does; without it, the generic growth.
 void add_walk(const WalkModel& walk, const InputDomain& domain, double metres_per_ns,
               BlockBuffers& b, std::size_t n) {
   double* rise = b.scratch_a.data();
   walk.relative_rise_ns(b.pulse_width.data(), rise, n);
+  for (std::size_t i = 0; i < n; ++i) b.distance[i] -= metres_per_ns * rise[i];
+  if (!walk.has_covariance()) {
+    for (std::size_t i = 0; i < n; ++i)
+      b.outside[i] =
+          std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
+    return;
+  }
   for (std::size_t i = 0; i < n; ++i) {
-    b.distance[i] -= metres_per_ns * rise[i];
-    b.outside[i] = std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
+    const double w = b.pulse_width[i];
+    if (!(outside_widths(w, domain.min, domain.max) > 0)) continue;
+    b.outside[i] = std::max(b.outside[i], kMinOutside);  // flagged, no generic growth
+    const double edge = w < domain.min ? domain.min : domain.max;
+    const double excess =
+        walk.relative_rise_variance_ns2(w) - walk.relative_rise_variance_ns2(edge);
+    b.extra_variance[i] += metres_per_ns * metres_per_ns * std::max(excess, 0.0);
   }
 }
 
@@ -165,7 +184,9 @@ void fill_sigma(const ConfidenceModel* confidence, double residual_rms_m, BlockB
   }
   for (std::size_t i = 0; i < n; ++i) {
     // Outside a step's domain the correction extrapolates: its expected error
-    // grows with the distance from the domain (Pipeline::kOutOfDomainSigmaGrowth).
+    // grows with the distance from the domain (Pipeline::kOutOfDomainSigmaGrowth),
+    // or by the variance the step knows it adds there.
+    if (b.extra_variance[i] > 0) sigma[i] = std::sqrt(sigma[i] * sigma[i] + b.extra_variance[i]);
     sigma[i] *= 1.0 + Pipeline::kOutOfDomainSigmaGrowth * b.outside[i];
     if (!std::isfinite(b.distance[i])) sigma[i] = kNaN;
   }
@@ -409,6 +430,7 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
       b.tof[i] = tof;
       b.flags[i] = echo ? 0u : kCorrNoEcho;
       b.outside[i] = 0.0;
+      b.extra_variance[i] = 0.0;
       b.pulse_width[i] = in.pulse_width_ns[row];
       b.temperature[i] = in.temperature_c[row];
       b.amplitude[i] = in.amplitude[row];

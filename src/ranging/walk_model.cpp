@@ -1,5 +1,6 @@
 #include "tofkit/ranging/walk_model.hpp"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -114,8 +115,32 @@ double rise_at_width(const WalkCurve& c, double width_ns) {
   return c.rise_ns[k - 1] + f * (c.rise_ns[k] - c.rise_ns[k - 1]);
 }
 
-WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns)
-    : shape_(shape), reference_ns_(reference_pulse_width_ns) {
+std::vector<double> walk_parameters(const WalkShape& shape) {
+  std::vector<double> q{std::log(shape.pulse_sigma_ns), std::log(shape.pole_time_constant_ns)};
+  if (std::isfinite(shape.saturation_log_overdrive)) {
+    q.push_back(std::log(shape.recovery_ns_per_neper));
+    q.push_back(shape.saturation_log_overdrive);
+  }
+  return q;
+}
+
+WalkShape walk_shape_of(std::span<const double> q) {
+  if (q.size() != 2 && q.size() != 4) {
+    throw std::invalid_argument("walk shape: 2 or 4 parameters expected");
+  }
+  WalkShape s;
+  s.pulse_sigma_ns = std::exp(q[0]);
+  s.pole_time_constant_ns = std::exp(q[1]);
+  if (q.size() == 4) {
+    s.recovery_ns_per_neper = std::exp(q[2]);
+    s.saturation_log_overdrive = q[3];
+  }
+  return s;
+}
+
+WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns,
+                     std::vector<double> covariance)
+    : shape_(shape), reference_ns_(reference_pulse_width_ns), covariance_(std::move(covariance)) {
   if (!std::isfinite(reference_pulse_width_ns)) {
     throw std::invalid_argument("walk step: reference_pulse_width_ns must be finite");
   }
@@ -131,6 +156,60 @@ WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns)
   const std::size_t m = curve.width_ns.size();
   slope_above_ = (curve.rise_ns[m - 1] - curve.rise_ns[m - 2]) /
                  (curve.width_ns[m - 1] - curve.width_ns[m - 2]);
+  if (covariance_.empty()) return;
+  // The covariance: over walk_parameters(shape), symmetric, positive semi-definite.
+  const std::vector<double> q = walk_parameters(shape_);
+  const auto k = static_cast<Eigen::Index>(q.size());
+  if (covariance_.size() != q.size() * q.size()) {
+    throw std::invalid_argument("walk step: shape_covariance must be " + std::to_string(k) + " x " +
+                                std::to_string(k) + " (the shape's " + std::to_string(k) +
+                                " parameters), has " + std::to_string(covariance_.size()) +
+                                " values");
+  }
+  const Eigen::Map<const Eigen::MatrixXd> c(covariance_.data(), k, k);
+  if (!c.allFinite()) throw std::invalid_argument("walk step: shape_covariance is not finite");
+  const double norm = c.cwiseAbs().maxCoeff();
+  if (!((c - c.transpose()).cwiseAbs().maxCoeff() <= 1e-9 * norm)) {
+    throw std::invalid_argument("walk step: shape_covariance is not symmetric");
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (c + c.transpose()));
+  if (!(eigen.eigenvalues().minCoeff() >= -1e-9 * norm)) {
+    throw std::invalid_argument("walk step: shape_covariance is not positive semi-definite");
+  }
+  for (Eigen::Index a = 0; a < k; ++a) {
+    const double variance = eigen.eigenvalues()(a);
+    if (!(variance > 0)) continue;
+    const Eigen::VectorXd step = std::sqrt(variance) * eigen.eigenvectors().col(a);
+    // A step of one standard deviation may leave the shapes the walk can
+    // tabulate (e.g. a time-constant ratio over 1000): then a smaller one,
+    // scaled back up (first order).
+    for (double fraction = 1.0; fraction >= 1.0 / 64; fraction *= 0.5) {
+      std::vector<double> plus = q, minus = q;
+      for (Eigen::Index j = 0; j < k; ++j) {
+        plus[static_cast<std::size_t>(j)] += fraction * step(j);
+        minus[static_cast<std::size_t>(j)] -= fraction * step(j);
+      }
+      try {
+        Axis axis;
+        axis.plus = std::make_shared<const WalkModel>(walk_shape_of(plus), reference_ns_);
+        axis.minus = std::make_shared<const WalkModel>(walk_shape_of(minus), reference_ns_);
+        axis.scale = 1.0 / fraction;
+        axes_.push_back(std::move(axis));
+        break;
+      } catch (const std::invalid_argument&) {
+      }
+    }
+  }
+}
+
+double WalkModel::relative_rise_variance_ns2(double width_ns) const {
+  double variance = 0;
+  for (const Axis& a : axes_) {
+    const double half_difference =
+        0.5 * a.scale * (a.plus->relative_rise_ns(width_ns) - a.minus->relative_rise_ns(width_ns));
+    variance += half_difference * half_difference;
+  }
+  return variance;
 }
 
 double WalkModel::relative_rise_ns(double width_ns) const {

@@ -20,6 +20,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "tofkit/ranging/walk_model.hpp"
 
@@ -50,6 +51,10 @@ struct WalkFitResult {
   std::size_t partial_rows = 0;               ///< rows left out: not every shot gave an echo
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
   double rms_m = 0;                ///< RMS residual of the fit
+  /// The shape parameters' covariance (row-major, over
+  /// ranging::walk_parameters(shape)), from the residuals' scatter and the
+  /// fit's Jacobian; empty when it could not be formed.
+  std::vector<double> shape_covariance;
   int iterations = 0;
   bool converged = false;
   [[nodiscard]] std::string summary() const;

@@ -152,7 +152,10 @@ class Pipeline {
   /// (1 + kOutOfDomainSigmaGrowth d), d its largest distance outside a step's
   /// domain in widths of that domain (log scale for a surface's positive
   /// amplitude axis): a linear continuation's error grows with the lever arm,
-  /// so at a quarter of the domain's width outside, sigma has doubled.
+  /// so at a quarter of the domain's width outside, sigma has doubled. A
+  /// walk step with its shape's covariance instead adds the variance of its
+  /// own prediction there (WalkModel::relative_rise_variance_ns2, beyond that
+  /// at the domain's edge): physics that extrapolates, with a known error.
   static constexpr double kOutOfDomainSigmaGrowth = 4.0;
 
   /// The batch hot path (in.size() == out.size(), else std::invalid_argument).

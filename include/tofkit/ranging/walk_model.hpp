@@ -24,6 +24,7 @@
 
 #include <cstddef>
 #include <limits>
+#include <memory>
 #include <span>
 #include <string>
 #include <vector>
@@ -62,12 +63,24 @@ inline constexpr double kMaxLogOverdrive = 12.0;
 /// the last segment's slope).
 [[nodiscard]] double rise_at_width(const WalkCurve& curve, double width_ns);
 
+/// The shape's parameters as the fit estimates them (all free of sign
+/// constraints): ln pulse_sigma_ns, ln pole_time_constant_ns and, with clipping,
+/// ln recovery_ns_per_neper and saturation_log_overdrive (already a log).
+[[nodiscard]] std::vector<double> walk_parameters(const WalkShape& shape);
+/// The inverse of walk_parameters (2 or 4 values).
+[[nodiscard]] WalkShape walk_shape_of(std::span<const double> parameters);
+
 /// The walk tabulated on a uniform grid in pulse width, ready to apply.
 class WalkModel {
  public:
   /// `reference_pulse_width_ns`: the width at which the walk correction is zero
-  /// (the constant lives in the offset step).
-  WalkModel(WalkShape shape, double reference_pulse_width_ns);
+  /// (the constant lives in the offset step). `covariance`: optional,
+  /// row-major k x k over walk_parameters(shape) (k = 2, or 4 with clipping):
+  /// the fit's parameter covariance, which makes the walk's own uncertainty at
+  /// any width known (relative_rise_variance_ns2). Throws
+  /// std::invalid_argument naming the bad field (wrong size, not finite, not
+  /// symmetric, not positive semi-definite).
+  WalkModel(WalkShape shape, double reference_pulse_width_ns, std::vector<double> covariance = {});
 
   [[nodiscard]] const WalkShape& shape() const { return shape_; }
   [[nodiscard]] double reference_pulse_width_ns() const { return reference_ns_; }
@@ -78,6 +91,15 @@ class WalkModel {
   [[nodiscard]] double relative_rise_ns(double width_ns) const;
   /// rise_ns[i] = relative_rise_ns(width_ns[i]); NaN in, NaN out.
   void relative_rise_ns(const double* width_ns, double* rise_ns, std::size_t n) const;
+
+  [[nodiscard]] const std::vector<double>& covariance() const { return covariance_; }
+  [[nodiscard]] bool has_covariance() const { return !covariance_.empty(); }
+  /// Variance (ns^2) of relative_rise_ns(width) from the parameters'
+  /// covariance, propagated to first order (delta method) along the
+  /// covariance's principal axes by central differences of the tabulated
+  /// walk: sum_k ((rise_k+(w) - rise_k-(w)) / 2)^2, the shapes at +-1 standard
+  /// deviation along axis k. 0 without a covariance.
+  [[nodiscard]] double relative_rise_variance_ns2(double width_ns) const;
 
   /// One line: the shape's numbers.
   [[nodiscard]] std::string summary() const;
@@ -90,6 +112,15 @@ class WalkModel {
   double step_ = 0;
   double slope_above_ = 0;    ///< d rise / d w beyond the last node
   std::vector<double> rise_;  ///< relative rise at width k * step_
+  std::vector<double> covariance_;
+  /// Per principal axis with a non-zero variance: the walks at +-1 standard
+  /// deviation along it, and 1 / the fraction of it they were taken at (a
+  /// full step may leave the shape's valid range).
+  struct Axis {
+    std::shared_ptr<const WalkModel> plus, minus;
+    double scale = 1;
+  };
+  std::vector<Axis> axes_;
 };
 
 }  // namespace tofkit::ranging
