@@ -348,10 +348,11 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // well as in-domain ones with both kinds: their shortfall is not a sigma kept
 // from inside the domain. Nor is their sigma a blanket growth: the walk step
 // adds its own extrapolation variance from the fitted shape's covariance, so
-// with the calibrated kind the flagged rows' RMS sigma stays within a factor 2
-// of their RMS error (it was 0.46 mm against 0.56 mm in the weak tercile and
-// 0.80 against 0.30 mm in the strong one with the growth; the noise-systematic
-// kind's own fit then gave 12 mm for errors of 0.6 mm).
+// the flagged rows' RMS sigma stays within a factor 2 of their RMS error with
+// both kinds (measured 0.84 and 0.82 mm against 0.47 mm; with the growth the
+// calibrated kind gave 0.46 mm against 0.56 mm in the weak tercile and 0.80
+// against 0.30 mm in the strong one, and the noise-systematic kind, whose
+// systematic part was then a floored log fit, 12 mm for errors of 0.6 mm).
 TEST(WalkModel, SigmaCoverageOnThePlannedProtocol) {
   const device::DeviceConfig config = other_parts();
   const ProtocolRows data = protocol_rows(config, Protocol::kPlannedOneDistance);
@@ -360,10 +361,8 @@ TEST(WalkModel, SigmaCoverageOnThePlannedProtocol) {
     EXPECT_GT(c.all.rows, 300u);
     EXPECT_GT(c.out_of_domain.rows, c.all.rows / 10);
     EXPECT_GE(c.out_of_domain.share, c.in_domain.share);
-    if (kind == calib::ConfidenceKind::calibrated) {
-      EXPECT_LT(c.out_of_domain_sigma_rms_m, 2.0 * c.out_of_domain_error_rms_m);
-      EXPECT_GT(c.out_of_domain_sigma_rms_m, 0.5 * c.out_of_domain_error_rms_m);
-    }
+    EXPECT_LT(c.out_of_domain_sigma_rms_m, 2.0 * c.out_of_domain_error_rms_m);
+    EXPECT_GT(c.out_of_domain_sigma_rms_m, 0.5 * c.out_of_domain_error_rms_m);
   }
 }
 

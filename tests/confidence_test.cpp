@@ -294,5 +294,57 @@ TEST(NoiseSystematicConfidence, RecoversNoiseAndSystematicAndCoversFreshTargets)
                std::invalid_argument);
 }
 
+// The systematic part by maximum likelihood on the targets' means, its
+// degree by BIC: a systematic error that grows with intensity (sd 0.1 mm x
+// sqrt(I), I over two decades) under the same noise must come out as that
+// trend (within 30 % at both ends and the middle), and a systematic error of
+// zero must stay small everywhere: a mean the noise explains is not a
+// systematic error (a log fit of m^2 - noise^2 / n, floored, turned such
+// targets into a steep curve that extrapolated to 20 x the error).
+TEST(NoiseSystematicConfidence, SystematicTrendByMaximumLikelihood) {
+  const auto make = [](double trend, std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> log_i(std::log(0.1), std::log(10.0));
+    std::normal_distribution<double> unit;
+    Targets t;
+    for (int g = 0; g < 600; ++g) {
+      const double intensity = std::exp(log_i(rng));
+      const double systematic = trend * 0.1e-3 * std::sqrt(intensity) * unit(rng);
+      for (int k = 0; k < 3; ++k) {
+        t.range_m.push_back(3.0 + 0.01 * g);
+        t.intensity.push_back(intensity);
+        t.residual_m.push_back(systematic + 0.3e-3 / std::sqrt(intensity) * unit(rng));
+        t.group.push_back(static_cast<std::uint32_t>(g));
+      }
+    }
+    return t;
+  };
+  const std::vector<double> intensity{0.12, 1.0, 8.0}, range{3.0, 3.0, 3.0};
+  for (double trend : {1.0, 0.0}) {
+    const Targets fit = make(trend, 700 + static_cast<std::uint64_t>(trend));
+    NoiseSystematicOptions options;
+    options.optimism = 1.0;
+    const auto base = fit_noise_systematic_confidence(
+        {fit.range_m, fit.intensity, fit.residual_m, fit.group}, options);
+    options.optimism = 2.0;
+    const auto doubled = fit_noise_systematic_confidence(
+        {fit.range_m, fit.intensity, fit.residual_m, fit.group}, options);
+    std::vector<double> a(3), b(3);
+    base->sigma(range, intensity, a);
+    doubled->sigma(range, intensity, b);
+    for (std::size_t k = 0; k < 3; ++k) {
+      const double s2 = b[k] * b[k] - a[k] * a[k];  // the fitted systematic variance
+      const double truth = trend * 0.01e-6 * intensity[k];
+      const double noise2 = 0.09e-6 / intensity[k];
+      std::printf("trend %.0f, I %.2f: systematic sd %.4f mm (truth %.4f mm)\n", trend,
+                  intensity[k], std::sqrt(std::max(s2, 0.0)) * 1e3, std::sqrt(truth) * 1e3);
+      if (trend > 0 && k > 0) {  // at I = 0.12 the noise of a mean is 25 x s^2
+        EXPECT_NEAR(std::sqrt(s2), std::sqrt(truth), 0.3 * std::sqrt(truth)) << intensity[k];
+      }
+      if (trend == 0) EXPECT_LT(s2, 0.1 * noise2) << intensity[k];
+    }
+  }
+}
+
 }  // namespace
 }  // namespace tofkit::calib

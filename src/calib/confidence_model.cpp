@@ -317,6 +317,74 @@ MatrixXd power_design(const std::vector<double>& x, int order) {
   return d;
 }
 
+/// Variance components by maximum likelihood: target means m_g ~ N(0, v_g),
+/// v_g = exp(x_g^T beta) + nu_g with nu_g (the noise of a mean) known; log s^2
+/// a polynomial of degree 0 .. max_order in x, the degree chosen by BIC.
+/// Fisher scoring in beta (information sum (s^2 / v)^2 x x^T / 2), steps halved
+/// until the likelihood rises. Unlike a log fit of m^2 - nu (negative where
+/// the noise explains a mean, so floored), no floor pulls the curve.
+VectorXd systematic_log_fit(const std::vector<double>& x, const std::vector<double>& m2,
+                            const std::vector<double>& nu, int max_order) {
+  const Index g = static_cast<Index>(x.size());
+  double excess = 0, m2_mean = 0;
+  for (Index i = 0; i < g; ++i) {
+    excess += (m2[static_cast<std::size_t>(i)] - nu[static_cast<std::size_t>(i)]) / double(g);
+    m2_mean += m2[static_cast<std::size_t>(i)] / double(g);
+  }
+  // log s^2 is kept within 30 e-folds below the mean square (s^2 -> 0 is a boundary).
+  const double eta_lo = std::log(m2_mean + 1e-300) - 30.0,
+               eta_hi = std::log(m2_mean + 1e-300) + 5.0;
+  VectorXd best;
+  double best_bic = std::numeric_limits<double>::infinity();
+  for (int order = 0; order <= std::max(0, max_order); ++order) {
+    const MatrixXd design = power_design(x, order);
+    const auto nll = [&](const VectorXd& b, VectorXd& eta) {
+      eta = (design * b).cwiseMax(eta_lo).cwiseMin(eta_hi);
+      double sum = 0;
+      for (Index i = 0; i < g; ++i) {
+        const double v = std::exp(eta(i)) + nu[static_cast<std::size_t>(i)];
+        sum += 0.5 * (std::log(v) + m2[static_cast<std::size_t>(i)] / v);
+      }
+      return sum;
+    };
+    VectorXd beta = VectorXd::Zero(order + 1);
+    beta(0) = std::clamp(std::log(std::max(excess, 1e-3 * m2_mean) + 1e-300), eta_lo, eta_hi);
+    VectorXd eta;
+    double loss = nll(beta, eta);
+    for (int iteration = 0; iteration < 200; ++iteration) {
+      VectorXd score = VectorXd::Zero(order + 1);
+      MatrixXd information = MatrixXd::Zero(order + 1, order + 1);
+      for (Index i = 0; i < g; ++i) {
+        const double s2 = std::exp(eta(i));
+        const double v = s2 + nu[static_cast<std::size_t>(i)];
+        const double r = s2 / v;
+        score += 0.5 * r * (1.0 - m2[static_cast<std::size_t>(i)] / v) * design.row(i).transpose();
+        information += 0.5 * r * r * design.row(i).transpose() * design.row(i);
+      }
+      information.diagonal().array() += 1e-12 * information.diagonal().maxCoeff() + 1e-300;
+      const VectorXd step = -information.ldlt().solve(score);
+      double t = 1.0, trial_loss = loss;
+      VectorXd trial_eta;
+      for (; t > 1e-6; t *= 0.5) {
+        trial_loss = nll(beta + t * step, trial_eta);
+        if (trial_loss < loss) break;
+      }
+      if (!(trial_loss < loss)) break;
+      beta += t * step;
+      eta = trial_eta;
+      const bool converged = loss - trial_loss <= 1e-12 * std::abs(loss) + 1e-300;
+      loss = trial_loss;
+      if (converged) break;
+    }
+    const double bic = 2.0 * loss + static_cast<double>(order + 1) * std::log(double(g));
+    if (bic < best_bic) {
+      best_bic = bic;
+      best = beta;
+    }
+  }
+  return best;
+}
+
 }  // namespace
 
 void NoiseSystematicOptions::validate() const {
@@ -423,19 +491,13 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
     for (Index k = 0; k < noise.size(); ++k, power *= x) v += noise(k) * power;
     return std::exp(v);
   };
-  // Systematic: E[mean^2] = s^2 + noise^2 / n; a small floor keeps the log
-  // fit defined where the noise explains a target's mean entirely.
-  double mean2_avg = 0;
-  for (double m : mean2) mean2_avg += m;
-  mean2_avg /= static_cast<double>(mean2.size());
-  std::vector<double> s2(x_all.size());
-  for (std::size_t i = 0; i < x_all.size(); ++i) {
-    s2[i] = std::max(mean2[i] - noise2_at(x_all[i]) / rows_of[i], 1e-3 * mean2_avg + 1e-18);
-  }
-  const int systematic_order = std::max(0, order_for(x_all.size()));
-  const VectorXd systematic = gamma_log_fit(power_design(x_all, systematic_order),
-                                            Eigen::Map<const VectorXd>(s2.data(), Index(s2.size())),
-                                            VectorXd::Ones(Index(s2.size())));
+  // Systematic: each target's mean residual m ~ N(0, s^2(x) + noise^2(x) / n),
+  // log s^2 a polynomial of the order BIC prefers (0 .. the data's).
+  std::vector<double> noise_of_mean(x_all.size());
+  for (std::size_t i = 0; i < x_all.size(); ++i)
+    noise_of_mean[i] = noise2_at(x_all[i]) / rows_of[i];
+  const VectorXd systematic =
+      systematic_log_fit(x_all, mean2, noise_of_mean, order_for(x_all.size()));
   for (Index k = 0; k < noise.size(); ++k) {
     p.exponents.push_back({static_cast<int>(k), 0});
     p.coefficients.push_back(noise(k));
