@@ -350,10 +350,23 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
         {"knot_intervals",
          std::vector<int>(surface.intervals, surface.intervals + (s.surface_temperature ? 3 : 2))},
         {"smoothing", surface.smoothing},
+        {"axis_weights",
+         std::vector<double>(surface.axis_weight,
+                             surface.axis_weight + (s.surface_temperature ? 3 : 2))},
         {"cv_rms_m", surface.cv_rms_m},
         {"intensity", s.surface_intensity},
         {"residual_rms_m", surface.residual_rms_m},
         {"error_before", stats_json(s.surface_error_before)}};
+    if (!surface.knots[0].empty()) {
+      // The breakpoints per axis in input units, and how they were placed.
+      json knots = json::array(), placement = json::array();
+      for (int k = 0; k < (s.surface_temperature ? 3 : 2); ++k) {
+        knots.push_back(surface.knots[k]);
+        placement.push_back(calib::to_string(surface.placement[k]));
+      }
+      j["surface"]["knots"] = knots;
+      j["surface"]["knot_placement"] = placement;
+    }
     if (s.surface_cv_rms_other_m > 0) {
       j["surface"]["cv_rms_other_intensity_m"] = s.surface_cv_rms_other_m;
     }
