@@ -815,48 +815,56 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   AxisChoice chosen[3];
   if (options.choose_intervals_by_gcv) {
     // Per axis: a ladder of interval counts, capped so an axis never has more
-    // intervals than distinct values minus one, each with uniform and with
-    // quantile knots (a quantile grid that comes out uniform is not tried
-    // twice). Uniform first: on a tie it is kept.
+    // intervals than distinct values minus one. Every combination of counts
+    // with uniform knots first (as before knots could be placed), then, one
+    // axis at a time with the others kept, each count with quantile knots: a
+    // coordinate step that costs a few fits more per axis instead of
+    // doubling the whole product. A quantile grid within a tenth of an
+    // interval of the uniform one (data spread evenly, as on a grid of
+    // distances) is not tried. On a tie the earlier (uniform) fit is kept.
     const auto ladder = [&](int k, std::initializer_list<int> counts) {
       const auto d = static_cast<int>(std::min<std::size_t>(distinct[k].size(), 1000));
-      std::vector<AxisChoice> out;
-      for (KnotPlacement placement : {KnotPlacement::uniform, KnotPlacement::quantile}) {
-        for (int n : counts) {
-          const AxisChoice choice{std::max(1, std::min(n, d - 1)), placement};
-          if (placement == KnotPlacement::quantile &&
-              make_axis(k, choice.intervals, placement).is_uniform()) {
-            continue;
-          }
-          const bool seen = std::any_of(out.begin(), out.end(), [&](const AxisChoice& o) {
-            return o.intervals == choice.intervals && o.placement == choice.placement;
-          });
-          if (!seen) out.push_back(choice);
-        }
+      std::vector<int> out;
+      for (int n : counts) {
+        const int capped = std::max(1, std::min(n, d - 1));
+        if (std::find(out.begin(), out.end(), capped) == out.end()) out.push_back(capped);
       }
       return out;
     };
-    const std::vector<AxisChoice> lr = ladder(0, {3, 5, 8, 12});
-    const std::vector<AxisChoice> la = ladder(1, {3, 5, 8, 12});
-    const std::vector<AxisChoice> lt =
-        options.use_temperature ? ladder(2, {2, 3, 5}) : std::vector<AxisChoice>{AxisChoice{}};
-    for (const AxisChoice& cr : lr) {
-      for (const AxisChoice& ca : la) {
-        for (const AxisChoice& ct : lt) {
-          const AxisChoice choice[3] = {cr, ca, ct};
-          set_axes(choice);
-          GridFit fit =
-              fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
-          if (fit.score < best.score * (1.0 - 1e-9)) {
-            best = std::move(fit);
-            std::copy_n(choice, 3, chosen);
-          }
+    const std::vector<int> counts[3] = {
+        ladder(0, {3, 5, 8, 12}), ladder(1, {3, 5, 8, 12}),
+        options.use_temperature ? ladder(2, {2, 3, 5}) : std::vector<int>{1}};
+    const auto try_grid = [&](const AxisChoice* choice) {
+      set_axes(choice);
+      GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
+      if (fit.score < best.score * (1.0 - 1e-9)) {
+        best = std::move(fit);
+        std::copy_n(choice, 3, chosen);
+      }
+    };
+    for (int ir : counts[0]) {
+      for (int ia : counts[1]) {
+        for (int it : counts[2]) {
+          const AxisChoice choice[3] = {{ir, KnotPlacement::uniform},
+                                        {ia, KnotPlacement::uniform},
+                                        {it, KnotPlacement::uniform}};
+          try_grid(choice);
+        }
+      }
+    }
+    if (std::isfinite(best.score)) {
+      for (int k = 0; k < dims; ++k) {
+        const AxisChoice kept[3] = {chosen[0], chosen[1], chosen[2]};
+        for (int n : counts[k]) {
+          if (make_axis(k, n, KnotPlacement::quantile).is_uniform(0.1)) continue;
+          AxisChoice choice[3] = {kept[0], kept[1], kept[2]};
+          choice[k] = {n, KnotPlacement::quantile};
+          try_grid(choice);
         }
       }
     }
     if (!std::isfinite(best.score)) {
-      const AxisChoice first[3] = {lr.front(), la.front(), lt.front()};
-      std::copy_n(first, 3, chosen);
+      for (int k = 0; k < 3; ++k) chosen[k] = {counts[k].front(), KnotPlacement::uniform};
       set_axes(chosen);
       best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
     }

@@ -56,12 +56,13 @@ struct BSplineAxis {
   /// knots): a spline with coefficients c_i = a + b xi_i is the line a + b u.
   [[nodiscard]] double greville(int i) const { return (knot(i - 2) + knot(i - 1) + knot(i)) / 3.0; }
 
-  /// Whether the breakpoints are evenly spaced (to rounding).
-  [[nodiscard]] bool is_uniform() const {
+  /// Whether the breakpoints are evenly spaced: each within `tolerance`
+  /// times the spacing of its uniform place (default: to rounding).
+  [[nodiscard]] bool is_uniform(double tolerance = 1e-9) const {
     const int m = intervals();
     const double h = (hi() - lo()) / m;
     for (int k = 1; k < m; ++k) {
-      if (std::abs(breakpoints[static_cast<std::size_t>(k)] - (lo() + k * h)) > 1e-9 * h) {
+      if (std::abs(breakpoints[static_cast<std::size_t>(k)] - (lo() + k * h)) > tolerance * h) {
         return false;
       }
     }
