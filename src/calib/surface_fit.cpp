@@ -175,6 +175,7 @@ MatrixXd streaming_qr_factor(const Columns& c, const std::vector<MonomialExponen
 
 struct Grid {
   BSplineAxis axes[3];
+  std::vector<BSplineKnots> knots;  // the axes prepared for evaluation
   int dims = 2;
   std::size_t extent[3] = {1, 1, 1};
   std::size_t parameters = 0;
@@ -198,7 +199,7 @@ struct PointBasis {
 
 PointBasis point_basis(const Grid& grid, const double* u) {
   PointBasis b;
-  for (int k = 0; k < grid.dims; ++k) b.span[k] = cubic_bspline_span(grid.axes[k], u[k]);
+  for (int k = 0; k < grid.dims; ++k) b.span[k] = grid.knots[k].span(u[k]);
   if (grid.dims == 2) b.span[2].weight[0] = 1.0;
   return b;
 }
@@ -738,8 +739,10 @@ Grid make_grid(const BSplineSurfaceParams& p, int dims) {
   grid.axes[0] = p.range;
   grid.axes[1] = p.amplitude;
   grid.axes[2] = p.temperature;
-  for (int k = 0; k < grid.dims; ++k)
+  for (int k = 0; k < grid.dims; ++k) {
     grid.extent[k] = static_cast<std::size_t>(grid.axes[k].basis_count());
+    grid.knots.emplace_back(grid.axes[k]);
+  }
   grid.parameters = grid.extent[0] * grid.extent[1] * grid.extent[2];
   return grid;
 }

@@ -54,6 +54,9 @@ BSplineSurface::BSplineSurface(BSplineSurfaceParams params) : params_(std::move(
                  "temperature");
     count *= static_cast<std::size_t>(p.temperature.basis_count());
   }
+  knots_.emplace_back(p.range);
+  knots_.emplace_back(p.amplitude);
+  if (p.use_temperature) knots_.emplace_back(p.temperature);
   if (p.coefficients.size() != count) {
     throw std::invalid_argument("BSplineSurface: coefficients has " +
                                 std::to_string(p.coefficients.size()) + " entries, the grid " +
@@ -104,8 +107,8 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
         continue;
       }
       // Tensor product: f = sum_p sum_q [sum_s] Br_p Ba_q [Bt_s] c_pq[s].
-      const BSplineSpan sr = cubic_bspline_span(ar, ur[j]);
-      const BSplineSpan sa = cubic_bspline_span(aa, ua[j]);
+      const BSplineSpan sr = knots_[0].span(ur[j]);
+      const BSplineSpan sa = knots_[1].span(ua[j]);
       double value = 0;
       if (!use_t) {
         for (int p = 0; p < 4; ++p) {
@@ -115,7 +118,7 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
           value += sr.weight[p] * inner;
         }
       } else {
-        const BSplineSpan st = cubic_bspline_span(at, ut[j]);
+        const BSplineSpan st = knots_[2].span(ut[j]);
         for (int p = 0; p < 4; ++p) {
           double inner = 0;
           for (int q = 0; q < 4; ++q) {

@@ -5,8 +5,8 @@
 #include "tofkit/ranging/bspline_basis.hpp"
 
 namespace tofkit::calib {
-using ranging::bspline_interval;
 using ranging::BSplineAxis;
+using ranging::BSplineKnots;
 using ranging::BSplineSpan;
 using ranging::cubic_bspline_span;
 }  // namespace tofkit::calib

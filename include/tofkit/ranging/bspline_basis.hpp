@@ -95,37 +95,90 @@ struct BSplineSpan {
   double weight[4] = {0, 0, 0, 0};
 };
 
-/// Knot interval j (t_j <= u < t_{j+1}) of an axis coordinate u already
-/// clamped to [lo, hi]; the upper end belongs to the last interval.
-inline int bspline_interval(const BSplineAxis& axis, double u) {
-  const auto& t = axis.breakpoints;
-  const auto it = std::upper_bound(t.begin() + 1, t.end() - 1, u);
-  return static_cast<int>(it - t.begin()) - 1;
-}
-
-/// The cubic B-splines B_j .. B_{j+3} non-zero on knot interval j at u, by the
-/// Cox-de Boor recurrence in de Boor's triangular form (BSPLVB): non-negative,
-/// summing to 1 (partition of unity) for any knots.
-inline BSplineSpan cubic_bspline_span(const BSplineAxis& axis, double u) {
-  const int j = bspline_interval(axis, u);
-  // left[k] = u - t_{j+1-k}, right[k] = t_{j+k} - u (k = 1 .. 3).
-  double left[4], right[4];
-  BSplineSpan span;
-  span.first = j;
-  double* n = span.weight;
-  n[0] = 1.0;
-  for (int k = 1; k <= 3; ++k) {
-    left[k] = u - axis.knot(j + 1 - k);
-    right[k] = axis.knot(j + k) - u;
-    double saved = 0.0;
-    for (int r = 0; r < k; ++r) {
-      const double temp = n[r] / (right[r + 1] + left[k - r]);
-      n[r] = saved + right[r + 1] * temp;
-      saved = left[k - r] * temp;
+/// An axis prepared for evaluation: its extended knot vector t_{-3} ..
+/// t_{m+3} and, per knot interval, the reciprocals of the six knot differences
+/// the Cox-de Boor recurrence divides by, so that a span costs multiplications
+/// only. Built once per surface (and per fitted grid); uniform knots are not
+/// treated apart.
+class BSplineKnots {
+ public:
+  explicit BSplineKnots(const BSplineAxis& axis)
+      : lo_(axis.lo()),
+        scale_(axis.intervals() / (axis.hi() - axis.lo())),
+        intervals_(axis.intervals()) {
+    for (int i = -3; i <= intervals_ + 3; ++i) knots_.push_back(axis.knot(i));
+    for (int j = 0; j < intervals_; ++j) {
+      for (int k = 1; k <= 3; ++k) {
+        for (int r = 0; r < k; ++r) reciprocal_.push_back(1.0 / (t(j + 1 + r) - t(j + 1 + r - k)));
+      }
     }
-    n[k] = saved;
   }
-  return span;
+
+  /// Knot interval j (t_j <= u < t_{j+1}) of an axis coordinate u already
+  /// clamped to [lo, hi]; the upper end belongs to the last interval. Guessed
+  /// as if the knots were uniform, then walked to the right interval (no step
+  /// when they are).
+  [[nodiscard]] int interval(double u) const {
+    double x = (u - lo_) * scale_;
+    x = x >= 0 ? x : 0.0;  // also NaN -> 0
+    int j = std::min(static_cast<int>(x), intervals_ - 1);
+    while (j > 0 && u < t(j)) --j;
+    while (j < intervals_ - 1 && u >= t(j + 1)) ++j;
+    return j;
+  }
+
+  /// The cubic B-splines B_j .. B_{j+3} non-zero on the knot interval j of u,
+  /// by the Cox-de Boor recurrence in de Boor's triangular form (BSPLVB):
+  /// non-negative, summing to 1 (partition of unity) for any knots.
+  [[nodiscard]] BSplineSpan span(double u) const {
+    const int j = interval(u);
+    const double* inv = reciprocal_.data() + 6 * static_cast<std::size_t>(j);
+    const double* t = knots_.data() + 3 + j;  // t[i] = t_{j+i}
+    // left_k = u - t_{j+1-k}, right_k = t_{j+k} - u; each level k raises the
+    // degree by one: temp = N_r / (right_{r+1} + left_{k-r}), the divisor being
+    // the knot difference t_{j+1+r} - t_{j+1+r-k} (inv[k (k - 1) / 2 + r]).
+    const double left1 = u - t[0], left2 = u - t[-1], left3 = u - t[-2];
+    const double right1 = t[1] - u, right2 = t[2] - u, right3 = t[3] - u;
+    BSplineSpan span;
+    span.first = j;
+    // Degree 1.
+    double temp = inv[0];
+    double n0 = right1 * temp;
+    double n1 = left1 * temp;
+    // Degree 2.
+    temp = n0 * inv[1];
+    n0 = right1 * temp;
+    double saved = left2 * temp;
+    temp = n1 * inv[2];
+    n1 = saved + right2 * temp;
+    double n2 = left1 * temp;
+    // Degree 3.
+    temp = n0 * inv[3];
+    span.weight[0] = right1 * temp;
+    saved = left3 * temp;
+    temp = n1 * inv[4];
+    span.weight[1] = saved + right2 * temp;
+    saved = left2 * temp;
+    temp = n2 * inv[5];
+    span.weight[2] = saved + right3 * temp;
+    span.weight[3] = left1 * temp;
+    return span;
+  }
+
+ private:
+  [[nodiscard]] double t(int i) const { return knots_[static_cast<std::size_t>(i + 3)]; }
+
+  double lo_;
+  double scale_;
+  int intervals_;
+  std::vector<double> knots_;       // t_{-3} .. t_{m+3}
+  std::vector<double> reciprocal_;  // 6 per interval
+};
+
+/// One span at u on an axis (prepares the axis each call: for tests and
+/// single points; evaluate many points through BSplineKnots).
+inline BSplineSpan cubic_bspline_span(const BSplineAxis& axis, double u) {
+  return BSplineKnots(axis).span(u);
 }
 
 }  // namespace tofkit::ranging
