@@ -231,7 +231,10 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
     u[0] = grid.axes[0].coordinate(c.range[row]);
     u[1] = grid.axes[1].coordinate(c.amplitude[row]);
     if (dims == 3) u[2] = grid.axes[2].coordinate(c.temperature[row]);
-    cell_of[row] = static_cast<std::uint32_t>(point_basis(grid, u).cell(grid));
+    // The cell needs only each axis's knot interval, not the weights.
+    PointBasis cell;
+    for (int k = 0; k < dims; ++k) cell.span[k].first = grid.knots[k].interval(u[k]);
+    cell_of[row] = static_cast<std::uint32_t>(cell.cell(grid));
     ++start[cell_of[row] + 1];
   }
   for (std::size_t k = 0; k < cells; ++k) start[k + 1] += start[k];
@@ -765,9 +768,15 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   const int dims = options.use_temperature ? 3 : 2;
   const bool log_scale[3] = {false, options.log_amplitude, false};
   const double* column[3] = {c.range, c.amplitude, c.temperature};
-  // Each axis's distinct coordinates, sorted (quantile knots are drawn from them).
+  const double lo[3] = {c.domain.range_min_m, c.domain.amplitude_min, c.domain.temperature_min_c};
+  const double hi[3] = {c.domain.range_max_m, c.domain.amplitude_max, c.domain.temperature_max_c};
+  // Each axis's distinct coordinates, sorted (quantile knots are drawn from
+  // them; the ladder's counts are capped by them); not needed (nor sorted)
+  // for given uniform knots.
   std::vector<double> distinct[3];
-  for (int k = 0; k < dims; ++k) {
+  const bool need_distinct =
+      options.choose_intervals_by_gcv || options.knot_placement == KnotPlacement::quantile;
+  for (int k = 0; k < (need_distinct ? dims : 0); ++k) {
     distinct[k].resize(c.rows);
     for (std::size_t row = 0; row < c.rows; ++row) {
       distinct[k][row] = log_scale[k] ? std::log(column[k][row]) : column[k][row];
@@ -783,10 +792,11 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   // round(k (D - 1) / m), so m <= D - 1 keeps them strictly increasing and the
   // ends at the data's extremes (as with uniform knots).
   const auto make_axis = [&](int k, int intervals, KnotPlacement placement) {
-    const std::vector<double>& v = distinct[k];
     if (placement == KnotPlacement::uniform) {
-      return BSplineAxis::uniform(v.front(), v.back(), intervals, log_scale[k]);
+      const auto coordinate = [&](double x) { return log_scale[k] ? std::log(x) : x; };
+      return BSplineAxis::uniform(coordinate(lo[k]), coordinate(hi[k]), intervals, log_scale[k]);
     }
+    const std::vector<double>& v = distinct[k];
     const int m = std::max(1, std::min(intervals, static_cast<int>(v.size()) - 1));
     BSplineAxis a;
     a.log_scale = log_scale[k];
