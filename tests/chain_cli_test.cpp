@@ -350,6 +350,16 @@ TEST_F(ChainCli, BSplineKnotsAreReportedAndMalformedKnotsRefused) {
   j["steps"][step]["surface"]["axes"]["amplitude"].erase("intervals");
   j["steps"][step]["surface"]["axes"]["amplitude"].erase("hi");
   expect_refused(j, "surface.shape[1]: must be the axis's knot intervals + 3");
+  // A B-spline (any knots) has no fixed-point form: the firmware export refuses
+  // it before writing anything.
+  const test::CliResult firmware =
+      run("fit --confidence none --in " + path("calib.csv") + " --out " + path("fw_model.json") +
+          " --surface bspline --firmware " + path("fw"));
+  EXPECT_EQ(firmware.status, 1);
+  EXPECT_NE(firmware.err.find("--firmware exports the chain only"), std::string::npos)
+      << firmware.err;
+  EXPECT_FALSE(fs::exists(path("fw_model.json")));
+  EXPECT_FALSE(fs::exists(path("fw.json")));
   // The good file corrects.
   const test::CliResult ok = run("correct --model " + path("model.json") + " --in " +
                                  path("test.csv") + " --out " + path("corrected.csv"));
