@@ -301,5 +301,70 @@ TEST_F(ChainCli, RefineWalkFollowsACurvedWalk) {
   EXPECT_FALSE(fs::exists(path("model.json")));
 }
 
+// A B-spline model file states its knots; `fit` reports them with the
+// smoothing and the cross-validated RMS. Malformed knots in a model file are
+// refused by `correct` with exit 1, a message naming the file and the key,
+// and no output file.
+TEST_F(ChainCli, BSplineKnotsAreReportedAndMalformedKnotsRefused) {
+  io::write_raw_csv(path("calib.csv"), synthetic_records(2, 21));
+  io::write_raw_csv(path("test.csv"), synthetic_records(1, 22));
+  const test::CliResult fit = run("fit --confidence none --in " + path("calib.csv") + " --out " +
+                                  path("model.json") + " --surface bspline");
+  ASSERT_EQ(fit.status, 0) << fit.err;
+  const std::string said = fit.out + fit.err;
+  for (const char* needle : {"knots range ", "smoothing ", "cross-validated RMS "}) {
+    EXPECT_NE(said.find(needle), std::string::npos) << needle << "\n" << said;
+  }
+  const nlohmann::json good = nlohmann::json::parse(test::read_file(path("model.json")));
+  EXPECT_EQ(good["fit"]["surface"]["knots"].size(), 2u) << good["fit"].dump();
+  std::size_t step = 0;
+  while (step < good["steps"].size() && good["steps"][step]["kind"] != "surface") ++step;
+  ASSERT_LT(step, good["steps"].size()) << good.dump();
+  const std::string where = "steps[" + std::to_string(step) + "].surface.axes.";
+  ASSERT_GE(good["steps"][step]["surface"]["axes"]["amplitude"]["knots"].size(), 3u);
+
+  const auto expect_refused = [&](const nlohmann::json& model, const std::string& needle) {
+    std::ofstream(path("bad.json")) << model.dump(2);
+    fs::remove(path("corrected.csv"));
+    const test::CliResult c = run("correct --model " + path("bad.json") + " --in " +
+                                  path("test.csv") + " --out " + path("corrected.csv"));
+    EXPECT_EQ(c.status, 1) << c.err;
+    EXPECT_NE(c.err.find("bad.json"), std::string::npos) << c.err;
+    EXPECT_NE(c.err.find(needle), std::string::npos) << needle << "\n" << c.err;
+    EXPECT_FALSE(fs::exists(path("corrected.csv")));
+  };
+  nlohmann::json j = good;
+  auto* knots = &j["steps"][step]["surface"]["axes"]["amplitude"]["knots"];
+  (*knots)[2] = (*knots)[1];
+  expect_refused(j, where + "amplitude.knots[2]: must be above knots[1]");
+  j = good;
+  knots = &j["steps"][step]["surface"]["axes"]["range_m"]["knots"];
+  (*knots)[1] = nullptr;
+  expect_refused(j, where + "range_m.knots[1]: expected a number");
+  j = good;
+  j["steps"][step]["surface"]["axes"]["range_m"]["knots"] = {1.0};
+  expect_refused(j, where + "range_m.knots: has 1 breakpoints");
+  j = good;
+  knots = &j["steps"][step]["surface"]["axes"]["amplitude"]["knots"];
+  knots->push_back(knots->back().get<double>() + 1.0);
+  j["steps"][step]["surface"]["axes"]["amplitude"].erase("intervals");
+  j["steps"][step]["surface"]["axes"]["amplitude"].erase("hi");
+  expect_refused(j, "surface.shape[1]: must be the axis's knot intervals + 3");
+  // A B-spline (any knots) has no fixed-point form: the firmware export refuses
+  // it before writing anything.
+  const test::CliResult firmware =
+      run("fit --confidence none --in " + path("calib.csv") + " --out " + path("fw_model.json") +
+          " --surface bspline --firmware " + path("fw"));
+  EXPECT_EQ(firmware.status, 1);
+  EXPECT_NE(firmware.err.find("--firmware exports the chain only"), std::string::npos)
+      << firmware.err;
+  EXPECT_FALSE(fs::exists(path("fw_model.json")));
+  EXPECT_FALSE(fs::exists(path("fw.json")));
+  // The good file corrects.
+  const test::CliResult ok = run("correct --model " + path("model.json") + " --in " +
+                                 path("test.csv") + " --out " + path("corrected.csv"));
+  EXPECT_EQ(ok.status, 0) << ok.err;
+}
+
 }  // namespace
 }  // namespace tofkit

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -19,6 +20,7 @@
 #include "tofkit/calib/bspline_surface.hpp"
 #include "tofkit/calib/polynomial_surface.hpp"
 #include "tofkit/io/surface_json.hpp"
+#include "tofkit/ranging/bspline_basis.hpp"
 
 namespace tofkit::calib {
 namespace {
@@ -604,6 +606,259 @@ TEST(SurfaceJson, BadInputNamesContextAndField) {
   nlohmann::json p = io::surface_to_json(*fit_polynomial_surface(train.data(), poly).surface);
   p["exponents"][1] = {9, 9};
   expect_error(p, "exponents[1]");
+}
+
+// ------------------------------------------------------- non-uniform knots
+
+/// Strictly increasing breakpoints with spacings drawn over a decade (0.1 .. 1).
+ranging::BSplineAxis random_axis(int intervals, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> spacing(0.1, 1.0);
+  ranging::BSplineAxis axis;
+  axis.breakpoints = {-0.7};
+  for (int k = 0; k < intervals; ++k)
+    axis.breakpoints.push_back(axis.breakpoints.back() + spacing(rng));
+  return axis;
+}
+
+TEST(BSplineBasis, NonUniformBasisIsAPartitionOfUnity) {
+  for (int intervals : {1, 2, 3, 7, 20}) {
+    const ranging::BSplineAxis axis = random_axis(intervals, 40 + intervals);
+    for (int k = 0; k <= 2000; ++k) {
+      const double u = axis.lo() + (axis.hi() - axis.lo()) * k / 2000.0;
+      const ranging::BSplineSpan span = ranging::cubic_bspline_span(axis, u);
+      ASSERT_GE(span.first, 0);
+      ASSERT_LE(span.first + 3, axis.basis_count() - 1);
+      double sum = 0;
+      for (double w : span.weight) {
+        EXPECT_GE(w, -1e-15);
+        sum += w;
+      }
+      EXPECT_NEAR(sum, 1.0, 1e-14) << "intervals " << intervals << " u " << u;
+    }
+  }
+}
+
+/// Marsden's identity: (u - y)^3 = sum_i psi_i(y) B_i(u) with psi_i(y) =
+/// (t_{i-2} - y)(t_{i-1} - y)(t_i - y), the product over B_i's inner knots:
+/// the spline's coefficients of a cubic in closed form, for any knots.
+double marsden(const ranging::BSplineAxis& axis, int i, double y) {
+  return (axis.knot(i - 2) - y) * (axis.knot(i - 1) - y) * (axis.knot(i) - y);
+}
+
+TEST(BSplineBasis, NonUniformBasisReproducesCubicsExactly) {
+  const ranging::BSplineAxis axis = random_axis(9, 50);
+  for (double y : {-2.0, 0.3, 1.7, 6.0}) {
+    for (int k = 0; k <= 500; ++k) {
+      const double u = axis.lo() + (axis.hi() - axis.lo()) * k / 500.0;
+      const ranging::BSplineSpan span = ranging::cubic_bspline_span(axis, u);
+      double value = 0;
+      for (int q = 0; q < 4; ++q) value += span.weight[q] * marsden(axis, span.first + q, y);
+      const double exact = (u - y) * (u - y) * (u - y);
+      EXPECT_NEAR(value, exact, 1e-12 * (1.0 + std::abs(exact))) << "y " << y << " u " << u;
+    }
+  }
+  // A tensor-product surface with a log amplitude axis reproduces the product
+  // (r - 2)^3 (ln a - 4)^3 through BSplineSurface::evaluate.
+  BSplineSurfaceParams p;
+  p.range = random_axis(6, 51);
+  for (double& t : p.range.breakpoints) t = 1.0 + 3.0 * (t + 0.7);  // r in [1, ...]
+  p.amplitude.breakpoints = {std::log(20.0), std::log(25.0),  std::log(60.0),
+                             std::log(70.0), std::log(400.0), std::log(4000.0)};
+  p.amplitude.log_scale = true;
+  for (int i = 0; i < p.range.basis_count(); ++i) {
+    for (int q = 0; q < p.amplitude.basis_count(); ++q) {
+      p.coefficients.push_back(marsden(p.range, i, 2.0) * marsden(p.amplitude, q, 4.0));
+    }
+  }
+  p.domain.range_min_m = p.range.lo();
+  p.domain.range_max_m = p.range.hi();
+  p.domain.amplitude_min = 20.0;
+  p.domain.amplitude_max = 4000.0;
+  const BSplineSurface surface(p);
+  std::vector<double> r, a;
+  for (int k = 0; k <= 40; ++k) {
+    for (int m = 0; m <= 40; ++m) {
+      r.push_back(p.range.lo() + (p.range.hi() - p.range.lo()) * k / 40.0);
+      a.push_back(20.0 * std::pow(200.0, m / 40.0));
+    }
+  }
+  std::vector<double> value(r.size());
+  std::vector<std::uint8_t> flags(r.size());
+  surface.evaluate({r, a, {}}, value, flags);
+  for (std::size_t k = 0; k < r.size(); ++k) {
+    const double exact = std::pow(r[k] - 2.0, 3) * std::pow(std::log(a[k]) - 4.0, 3);
+    ASSERT_EQ(flags[k], 0);
+    EXPECT_NEAR(value[k], exact, 1e-10 * (1.0 + std::abs(exact))) << r[k] << " " << a[k];
+  }
+}
+
+/// The cardinal cubic B-spline weights the uniform basis used before knots
+/// were stored (de Boor's uniform case in closed form), as an independent oracle.
+void cardinal_weights(double t, double* w) {
+  const double s = 1.0 - t;
+  w[0] = s * s * s / 6.0;
+  w[1] = (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0;
+  w[2] = (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0;
+  w[3] = t * t * t / 6.0;
+}
+
+TEST(BSplineBasis, UniformKnotsGiveTheCardinalBasis) {
+  for (int intervals : {1, 4, 11}) {
+    const auto axis =
+        ranging::BSplineAxis::uniform(std::log(20.0), std::log(4000.0), intervals, true);
+    EXPECT_TRUE(axis.is_uniform());
+    const double h = (axis.hi() - axis.lo()) / intervals;
+    for (int k = 0; k <= 1000; ++k) {
+      const double u = axis.lo() + (axis.hi() - axis.lo()) * k / 1000.0;
+      const double x = (u - axis.lo()) / h;
+      const int j = std::clamp(static_cast<int>(x), 0, intervals - 1);
+      double w[4];
+      cardinal_weights(x - j, w);
+      const ranging::BSplineSpan span = ranging::cubic_bspline_span(axis, u);
+      // The interval may differ only at a breakpoint, where the weights agree anyway.
+      if (span.first != j) {
+        EXPECT_NEAR(u, axis.knot(span.first > j ? span.first : j), 1e-12 * h);
+        continue;
+      }
+      for (int q = 0; q < 4; ++q) EXPECT_NEAR(span.weight[q], w[q], 1e-13) << u;
+    }
+  }
+}
+
+// Data dense at short range (r = 1 + 29 v^3) with a wiggle there: quantile
+// knots put the intervals where the rows are, and cross-validation must choose
+// them for the range axis over uniform ones and report them.
+TEST(BSplineSurface, CrossValidationChoosesQuantileKnotsWhereTheDataCrowd) {
+  std::mt19937_64 rng(60);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 0.0005);
+  const auto truth = [](double r, double a) {
+    return 0.004 * std::sin(3.0 * r) / r + 0.01 * std::exp(-a / 300.0);
+  };
+  Table train;
+  for (int k = 0; k < 3000; ++k) {
+    const double v = unit(rng);
+    const double r = 1.0 + 29.0 * v * v * v;
+    const double a = 20.0 * std::pow(200.0, unit(rng));
+    train.range_m.push_back(r);
+    train.amplitude.push_back(a);
+    train.error_m.push_back(truth(r, a) + gauss(rng));
+  }
+  BSplineFitOptions options;
+  options.choose_intervals_by_gcv = true;
+  const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
+  EXPECT_EQ(fit.placement[0], KnotPlacement::quantile) << fit.summary();
+  ASSERT_EQ(fit.knots[0].size(), static_cast<std::size_t>(fit.intervals[0]) + 1);
+  // Quantile knots: data values, the ends at the data's extremes, and about
+  // equal numbers of rows in each interval.
+  const auto [lo, hi] = std::minmax_element(train.range_m.begin(), train.range_m.end());
+  EXPECT_EQ(fit.knots[0].front(), *lo);
+  EXPECT_EQ(fit.knots[0].back(), *hi);
+  for (std::size_t k = 1; k < fit.knots[0].size(); ++k) {
+    const auto inside = std::count_if(train.range_m.begin(), train.range_m.end(), [&](double r) {
+      return r >= fit.knots[0][k - 1] && r < fit.knots[0][k];
+    });
+    EXPECT_NEAR(static_cast<double>(inside), 3000.0 / fit.intervals[0], 2.0) << k;
+  }
+  EXPECT_NE(fit.summary().find("knots range quantile ["), std::string::npos) << fit.summary();
+  // Against the uniform knots of the same counts and smoothing choice, on fresh points.
+  BSplineFitOptions uniform;
+  uniform.intervals_range = fit.intervals[0];
+  uniform.intervals_amplitude = fit.intervals[1];
+  uniform.choose_smoothing_by_gcv = true;
+  BSplineFitOptions quantile = uniform;
+  quantile.knot_placement = KnotPlacement::quantile;
+  const SurfaceFitResult u = fit_bspline_surface(train.data(), uniform);
+  const SurfaceFitResult q = fit_bspline_surface(train.data(), quantile);
+  EXPECT_EQ(u.placement[0], KnotPlacement::uniform);
+  EXPECT_LT(q.cv_rms_m, u.cv_rms_m) << q.summary() << "\n" << u.summary();
+}
+
+TEST(SurfaceJson, NonUniformKnotsRoundTripAndOldFilesLoadUniform) {
+  const Table train = make_table(3000, walk_truth, 0.002, 61);
+  const Table probe = make_table(500, walk_truth, 0.0, 62);
+  BSplineFitOptions options;
+  options.knot_placement = KnotPlacement::quantile;
+  options.use_temperature = true;
+  const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
+  const auto& spline = dynamic_cast<const BSplineSurface&>(*fit.surface);
+  EXPECT_FALSE(spline.params().range.is_uniform());
+  const nlohmann::json j = io::surface_to_json(*fit.surface);
+  EXPECT_EQ(j.at("axes").at("amplitude").at("knots").size(),
+            spline.params().amplitude.breakpoints.size());
+  const auto loaded = io::surface_from_json(nlohmann::json::parse(j.dump()), "model.json");
+  std::vector<std::uint8_t> f1, f2;
+  const std::vector<double> before = evaluate(*fit.surface, probe, &f1);
+  const std::vector<double> after = evaluate(*loaded, probe, &f2);
+  for (std::size_t k = 0; k < probe.size(); ++k) {
+    EXPECT_NEAR(before[k], after[k], 1e-12);
+    EXPECT_EQ(f1[k], f2[k]);
+  }
+  // A file written before knots were stored (intervals, lo, hi only) loads
+  // with uniform knots and evaluates as the same axes with the knots written out.
+  const SurfaceFitResult uniform = fit_bspline_surface(train.data(), BSplineFitOptions{});
+  nlohmann::json old = io::surface_to_json(*uniform.surface);
+  for (auto& [name, axis] : old.at("axes").items()) axis.erase("knots");
+  const auto old_loaded = io::surface_from_json(old, "old.json");
+  const std::vector<double> u0 = evaluate(*uniform.surface, probe);
+  const std::vector<double> u1 = evaluate(*old_loaded, probe);
+  for (std::size_t k = 0; k < probe.size(); ++k) EXPECT_EQ(u0[k], u1[k]);
+}
+
+TEST(SurfaceJson, MalformedKnotsAreRefusedNamingTheKey) {
+  const Table train = make_table(1000, walk_truth, 0.002, 63);
+  BSplineFitOptions options;
+  options.knot_placement = KnotPlacement::quantile;
+  const nlohmann::json good =
+      io::surface_to_json(*fit_bspline_surface(train.data(), options).surface);
+  const auto expect_error = [](const nlohmann::json& j, const std::string& needle) {
+    try {
+      (void)io::surface_from_json(j, "model.json: steps[0]");
+      ADD_FAILURE() << "no exception; expected one mentioning '" << needle << "'";
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("model.json: steps[0]" + needle), std::string::npos)
+          << e.what();
+    }
+  };
+  ASSERT_GE(good["axes"]["amplitude"]["knots"].size(), 4u);
+  nlohmann::json j = good;
+  j["axes"]["amplitude"]["knots"][2] = j["axes"]["amplitude"]["knots"][1];  // repeated
+  expect_error(j, ".axes.amplitude.knots[2]: must be above knots[1]");
+  j = good;
+  std::swap(j["axes"]["range_m"]["knots"][1], j["axes"]["range_m"]["knots"][2]);  // decreasing
+  expect_error(j, ".axes.range_m.knots[2]: must be above knots[1]");
+  j = good;
+  j["axes"]["range_m"]["knots"][1] = std::numeric_limits<double>::infinity();
+  expect_error(j, ".axes.range_m.knots[1]: must be finite");
+  j = good;
+  j["axes"]["range_m"]["knots"][1] = nullptr;  // how a NaN is written
+  expect_error(j, ".axes.range_m.knots[1]: expected a number");
+  j = good;
+  j["axes"]["range_m"]["knots"] = {3.0};  // fewer than a cubic axis needs
+  expect_error(j, ".axes.range_m.knots: has 1 breakpoints");
+  j = good;
+  j["axes"]["range_m"]["knots"] = "0 1 2";
+  expect_error(j, ".axes.range_m.knots: expected an array of numbers");
+  // One breakpoint more: the intervals beside it disagree, and without them
+  // the coefficient grid does not match the knots.
+  j = good;
+  auto& knots = j["axes"]["amplitude"]["knots"];
+  knots.insert(knots.begin() + 1, 0.5 * (knots[0].get<double>() + knots[1].get<double>()));
+  expect_error(j, ".axes.amplitude.intervals: is ");
+  j["axes"]["amplitude"].erase("intervals");
+  expect_error(j, ".shape[1]: must be the axis's knot intervals + 3");
+  j = good;
+  j["axes"]["amplitude"]["lo"] = j["axes"]["amplitude"]["knots"][0].get<double>() - 1.0;
+  expect_error(j, ".axes.amplitude.lo: differs from knots[0]");
+  // Without knots, the uniform axis's fields are checked.
+  j = good;
+  j["axes"]["range_m"].erase("knots");
+  j["axes"]["range_m"]["intervals"] = 0;
+  expect_error(j, ".axes.range_m.intervals: must be in [1, 1000]");
+  j["axes"]["range_m"]["intervals"] = 4;
+  j["axes"]["range_m"]["hi"] = j["axes"]["range_m"]["lo"];
+  expect_error(j, ".axes.range_m.hi: must be finite and above lo");
 }
 
 }  // namespace

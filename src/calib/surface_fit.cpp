@@ -175,6 +175,7 @@ MatrixXd streaming_qr_factor(const Columns& c, const std::vector<MonomialExponen
 
 struct Grid {
   BSplineAxis axes[3];
+  std::vector<BSplineKnots> knots;  // the axes prepared for evaluation
   int dims = 2;
   std::size_t extent[3] = {1, 1, 1};
   std::size_t parameters = 0;
@@ -191,14 +192,14 @@ struct PointBasis {
     const auto ir = static_cast<std::size_t>(span[0].first);
     const auto ia = static_cast<std::size_t>(span[1].first);
     const auto it = static_cast<std::size_t>(span[2].first);
-    const std::size_t nt = grid.dims == 3 ? static_cast<std::size_t>(grid.axes[2].intervals) : 1;
-    return (ir * static_cast<std::size_t>(grid.axes[1].intervals) + ia) * nt + it;
+    const std::size_t nt = grid.dims == 3 ? static_cast<std::size_t>(grid.axes[2].intervals()) : 1;
+    return (ir * static_cast<std::size_t>(grid.axes[1].intervals()) + ia) * nt + it;
   }
 };
 
-PointBasis point_basis(const Grid& grid, const double* inv, const double* u) {
+PointBasis point_basis(const Grid& grid, const double* u) {
   PointBasis b;
-  for (int k = 0; k < grid.dims; ++k) b.span[k] = cubic_bspline_span(grid.axes[k], inv[k], u[k]);
+  for (int k = 0; k < grid.dims; ++k) b.span[k] = grid.knots[k].span(u[k]);
   if (grid.dims == 2) b.span[2].weight[0] = 1.0;
   return b;
 }
@@ -216,12 +217,8 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
   const int dims = grid.dims;
   const int per_axis[3] = {4, 4, dims == 3 ? 4 : 1};
   const Index local = per_axis[0] * per_axis[1] * per_axis[2];
-  double inv[3] = {0, 0, 0};
-  for (int k = 0; k < dims; ++k) {
-    inv[k] = grid.axes[k].intervals / (grid.axes[k].hi - grid.axes[k].lo);
-  }
   std::size_t cells = 1;
-  for (int k = 0; k < dims; ++k) cells *= static_cast<std::size_t>(grid.axes[k].intervals);
+  for (int k = 0; k < dims; ++k) cells *= static_cast<std::size_t>(grid.axes[k].intervals());
 
   // Axis coordinates (log taken once) and cell of every row, then a counting
   // sort that lays coordinates and errors out cell by cell.
@@ -234,7 +231,10 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
     u[0] = grid.axes[0].coordinate(c.range[row]);
     u[1] = grid.axes[1].coordinate(c.amplitude[row]);
     if (dims == 3) u[2] = grid.axes[2].coordinate(c.temperature[row]);
-    cell_of[row] = static_cast<std::uint32_t>(point_basis(grid, inv, u).cell(grid));
+    // The cell needs only each axis's knot interval, not the weights.
+    PointBasis cell;
+    for (int k = 0; k < dims; ++k) cell.span[k].first = grid.knots[k].interval(u[k]);
+    cell_of[row] = static_cast<std::uint32_t>(cell.cell(grid));
     ++start[cell_of[row] + 1];
   }
   for (std::size_t k = 0; k < cells; ++k) start[k + 1] += start[k];
@@ -268,7 +268,7 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
         const Index m = static_cast<Index>(std::min<std::size_t>(kBatch, start[cell + 1] - k));
         for (Index j = 0; j < m; ++j) {
           const std::size_t row = k + static_cast<std::size_t>(j);
-          const PointBasis pb = point_basis(grid, inv, sorted_coordinate.data() + row * stride);
+          const PointBasis pb = point_basis(grid, sorted_coordinate.data() + row * stride);
           Index u = 0;
           for (int i0 = 0; i0 < per_axis[0]; ++i0) {
             for (int i1 = 0; i1 < per_axis[1]; ++i1) {
@@ -285,7 +285,7 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
     // Scatter each cell's block into G, in cell order.
     for (std::size_t cell = group; cell < group_end; ++cell) {
       if (start[cell] == start[cell + 1]) continue;
-      const PointBasis pb = point_basis(grid, inv, sorted_coordinate.data() + start[cell] * stride);
+      const PointBasis pb = point_basis(grid, sorted_coordinate.data() + start[cell] * stride);
       std::size_t index[64];
       Index u = 0;
       for (int i0 = 0; i0 < per_axis[0]; ++i0) {
@@ -310,13 +310,38 @@ void accumulate_normal_equations(const Columns& c, const Grid& grid, MatrixXd& g
   gram.triangularView<Eigen::StrictlyUpper>() = gram.transpose();
 }
 
-/// D^T D of the second-difference matrix D (rows [1 -2 1]) of n coefficients.
-MatrixXd second_difference_gram(int n) {
+/// D^T W D of the second divided differences of the coefficients of one axis
+/// at their Greville abscissae xi_i (the mean of each basis function's three
+/// inner knots):
+///   (D c)_i = [(c_{i+1} - c_i) / (xi_{i+1} - xi_i) - (c_i - c_{i-1}) / (xi_i - xi_{i-1})]
+///             / ((xi_{i+1} - xi_{i-1}) / 2),
+/// weighted by w_i = (xi_{i+1} - xi_{i-1}) / 2, the share of the axis each one
+/// stands for, so that c'D'WDc approximates the integral of the squared second
+/// derivative (O'Sullivan 1986) with any knot spacing. Chosen over the exact
+/// O'Sullivan integral because on uniform knots it is exactly Eilers & Marx's
+/// second-difference penalty (rows [1 -2 1]; made so by the factors h^2 and
+/// 1 / h below, h the mean Greville spacing), so uniform knots stay the special
+/// case they are in the basis and keep the fits and the cross-validation
+/// ladder they had; and its null space is exactly the straight lines (a
+/// spline with c_i = a + b xi_i is the line a + b u), which the P-spline's
+/// continuation beyond the data relies on. Dimensionless, like [1 -2 1].
+MatrixXd second_difference_gram(const BSplineAxis& axis) {
+  const int n = axis.basis_count();
+  std::vector<double> xi(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) xi[static_cast<std::size_t>(i)] = axis.greville(i);
+  const double h = (xi.back() - xi.front()) / (n - 1);
   MatrixXd d = MatrixXd::Zero(n - 2, n);
   for (int k = 0; k + 2 < n; ++k) {
-    d(k, k) = 1;
-    d(k, k + 1) = -2;
-    d(k, k + 2) = 1;
+    const auto at = [&](int i) { return xi[static_cast<std::size_t>(i)]; };
+    const double left = at(k + 1) - at(k);
+    const double right = at(k + 2) - at(k + 1);
+    const double half_width = 0.5 * (left + right);
+    // Row scaled by h^2 / half_width (divided difference) times sqrt(half_width / h)
+    // (the weight): on uniform knots, [1 -2 1].
+    const double scale = h * h / half_width * std::sqrt(half_width / h);
+    d(k, k) = scale / left;
+    d(k, k + 1) = -scale * (1.0 / left + 1.0 / right);
+    d(k, k + 2) = scale / right;
   }
   return d.transpose() * d;
 }
@@ -328,7 +353,7 @@ MatrixXd penalty_matrix(const Grid& grid, int axis) {
   const Index p = static_cast<Index>(grid.parameters);
   MatrixXd penalty = MatrixXd::Zero(p, p);
   {
-    const MatrixXd dtd = second_difference_gram(grid.axes[axis].basis_count());
+    const MatrixXd dtd = second_difference_gram(grid.axes[axis]);
     for (std::size_t i0 = 0; i0 < grid.extent[0]; ++i0) {
       for (std::size_t i1 = 0; i1 < grid.extent[1]; ++i1) {
         for (std::size_t i2 = 0; i2 < grid.extent[2]; ++i2) {
@@ -393,6 +418,10 @@ std::string format_number(double v) {
 
 }  // namespace
 
+const char* to_string(KnotPlacement placement) {
+  return placement == KnotPlacement::quantile ? "quantile" : "uniform";
+}
+
 void PolynomialFitOptions::validate() const {
   if (order < 0 || order > 12)
     throw std::invalid_argument("PolynomialFitOptions.order must be in [0, 12]");
@@ -424,8 +453,28 @@ std::string SurfaceFitResult::summary() const {
   if (intervals[0] > 0) {
     s += ", knot intervals " + std::to_string(intervals[0]) + " x " + std::to_string(intervals[1]);
     if (intervals[2] > 0) s += " x " + std::to_string(intervals[2]);
+    // The breakpoints per axis: "knots range uniform [0.5 3.33 6.17 9], ...".
+    static const char* const kAxis[3] = {"range", "intensity", "temperature"};
+    const char* separator = ", knots ";
+    for (int k = 0; k < 3; ++k) {
+      if (knots[k].empty()) continue;
+      s += std::string(separator) + kAxis[k] + " " + to_string(placement[k]) + " [";
+      for (std::size_t i = 0; i < knots[k].size(); ++i) {
+        if (i > 0) s += ' ';
+        s += format_number(knots[k][i]);
+      }
+      s += "]";
+      separator = ", ";
+    }
   }
-  if (smoothing > 0) s += ", smoothing " + format_number(smoothing);
+  if (smoothing > 0) {
+    s += ", smoothing " + format_number(smoothing);
+    if (intervals[0] > 0) {
+      s += " (axis weights " + format_number(axis_weight[0]) + ", " + format_number(axis_weight[1]);
+      if (intervals[2] > 0) s += ", " + format_number(axis_weight[2]);
+      s += ")";
+    }
+  }
   if (cv_rms_m > 0) s += ", cross-validated RMS " + format_number(cv_rms_m * 1e3) + " mm";
   s += ", residual RMS " + format_number(residual_rms_m * 1e3) + " mm, condition number " +
        format_number(condition_number);
@@ -487,13 +536,6 @@ SurfaceFitResult fit_polynomial_surface(const SurfaceFitData& data,
 }
 
 namespace {
-
-/// Number of distinct values of a column (exact comparison).
-std::size_t distinct_values(const double* x, std::size_t n) {
-  std::vector<double> v(x, x + n);
-  std::sort(v.begin(), v.end());
-  return static_cast<std::size_t>(std::unique(v.begin(), v.end()) - v.begin());
-}
 
 /// Rows of one cross-validation fold, owned, viewable as Columns.
 struct Fold {
@@ -700,8 +742,10 @@ Grid make_grid(const BSplineSurfaceParams& p, int dims) {
   grid.axes[0] = p.range;
   grid.axes[1] = p.amplitude;
   grid.axes[2] = p.temperature;
-  for (int k = 0; k < grid.dims; ++k)
+  for (int k = 0; k < grid.dims; ++k) {
     grid.extent[k] = static_cast<std::size_t>(grid.axes[k].basis_count());
+    grid.knots.emplace_back(grid.axes[k]);
+  }
   grid.parameters = grid.extent[0] * grid.extent[1] * grid.extent[2];
   return grid;
 }
@@ -721,21 +765,57 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   p.use_temperature = options.use_temperature;
   p.intensity = options.intensity;
   p.domain = c.domain;
-  auto make_axis = [](double lo, double hi, int intervals, bool log_scale) {
+  const int dims = options.use_temperature ? 3 : 2;
+  const bool log_scale[3] = {false, options.log_amplitude, false};
+  const double* column[3] = {c.range, c.amplitude, c.temperature};
+  const double lo[3] = {c.domain.range_min_m, c.domain.amplitude_min, c.domain.temperature_min_c};
+  const double hi[3] = {c.domain.range_max_m, c.domain.amplitude_max, c.domain.temperature_max_c};
+  // Each axis's distinct coordinates, sorted (quantile knots are drawn from
+  // them; the ladder's counts are capped by them); not needed (nor sorted)
+  // for given uniform knots.
+  std::vector<double> distinct[3];
+  const bool need_distinct =
+      options.choose_intervals_by_gcv || options.knot_placement == KnotPlacement::quantile;
+  for (int k = 0; k < (need_distinct ? dims : 0); ++k) {
+    distinct[k].resize(c.rows);
+    for (std::size_t row = 0; row < c.rows; ++row) {
+      distinct[k][row] = log_scale[k] ? std::log(column[k][row]) : column[k][row];
+    }
+    std::sort(distinct[k].begin(), distinct[k].end());
+    distinct[k].erase(std::unique(distinct[k].begin(), distinct[k].end()), distinct[k].end());
+  }
+  // One axis's knots. Quantile knots are quantiles of the distinct coordinates,
+  // not of the rows (Ruppert 2002): repeats of one target, and the rows a
+  // saturating reading piles at a few values, would otherwise pull knots onto
+  // one point; the cross-validation is over targets, so the knots follow
+  // where the targets lie. Breakpoint k of m is the distinct value of rank
+  // round(k (D - 1) / m), so m <= D - 1 keeps them strictly increasing and the
+  // ends at the data's extremes (as with uniform knots).
+  const auto make_axis = [&](int k, int intervals, KnotPlacement placement) {
+    if (placement == KnotPlacement::uniform) {
+      const auto coordinate = [&](double x) { return log_scale[k] ? std::log(x) : x; };
+      return BSplineAxis::uniform(coordinate(lo[k]), coordinate(hi[k]), intervals, log_scale[k]);
+    }
+    const std::vector<double>& v = distinct[k];
+    const int m = std::max(1, std::min(intervals, static_cast<int>(v.size()) - 1));
     BSplineAxis a;
-    a.intervals = intervals;
-    a.log_scale = log_scale;
-    a.lo = a.coordinate(lo);
-    a.hi = a.coordinate(hi);
+    a.log_scale = log_scale[k];
+    a.breakpoints.resize(static_cast<std::size_t>(m) + 1);
+    for (int i = 0; i <= m; ++i) {
+      const double rank = static_cast<double>(i) * static_cast<double>(v.size() - 1) / m;
+      a.breakpoints[static_cast<std::size_t>(i)] = v[static_cast<std::size_t>(std::lround(rank))];
+    }
     return a;
   };
-  const int dims = options.use_temperature ? 3 : 2;
-  const auto set_axes = [&](int ir, int ia, int it) {
-    p.range = make_axis(c.domain.range_min_m, c.domain.range_max_m, ir, false);
-    p.amplitude =
-        make_axis(c.domain.amplitude_min, c.domain.amplitude_max, ia, options.log_amplitude);
+  struct AxisChoice {
+    int intervals = 1;
+    KnotPlacement placement = KnotPlacement::uniform;
+  };
+  const auto set_axes = [&](const AxisChoice* choice) {
+    p.range = make_axis(0, choice[0].intervals, choice[0].placement);
+    p.amplitude = make_axis(1, choice[1].intervals, choice[1].placement);
     if (options.use_temperature) {
-      p.temperature = make_axis(c.domain.temperature_min_c, c.domain.temperature_max_c, it, false);
+      p.temperature = make_axis(2, choice[2].intervals, choice[2].placement);
     }
   };
   // No row-count requirement: the second-difference penalty determines every
@@ -745,41 +825,69 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   const std::vector<Fold> folds = make_folds(c);
   const double ones[3] = {1, 1, 1};
   GridFit best;
+  AxisChoice chosen[3];
   if (options.choose_intervals_by_gcv) {
-    // Ladder of interval counts per axis, capped so an axis never has more
-    // intervals than distinct values minus one.
-    const auto ladder = [&](const double* x, std::initializer_list<int> counts) {
-      const auto distinct =
-          static_cast<int>(std::min<std::size_t>(distinct_values(x, c.rows), 1000));
+    // Per axis: a ladder of interval counts, capped so an axis never has more
+    // intervals than distinct values minus one. Every combination of counts
+    // with uniform knots first (as before knots could be placed), then, one
+    // axis at a time with the others kept, each count with quantile knots: a
+    // coordinate step that costs a few fits more per axis instead of
+    // doubling the whole product. A quantile grid within a tenth of an
+    // interval of the uniform one (data spread evenly, as on a grid of
+    // distances) is not tried. On a tie the earlier (uniform) fit is kept.
+    const auto ladder = [&](int k, std::initializer_list<int> counts) {
+      const auto d = static_cast<int>(std::min<std::size_t>(distinct[k].size(), 1000));
       std::vector<int> out;
-      for (int k : counts) {
-        const int capped = std::max(1, std::min(k, distinct - 1));
+      for (int n : counts) {
+        const int capped = std::max(1, std::min(n, d - 1));
         if (std::find(out.begin(), out.end(), capped) == out.end()) out.push_back(capped);
       }
       return out;
     };
-    const std::vector<int> lr = ladder(c.range, {3, 5, 8, 12});
-    const std::vector<int> la = ladder(c.amplitude, {3, 5, 8, 12});
-    const std::vector<int> lt =
-        options.use_temperature ? ladder(c.temperature, {2, 3, 5}) : std::vector<int>{1};
-    for (int ir : lr) {
-      for (int ia : la) {
-        for (int it : lt) {
-          set_axes(ir, ia, it);
-          GridFit fit =
-              fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
-          if (fit.score < best.score * (1.0 - 1e-9)) best = std::move(fit);
+    const std::vector<int> counts[3] = {
+        ladder(0, {3, 5, 8, 12}), ladder(1, {3, 5, 8, 12}),
+        options.use_temperature ? ladder(2, {2, 3, 5}) : std::vector<int>{1}};
+    const auto try_grid = [&](const AxisChoice* choice) {
+      set_axes(choice);
+      GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
+      if (fit.score < best.score * (1.0 - 1e-9)) {
+        best = std::move(fit);
+        std::copy_n(choice, 3, chosen);
+      }
+    };
+    for (int ir : counts[0]) {
+      for (int ia : counts[1]) {
+        for (int it : counts[2]) {
+          const AxisChoice choice[3] = {{ir, KnotPlacement::uniform},
+                                        {ia, KnotPlacement::uniform},
+                                        {it, KnotPlacement::uniform}};
+          try_grid(choice);
+        }
+      }
+    }
+    if (std::isfinite(best.score)) {
+      for (int k = 0; k < dims; ++k) {
+        const AxisChoice kept[3] = {chosen[0], chosen[1], chosen[2]};
+        for (int n : counts[k]) {
+          if (make_axis(k, n, KnotPlacement::quantile).is_uniform(0.1)) continue;
+          AxisChoice choice[3] = {kept[0], kept[1], kept[2]};
+          choice[k] = {n, KnotPlacement::quantile};
+          try_grid(choice);
         }
       }
     }
     if (!std::isfinite(best.score)) {
-      set_axes(lr.front(), la.front(), lt.front());
+      for (int k = 0; k < 3; ++k) chosen[k] = {counts[k].front(), KnotPlacement::uniform};
+      set_axes(chosen);
       best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
     }
-    set_axes(best.grid.axes[0].intervals, best.grid.axes[1].intervals, best.grid.axes[2].intervals);
+    set_axes(chosen);
     best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true);
   } else {
-    set_axes(options.intervals_range, options.intervals_amplitude, options.intervals_temperature);
+    chosen[0] = {options.intervals_range, options.knot_placement};
+    chosen[1] = {options.intervals_amplitude, options.knot_placement};
+    chosen[2] = {options.intervals_temperature, options.knot_placement};
+    set_axes(chosen);
     best =
         fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, choose_smoothing, true);
   }
@@ -797,7 +905,13 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   s.residual_rms_m = residual_rms(probe, data);
   p.fit = s;
   SurfaceFitResult result = make_result(std::make_shared<const BSplineSurface>(std::move(p)), s);
-  for (int k = 0; k < dims; ++k) result.intervals[k] = best.grid.axes[k].intervals;
+  for (int k = 0; k < dims; ++k) {
+    const BSplineAxis& axis = best.grid.axes[k];
+    result.intervals[k] = axis.intervals();
+    result.placement[k] = chosen[k].placement;
+    result.axis_weight[k] = best.axis_weight[k];
+    for (double t : axis.breakpoints) result.knots[k].push_back(axis.log_scale ? std::exp(t) : t);
+  }
   return result;
 }
 

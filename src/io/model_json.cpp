@@ -364,6 +364,19 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
         {"intensity", s.surface_intensity},
         {"residual_rms_m", surface.residual_rms_m},
         {"error_before", stats_json(s.surface_error_before)}};
+    if (!surface.knots[0].empty()) {
+      // B-spline: the breakpoints per axis in input units, how they were
+      // placed, and each axis's penalty weight relative to the smoothing.
+      json knots = json::array(), placement = json::array();
+      for (int k = 0; k < (s.surface_temperature ? 3 : 2); ++k) {
+        knots.push_back(surface.knots[k]);
+        placement.push_back(calib::to_string(surface.placement[k]));
+      }
+      j["surface"]["knots"] = knots;
+      j["surface"]["knot_placement"] = placement;
+      j["surface"]["axis_weights"] = std::vector<double>(
+          surface.axis_weight, surface.axis_weight + (s.surface_temperature ? 3 : 2));
+    }
     if (s.surface_cv_rms_other_m > 0) {
       j["surface"]["cv_rms_other_intensity_m"] = s.surface_cv_rms_other_m;
     }

@@ -147,23 +147,64 @@ calib::SurfaceFitStats read_fit(const json& j, bool bspline, const std::string& 
   return s;
 }
 
+/// An axis: its breakpoints ("knots", in the axis coordinate: the log of the
+/// input on a "log" scale), with intervals, lo and hi beside them for a reader's
+/// eye (and for files written before knots were stored, which held only
+/// those: their knots are uniform).
 json axis_json(const calib::BSplineAxis& a) {
-  return {{"intervals", a.intervals},
+  return {{"intervals", a.intervals()},
           {"scale", a.log_scale ? "log" : "linear"},
-          {"lo", a.lo},
-          {"hi", a.hi}};
+          {"lo", a.lo()},
+          {"hi", a.hi()},
+          {"knots", a.breakpoints}};
 }
 calib::BSplineAxis read_axis(const json& j, const char* key, const std::string& where) {
   const json& v = field(j, key, where);
   const std::string here = where + "." + key;
   calib::BSplineAxis a;
-  a.intervals = integer(field(v, "intervals", here), here + ".intervals");
   const json& scale = field(v, "scale", here);
   if (!scale.is_string() || (scale != "log" && scale != "linear"))
     fail(here + ".scale", "expected \"linear\" or \"log\"");
   a.log_scale = scale == "log";
-  a.lo = number(v, "lo", here);
-  a.hi = number(v, "hi", here);
+  if (!v.contains("knots")) {
+    // Uniform knots from intervals, lo and hi (files without "knots").
+    const int intervals = integer(field(v, "intervals", here), here + ".intervals");
+    if (intervals < 1 || intervals > 1000) fail(here + ".intervals", "must be in [1, 1000]");
+    const double lo = number(v, "lo", here);
+    const double hi = number(v, "hi", here);
+    if (!std::isfinite(lo)) fail(here + ".lo", "must be finite");
+    if (!std::isfinite(hi) || !(hi > lo)) fail(here + ".hi", "must be finite and above lo");
+    return calib::BSplineAxis::uniform(lo, hi, intervals, a.log_scale);
+  }
+  const std::string kw = here + ".knots";
+  a.breakpoints = numbers(v, "knots", here);
+  const std::size_t n = a.breakpoints.size();
+  if (n < 2 || n > 1001) {
+    fail(kw, "has " + std::to_string(n) +
+                 " breakpoints; a cubic axis needs 2 .. 1001 (1 .. 1000 knot intervals)");
+  }
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::string at = kw + "[" + std::to_string(k) + "]";
+    if (!std::isfinite(a.breakpoints[k])) fail(at, "must be finite");
+    if (k > 0 && !(a.breakpoints[k] > a.breakpoints[k - 1])) {
+      fail(at, "must be above knots[" + std::to_string(k - 1) + "] (knots strictly increasing)");
+    }
+  }
+  // The summary fields beside the knots must agree with them when present.
+  if (v.contains("intervals")) {
+    const int intervals = integer(v["intervals"], here + ".intervals");
+    if (intervals != a.intervals()) {
+      fail(here + ".intervals", "is " + std::to_string(intervals) + " but knots has " +
+                                    std::to_string(n) + " breakpoints (" +
+                                    std::to_string(a.intervals()) + " intervals)");
+    }
+  }
+  if (v.contains("lo") && number(v, "lo", here) != a.lo()) {
+    fail(here + ".lo", "differs from knots[0]");
+  }
+  if (v.contains("hi") && number(v, "hi", here) != a.hi()) {
+    fail(here + ".hi", "differs from the last of knots");
+  }
   return a;
 }
 
@@ -277,7 +318,8 @@ std::shared_ptr<const calib::CorrectionSurface> bspline_from_json(const json& j,
   for (std::size_t d = 0; d < dims; ++d) {
     if (integer(shape[d], where + ".shape") != want[d]) {
       fail(where + ".shape[" + std::to_string(d) + "]",
-           "must be intervals + 3 = " + std::to_string(want[d]));
+           "must be the axis's knot intervals + 3 = " + std::to_string(want[d]) +
+               " (the coefficient grid does not match the knots)");
     }
   }
   p.coefficients = numbers(j, "coefficients", where);

@@ -33,12 +33,7 @@ void clamp_to_axis(const double* x, std::size_t count, double lo, double hi,
 
 void require_axis(const BSplineAxis& axis, double domain_min, double domain_max, const char* name) {
   const std::string prefix = std::string("BSplineSurface: ") + name;
-  if (axis.intervals < 1 || axis.intervals > 1000) {
-    throw std::invalid_argument(prefix + ".intervals must be in [1, 1000]");
-  }
-  if (!std::isfinite(axis.lo) || !std::isfinite(axis.hi) || !(axis.lo < axis.hi)) {
-    throw std::invalid_argument(prefix + " axis must have finite lo < hi");
-  }
+  axis.validate(prefix);
   if (!std::isfinite(domain_min) || !std::isfinite(domain_max) || !(domain_min < domain_max)) {
     throw std::invalid_argument(prefix + " domain must be a finite interval with min < max");
   }
@@ -59,6 +54,9 @@ BSplineSurface::BSplineSurface(BSplineSurfaceParams params) : params_(std::move(
                  "temperature");
     count *= static_cast<std::size_t>(p.temperature.basis_count());
   }
+  knots_.emplace_back(p.range);
+  knots_.emplace_back(p.amplitude);
+  if (p.use_temperature) knots_.emplace_back(p.temperature);
   if (p.coefficients.size() != count) {
     throw std::invalid_argument("BSplineSurface: coefficients has " +
                                 std::to_string(p.coefficients.size()) + " entries, the grid " +
@@ -86,9 +84,6 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
   const BSplineAxis& ar = params_.range;
   const BSplineAxis& aa = params_.amplitude;
   const BSplineAxis& at = params_.temperature;
-  const double inv_r = ar.intervals / (ar.hi - ar.lo);
-  const double inv_a = aa.intervals / (aa.hi - aa.lo);
-  const double inv_t = use_t ? at.intervals / (at.hi - at.lo) : 0.0;
   const std::size_t na = static_cast<std::size_t>(aa.basis_count());
   const std::size_t nt = use_t ? static_cast<std::size_t>(at.basis_count()) : 1;
   const double* coeff = params_.coefficients.data();
@@ -112,8 +107,8 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
         continue;
       }
       // Tensor product: f = sum_p sum_q [sum_s] Br_p Ba_q [Bt_s] c_pq[s].
-      const BSplineSpan sr = cubic_bspline_span(ar, inv_r, ur[j]);
-      const BSplineSpan sa = cubic_bspline_span(aa, inv_a, ua[j]);
+      const BSplineSpan sr = knots_[0].span(ur[j]);
+      const BSplineSpan sa = knots_[1].span(ua[j]);
       double value = 0;
       if (!use_t) {
         for (int p = 0; p < 4; ++p) {
@@ -123,7 +118,7 @@ void BSplineSurface::evaluate(const SurfaceInputs& inputs, std::span<double> cor
           value += sr.weight[p] * inner;
         }
       } else {
-        const BSplineSpan st = cubic_bspline_span(at, inv_t, ut[j]);
+        const BSplineSpan st = knots_[2].span(ut[j]);
         for (int p = 0; p < 4; ++p) {
           double inner = 0;
           for (int q = 0; q < 4; ++q) {

@@ -6,7 +6,7 @@
 
 namespace tofkit::calib {
 using ranging::BSplineAxis;
+using ranging::BSplineKnots;
 using ranging::BSplineSpan;
 using ranging::cubic_bspline_span;
-using ranging::cubic_bspline_weights;
 }  // namespace tofkit::calib

@@ -5,6 +5,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "tofkit/calib/correction_surface.hpp"
 
@@ -33,6 +34,13 @@ struct PolynomialFitOptions {
   void validate() const;
 };
 
+/// Where a B-spline axis's knots go.
+enum class KnotPlacement {
+  uniform,   ///< equal intervals over the data's span
+  quantile,  ///< at quantiles of the data's distinct axis coordinates
+};
+[[nodiscard]] const char* to_string(KnotPlacement placement);
+
 struct BSplineFitOptions {
   int intervals_range = 6;      ///< knot intervals along range (cubic: intervals + 3 coefficients)
   int intervals_amplitude = 8;  ///< along amplitude
@@ -48,10 +56,14 @@ struct BSplineFitOptions {
   /// instead of using the value above; then each axis's penalty weight
   /// relative to it (decades 1e-3 .. 1e3, one pass per axis) by the same score.
   bool choose_smoothing_by_gcv = false;
-  /// Choose the knot intervals of each axis too, by the same generalized
-  /// cross-validation, from a ladder of counts (3, 5, 8, 12 per axis; 2, 3, 5
-  /// for temperature) capped by the data's distinct values on that axis; the
-  /// intervals_* above are then ignored. Implies choose_smoothing_by_gcv.
+  /// Knot placement on every axis when the intervals are given (below: chosen).
+  /// Quantile knots are capped at the axis's distinct values minus one intervals.
+  KnotPlacement knot_placement = KnotPlacement::uniform;
+  /// Choose the knots of each axis too, by the same generalized
+  /// cross-validation: the count from a ladder (3, 5, 8, 12 per axis; 2, 3, 5
+  /// for temperature) capped by the data's distinct values on that axis, and
+  /// the placement (uniform or quantile) per axis; the intervals_* and
+  /// knot_placement above are then ignored. Implies choose_smoothing_by_gcv.
   bool choose_intervals_by_gcv = false;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
@@ -68,6 +80,15 @@ struct SurfaceFitResult {
   double effective_parameters = 0;  ///< B-spline: trace of the hat matrix; polynomial: rank
   double cv_rms_m = 0;  ///< B-spline: cross-validated RMS, sqrt(GCV score); 0 when not computed
   int intervals[3] = {0, 0, 0};  ///< B-spline: knot intervals (range, amplitude, temperature)
+  /// B-spline: each axis's placement and breakpoints (input units: the
+  /// amplitude axis's exponentiated when on a log scale); empty for a
+  /// polynomial or an unused axis.
+  KnotPlacement placement[3] = {KnotPlacement::uniform, KnotPlacement::uniform,
+                                KnotPlacement::uniform};
+  std::vector<double> knots[3];
+  /// B-spline: each axis's penalty weight relative to `smoothing` (chosen by
+  /// cross-validation with the smoothing).
+  double axis_weight[3] = {1, 1, 1};
   [[nodiscard]] std::string summary() const;
 };
 

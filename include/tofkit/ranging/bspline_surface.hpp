@@ -41,6 +41,7 @@ class BSplineSurface final : public CorrectionSurface {
 
  private:
   BSplineSurfaceParams params_;
+  std::vector<BSplineKnots> knots_;  ///< range, amplitude [, temperature], prepared
 };
 
 }  // namespace tofkit::ranging
