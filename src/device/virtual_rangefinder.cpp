@@ -403,11 +403,12 @@ struct VirtualRangefinder::Impl {
                                   SurfaceEcho& out) const {
     const auto& link = config.link;
     if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) return false;
+    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
     // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
     // Biaxial optics: only the share of the footprint inside the receiver's field.
     const double power_w =
         s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-        physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
+        physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
     if (power_w <= 0.0) return false;
     out.amplitude_v = power_w * c.volts_per_watt;
     // The comparator is re-armed at every pulse: an echo later than the pulse
@@ -416,7 +417,6 @@ struct VirtualRangefinder::Impl {
     if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
     // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
     // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
     const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
                                 std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
     out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
@@ -962,27 +962,44 @@ struct VirtualRangefinder::Impl {
   /// power-on offset plus the slow 1/f wander at the measurement's time
   /// (stream i starts i measurement periods after power-on).
   [[nodiscard]] double slow_offset_ns(const RunDraws& run, std::uint64_t stream) const {
+    double offset = 0;
+    slow_offsets_ns(run, stream, 1, &offset);
+    return offset;
+  }
+
+  /// The offsets of n <= kLanes consecutive streams from stream0 (in stages
+  /// over the streams: the octaves' sum vectorizes).
+  void slow_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
+                       double* offsets) const {
     const auto& mc = config.measurement;
-    if (mc.flicker_delay_ps <= 0.0) return run.offset;
+    if (mc.flicker_delay_ps <= 0.0) {
+      std::fill(offsets, offsets + n, run.offset);
+      return;
+    }
     // 1/f noise has equal power per octave: one sinusoid of random phase per
     // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
     // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
-    const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
     const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
-    // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
-    const double cycles = kFlickerLowestHz * t_s;
-    const auto phase = static_cast<std::uint32_t>(
-        static_cast<std::uint64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFFu);
-    double sin_a = 0, cos_a = 0;
-    sincos_of_phase(phase, sin_a, cos_a);
-    double wander = 0;
-    for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
-      wander += sin_a * run.cos_phase[k] + cos_a * run.sin_phase[k];  // sin(a + phase)
-      const double s2 = 2.0 * sin_a * cos_a;
-      cos_a = (cos_a - sin_a) * (cos_a + sin_a);
-      sin_a = s2;
+    std::array<double, kLanes> sin_a, cos_a;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double t_s =
+          static_cast<double>(stream0 + i) * mc.shots / config.link.laser.repetition_hz;
+      // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
+      const double cycles = kFlickerLowestHz * t_s;
+      const auto phase = static_cast<std::uint32_t>(
+          static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
+      sincos_of_phase(phase, sin_a[i], cos_a[i]);
     }
-    return run.offset + amplitude * wander;
+    for (std::size_t i = 0; i < n; ++i) {
+      double s = sin_a[i], c = cos_a[i], wander = 0;
+      for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
+        wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
+        const double s2 = 2.0 * s * c;
+        c = (c - s) * (c + s);
+        s = s2;
+      }
+      offsets[i] = run.offset + amplitude * wander;
+    }
   }
 
   /// Noise alone firing the comparator before the echo (a false alarm) when
@@ -1123,7 +1140,7 @@ struct VirtualRangefinder::Impl {
       for (std::size_t k = 0; k < n; ++k) lanes.shot_draws[k] = rng.draw(stream0 + k, 0, 0);
       for (std::size_t k = 0; k < n; ++k)
         lanes.extra_draws[k] = rng.draw(stream0 + k, kMeasurementCounter, 0);
-      for (std::size_t k = 0; k < n; ++k) lanes.offsets[k] = slow_offset_ns(run, stream0 + k);
+      slow_offsets_ns(run, stream0, n, lanes.offsets.data());
       for (std::size_t k = 0; k < n; ++k) {
         lanes.z[k] = normal_pair(lanes.shot_draws[k][0], lanes.shot_draws[k][1]);
         lanes.z_extra[k] = normal_pair(lanes.extra_draws[k][0], lanes.extra_draws[k][1]);
