@@ -227,19 +227,16 @@ struct EchoComponent {
   double delay_ns;
 };
 
-/// Everything that is the same for all shots of one measurement.
-struct MeasurementSetup {
-  // Noise-free linear echo on a fine grid (the sum of all components).
-  std::vector<double> composite;
-  std::vector<double> noise_sigma;  // waveform mode: noise (1 sigma) along the composite grid
+/// Everything that is the same for all shots of one measurement: its numbers
+/// (MeasurementValues), and on the exact path its sampled echo and tables.
+struct MeasurementValues {
   double grid_begin_ns = 0;
   double peak_v = 0;
   double peak_time_ns = 0;
   // Threshold-crossing tables over levels threshold +- 6 sigma (level-shift noise model).
   double level_begin_v = 0, inv_level_step = 0;
   double level_end_v = 0;
-  std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
-  double level_top_v = 0;                // largest level that is crossed at all
+  double level_top_v = 0;  // largest level that is crossed at all
   // Fast path (one surface, analytic mode): the echo is A g_h(t - delay_ns)
   // with g_h the device's tabulated normalized echo at spread h.
   bool fast = false;
@@ -265,6 +262,21 @@ struct MeasurementSetup {
   double record_end_ns = 0;            // waveform mode samples up to here
   double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
+};
+
+struct MeasurementSetup : MeasurementValues {
+  // Noise-free linear echo on a fine grid (the sum of all components).
+  std::vector<double> composite;
+  std::vector<double> noise_sigma;       // waveform mode: noise (1 sigma) along the composite grid
+  std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
+  /// Back to a fresh setup, keeping the vectors' storage.
+  void reset() {
+    static_cast<MeasurementValues&>(*this) = MeasurementValues{};
+    composite.clear();
+    noise_sigma.clear();
+    rise_ns.clear();
+    fall_ns.clear();
+  }
 };
 
 /// One surface's echo: amplitude, delay and the round-trip spread over half the
@@ -1108,9 +1120,9 @@ struct VirtualRangefinder::Impl {
   /// the result) runs over all lanes before the next, so the lanes' independent
   /// chains of arithmetic overlap. Every lane runs the same functions, in the
   /// same order, as a lone measurement: the bytes do not depend on the grouping.
-  void measure_single_shots(std::span<const Target> targets, std::span<const Conditions> conds,
-                            std::uint64_t seed, std::uint64_t first_stream,
-                            std::span<ranging::RawMeasurement> out) const {
+  __attribute__((target_clones("avx2", "default"))) void measure_single_shots(
+      std::span<const Target> targets, std::span<const Conditions> conds, std::uint64_t seed,
+      std::uint64_t first_stream, std::span<ranging::RawMeasurement> out) const {
     const CounterRng rng(seed);
     const RunDraws& run = run_draws(rng);
     thread_local Lanes lanes;
@@ -1121,7 +1133,7 @@ struct VirtualRangefinder::Impl {
       const std::uint64_t stream0 = first_stream + begin;
       std::size_t n_fast = 0;
       for (std::size_t k = 0; k < n; ++k) {
-        m[k] = MeasurementSetup{};
+        m[k].reset();
         switch (setup_common(targets[begin + k], conds[begin + k], m[k], lanes.echoes[k])) {
           case Echo::kNone:
             break;
