@@ -302,7 +302,7 @@ struct Lanes {
   std::array<MeasurementSetup, kLanes> setups;
   std::array<SurfaceEcho, kLanes> echoes;
   std::array<std::size_t, kLanes> fast;  // the lanes on the fast path
-  std::array<std::array<std::uint32_t, 4>, kLanes> shot_draws, extra_draws;
+  std::array<std::array<std::uint32_t, kLanes>, 4> shot_words, extra_words;  // draws, word-major
   std::array<std::array<double, 2>, kLanes> z, z_extra;
   std::array<double, kLanes> lag, offsets, level_rise, level_fall, rise, fall;
   std::array<bool, kLanes> echo;
@@ -1149,13 +1149,12 @@ struct VirtualRangefinder::Impl {
         fast_echo(m[lanes.fast[j]], lanes.echoes[lanes.fast[j]]);
       for (std::size_t j = 0; j < n_fast; ++j) lanes.lag[j] = fast_lag_ns(m[lanes.fast[j]]);
       for (std::size_t j = 0; j < n_fast; ++j) fast_edges(m[lanes.fast[j]], lanes.lag[j]);
-      for (std::size_t k = 0; k < n; ++k) lanes.shot_draws[k] = rng.draw(stream0 + k, 0, 0);
-      for (std::size_t k = 0; k < n; ++k)
-        lanes.extra_draws[k] = rng.draw(stream0 + k, kMeasurementCounter, 0);
+      rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
+      rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
       slow_offsets_ns(run, stream0, n, lanes.offsets.data());
       for (std::size_t k = 0; k < n; ++k) {
-        lanes.z[k] = normal_pair(lanes.shot_draws[k][0], lanes.shot_draws[k][1]);
-        lanes.z_extra[k] = normal_pair(lanes.extra_draws[k][0], lanes.extra_draws[k][1]);
+        lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
+        lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
       }
       if (analytic) {
         for (std::size_t k = 0; k < n; ++k)
@@ -1165,15 +1164,15 @@ struct VirtualRangefinder::Impl {
       for (std::size_t k = 0; k < n; ++k) {
         double& rise = lanes.rise[k];
         double& fall = lanes.fall[k];
-        const auto& r = lanes.shot_draws[k];
-        if (false_alarm(m[k], unit_open(r[3]), rise, fall))
+        const auto& r = lanes.shot_words;
+        if (false_alarm(m[k], unit_open(r[3][k]), rise, fall))
           lanes.echo[k] = true;
         else if (analytic)
           lanes.echo[k] =
               analytic_crossings(m[k], lanes.level_rise[k], lanes.level_fall[k], rise, fall);
         else
           lanes.echo[k] =
-              crossings_waveform(m[k], rng, stream0 + k, 0, unit_open(r[0]), rise, fall);
+              crossings_waveform(m[k], rng, stream0 + k, 0, unit_open(r[0][k]), rise, fall);
       }
       for (std::size_t k = 0; k < n; ++k) {
         // One stop is its own median: the gate keeps it.
@@ -1181,8 +1180,9 @@ struct VirtualRangefinder::Impl {
         std::uint32_t valid = 0;
         if (lanes.echo[k]) {
           double start = 0, stop_rise = 0, stop_fall = 0;
-          stops(m[k], lanes.shot_draws[k], 0, lanes.offsets[k], lanes.rise[k], lanes.fall[k], start,
-                stop_rise, stop_fall);
+          const auto& w = lanes.shot_words;
+          stops(m[k], {w[0][k], w[1][k], w[2][k], w[3][k]}, 0, lanes.offsets[k], lanes.rise[k],
+                lanes.fall[k], start, stop_rise, stop_fall);
           sum_tof = stop_rise - start;
           sum_width = stop_fall - stop_rise;
           valid = 1;
