@@ -5,8 +5,9 @@
 // refinement, no footprint grouping). Stages:
 //   EmbreeBare/R     the R rays of every beam, bare Embree
 //   Footprint/R      tofkit casting + double refinement + grouping into a Target
-//   Measured/R       footprint + the device's measurement (analytic, 1 shot), results
-//                    discarded (the scan without writing its output)
+//   Measured/R       footprint + the device's measurement (analytic, 1 shot), a block
+//                    of beams' targets measured in one call as the scanner does (single
+//                    shots run in lanes), results discarded (the scan without its output)
 //   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot)
 // The second argument is the thread count. With 1 thread the CPU column is
 // the whole cost (useful on a shared machine, where real time includes waits).
