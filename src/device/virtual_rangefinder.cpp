@@ -1120,6 +1120,9 @@ struct VirtualRangefinder::Impl {
   /// the result) runs over all lanes before the next, so the lanes' independent
   /// chains of arithmetic overlap. Every lane runs the same functions, in the
   /// same order, as a lone measurement: the bytes do not depend on the grouping.
+  /// Also compiled for AVX2 (chosen at load where the CPU has it; the Philox
+  /// rounds and the slow offsets vectorize): AVX2 brings no FMA, so neither
+  /// build contracts a multiply-add and both give the same bytes.
   __attribute__((target_clones("avx2", "default"))) void measure_single_shots(
       std::span<const Target> targets, std::span<const Conditions> conds, std::uint64_t seed,
       std::uint64_t first_stream, std::span<ranging::RawMeasurement> out) const {
