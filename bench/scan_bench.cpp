@@ -5,8 +5,9 @@
 // refinement, no footprint grouping). Stages:
 //   EmbreeBare/R     the R rays of every beam, bare Embree
 //   Footprint/R      tofkit casting + double refinement + grouping into a Target
-//   Measured/R       footprint + the device's measurement (analytic, 1 shot), results
-//                    discarded (the scan without writing its output)
+//   Measured/R       footprint + the device's measurement (analytic, 1 shot), a block
+//                    of beams' targets measured in one call as the scanner does (single
+//                    shots run in lanes), results discarded (the scan without its output)
 //   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot)
 // The second argument is the thread count. With 1 thread the CPU column is
 // the whole cost (useful on a shared machine, where real time includes waits).
@@ -174,11 +175,34 @@ void BM_Measured(benchmark::State& state) {
   const auto config = config_with(static_cast<int>(state.range(0)));
   const Footprint fp(config);
   const device::VirtualRangefinder dev(config, device::SimulationMode::kAnalytic);
-  const device::Conditions conditions;
-  over_beams(state, [&](std::size_t i, Footprint::Result& r) {
-    fp.trace(f.caster, f.pattern.beams[i].origin_m, f.pattern.beams[i].direction, r);
-    return dev.measure(r.target, conditions, 1, i, 1).tof_ns;
-  });
+  // As the scanner: a block's footprints, then their measurements in one call.
+  struct Block {
+    std::vector<device::Target> targets;
+    std::vector<device::Conditions> conditions;
+    std::vector<ranging::RawMeasurement> raw;
+  };
+  for (auto _ : state) {
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, f.pattern.beams.size(), 256),
+                      [&](const auto& block) {
+                        thread_local Block b;
+                        const std::size_t n = block.size();
+                        b.targets.resize(std::max(b.targets.size(), n));
+                        b.conditions.resize(std::max(b.conditions.size(), n));
+                        b.raw.resize(std::max(b.raw.size(), n));
+                        Footprint::Result r;
+                        for (std::size_t k = 0; k < n; ++k) {
+                          const auto& beam = f.pattern.beams[block.begin() + k];
+                          fp.trace(f.caster, beam.origin_m, beam.direction, r);
+                          std::swap(b.targets[k].surfaces, r.target.surfaces);
+                        }
+                        dev.measure({b.targets.data(), n}, {b.conditions.data(), n}, 1,
+                                    block.begin(), 1, {b.raw.data(), n});
+                        double sum = 0;
+                        for (std::size_t k = 0; k < n; ++k) sum += b.raw[k].tof_ns;
+                        benchmark::DoNotOptimize(sum);
+                      });
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
 void BM_Scan(benchmark::State& state) {

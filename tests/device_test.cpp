@@ -5,9 +5,12 @@
 #include <gtest/gtest.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <span>
+#include <string>
 #include <vector>
 
 #include "tofkit/device/tdc.hpp"
@@ -513,5 +516,126 @@ TEST(Device, CodeDensityCalibrationLeavesTheCountingErrorOfItsHits) {
     config.inl_lsb = 5.0;  // a worse chain: the same counting error remains
     EXPECT_NEAR(rms_of(Tdc(config)), rms, 1e-12) << hits;
     config.inl_lsb = 0.5;
+  }
+}
+
+namespace {
+
+/// Targets and conditions that take every path of a single-shot measurement:
+/// one surface (the tabulated echo; tilted, saturating, faint, beyond range,
+/// aliased past the pulse period), mixed pixels (the composite echo), nothing.
+void varied_requests(std::vector<Target>& targets, std::vector<Conditions>& conditions) {
+  for (int i = 0; i < 150; ++i) {
+    const double r = 0.3 + 0.37 * (i % 41);
+    const double rho = 0.002 + 0.11 * (i % 9);
+    const double angle = 7.0 * (i % 13);
+    if (i % 11 == 3)
+      targets.push_back(Target{{Surface{0.6, r, rho, angle}, Surface{0.4, r + 0.8, 0.5, 10.0}}});
+    else if (i % 17 == 5)
+      targets.push_back(Target{});
+    else
+      targets.push_back(Target::plate(i % 23 == 7 ? 3000.0 : r, rho, angle));
+    Conditions c;
+    c.ambient_c = 5.0 + 3.0 * (i % 7);
+    if (i % 5 == 1) c.minutes_since_power_on = 0.5 * (i % 19);  // warming up
+    if (i % 6 == 2) c.ms_since_laser_on = 0.01 * (i % 29);      // turn-on transient
+    conditions.push_back(c);
+  }
+}
+
+/// Pulsed configurations beside the paper's: the AccuRange's pulsed core (a
+/// 0.3 ns pulse), sunlight (false alarms), crosstalk and blanking (every echo
+/// on the composite path).
+std::vector<std::pair<const char*, DeviceConfig>> pulsed_configs() {
+  auto accurange_core = preset("accurange");
+  accurange_core.oscillator.enabled = false;
+  auto sunlit = preset("paper");
+  sunlit.link.environment.solar_irradiance_w_per_m2_um =
+      physics::kTable1SolarIrradiance_w_per_m2_um;
+  auto crosstalk = preset("paper");
+  crosstalk.link.receiver.crosstalk_v = 0.05;
+  crosstalk.discriminator.blanking_ns = 3.0;
+  return {{"paper", preset("paper")},
+          {"accurange core", accurange_core},
+          {"sunlit", sunlit},
+          {"crosstalk", crosstalk}};
+}
+
+bool same_bytes(const ranging::RawMeasurement& a, const ranging::RawMeasurement& b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
+}  // namespace
+
+TEST(Device, BlocksOfMeasurementsGiveTheBytesOfSingleMeasurements) {
+  // measure() over spans runs single shots in lanes, stage by stage: every
+  // measurement must be the one measure() gives alone, whatever the block
+  // boundaries, on every path (tabulated and composite echoes, false alarms
+  // in sunlight, both modes, averaged shots).
+  std::vector<Target> targets;
+  std::vector<Conditions> conditions;
+  varied_requests(targets, conditions);
+  struct Case {
+    std::string name;
+    DeviceConfig config;
+    SimulationMode mode;
+    int shots;
+  };
+  std::vector<Case> cases;
+  for (const auto& [name, config] : pulsed_configs())
+    cases.push_back({name, config, SimulationMode::kAnalytic, 1});
+  cases.push_back({"waveform", preset("paper"), SimulationMode::kWaveform, 1});
+  cases.push_back({"averaged", preset("paper"), SimulationMode::kAnalytic, 3});
+  cases.push_back({"oscillator", preset("accurange"), SimulationMode::kAnalytic, 1});
+  const std::uint64_t first_stream = 1000;
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    const VirtualRangefinder dev(c.config, c.mode);
+    std::vector<ranging::RawMeasurement> alone(targets.size());
+    int echoes = 0;
+    for (std::size_t k = 0; k < targets.size(); ++k) {
+      alone[k] = dev.measure(targets[k], conditions[k], 9, first_stream + k, c.shots);
+      echoes += alone[k].has_echo() ? 1 : 0;
+    }
+    EXPECT_GT(echoes, 10);
+    EXPECT_LT(echoes, static_cast<int>(targets.size()));  // some beams see nothing
+    for (const std::size_t block :
+         {std::size_t{1}, std::size_t{7}, std::size_t{64}, std::size_t{65}, targets.size()}) {
+      std::vector<ranging::RawMeasurement> out(targets.size());
+      for (std::size_t begin = 0; begin < targets.size(); begin += block) {
+        const std::size_t n = std::min(block, targets.size() - begin);
+        dev.measure(std::span(targets).subspan(begin, n), std::span(conditions).subspan(begin, n),
+                    9, first_stream + begin, c.shots, std::span(out).subspan(begin, n));
+      }
+      for (std::size_t k = 0; k < targets.size(); ++k)
+        EXPECT_TRUE(same_bytes(out[k], alone[k])) << "block " << block << ", measurement " << k;
+    }
+  }
+  const VirtualRangefinder dev(preset("paper"));
+  std::vector<ranging::RawMeasurement> short_out(2);
+  EXPECT_THROW(dev.measure(targets, conditions, 9, 0, 1, short_out), std::invalid_argument);
+}
+
+TEST(Device, OneShotMeasurementIsThatShot) {
+  // A one-shot measurement (the lanes' kernel, their vectorized Philox draws)
+  // reports its one shot: shoot() of shot 0 (the per-shot path, one draw at a time).
+  std::vector<Target> targets;
+  std::vector<Conditions> conditions;
+  varied_requests(targets, conditions);
+  for (const auto& [name, config] : pulsed_configs()) {
+    SCOPED_TRACE(name);
+    const VirtualRangefinder dev(config);
+    int echoes = 0;
+    for (std::size_t k = 0; k < targets.size(); ++k) {
+      const std::uint64_t stream = (std::uint64_t{1} << 33) + 5 * k;  // high word too
+      const auto m = dev.measure(targets[k], conditions[k], 77, stream, 1);
+      const auto s = dev.shoot(targets[k], conditions[k], 77, stream, 0);
+      ASSERT_EQ(m.has_echo(), s.echo) << k;
+      if (!s.echo) continue;
+      ++echoes;
+      EXPECT_EQ(m.tof_ns, s.tof_ns) << k;
+      EXPECT_EQ(m.pulse_width_ns, s.pulse_width_ns) << k;
+    }
+    EXPECT_GT(echoes, 10);
   }
 }

@@ -42,7 +42,7 @@ constexpr double kFlickerLowestHz = 1e-3;
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 
 /// Monotone table lookup: values y at equally spaced x from x0 with step dx.
-inline double table_at(const std::array<double, kLevels>& y, double x0, double inv_dx, double x) {
+inline double table_at(const std::vector<double>& y, double x0, double inv_dx, double x) {
   double f = (x - x0) * inv_dx;
   f = std::clamp(f, 0.0, static_cast<double>(kLevels - 1) - 1e-9);
   const auto i = static_cast<std::size_t>(f);
@@ -227,19 +227,15 @@ struct EchoComponent {
   double delay_ns;
 };
 
-/// Everything that is the same for all shots of one measurement.
-struct MeasurementSetup {
-  // Noise-free linear echo on a fine grid (the sum of all components).
-  std::vector<double> composite;
-  std::vector<double> noise_sigma;  // waveform mode: noise (1 sigma) along the composite grid
+/// Everything that is the same for all shots of one measurement: its numbers
+/// (MeasurementValues), and on the exact path its sampled echo and tables.
+struct MeasurementValues {
   double grid_begin_ns = 0;
   double peak_v = 0;
   double peak_time_ns = 0;
   // Threshold-crossing tables over levels threshold +- 6 sigma (level-shift noise model).
   double level_begin_v = 0, inv_level_step = 0;
-  // (Filled only on the exact path; not value-initialized: 2 kB per measurement.)
   double level_end_v = 0;
-  std::array<double, kLevels> rise_ns, fall_ns;
   double level_top_v = 0;  // largest level that is crossed at all
   // Fast path (one surface, analytic mode): the echo is A g_h(t - delay_ns)
   // with g_h the device's tabulated normalized echo at spread h.
@@ -268,6 +264,21 @@ struct MeasurementSetup {
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
 };
 
+struct MeasurementSetup : MeasurementValues {
+  // Noise-free linear echo on a fine grid (the sum of all components).
+  std::vector<double> composite;
+  std::vector<double> noise_sigma;       // waveform mode: noise (1 sigma) along the composite grid
+  std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
+  /// Back to a fresh setup, keeping the vectors' storage.
+  void reset() {
+    static_cast<MeasurementValues&>(*this) = MeasurementValues{};
+    composite.clear();
+    noise_sigma.clear();
+    rise_ns.clear();
+    fall_ns.clear();
+  }
+};
+
 /// One surface's echo: amplitude, delay and the round-trip spread over half the
 /// footprint's depth (0 when below 1e-4 ns: a point echo).
 struct SurfaceEcho {
@@ -283,6 +294,18 @@ struct ConditionState {
   double floor_var_v2 = 0;     // noise floor without background light
   double floor_var_per_w = 0;  // ... and its growth per watt of background
   double shot_var_per_v = 0;   // signal shot noise variance per volt of signal
+};
+
+/// Working storage of measure_single_shots: kLanes measurements at a time.
+constexpr std::size_t kLanes = 64;
+struct Lanes {
+  std::array<MeasurementSetup, kLanes> setups;
+  std::array<SurfaceEcho, kLanes> echoes;
+  std::array<std::size_t, kLanes> fast;  // the lanes on the fast path
+  std::array<std::array<std::uint32_t, kLanes>, 4> shot_words, extra_words;  // draws, word-major
+  std::array<std::array<double, 2>, kLanes> z, z_extra;
+  std::array<double, kLanes> lag, offsets, level_rise, level_fall, rise, fall;
+  std::array<bool, kLanes> echo;
 };
 
 std::atomic<std::uint64_t> next_device_id{1};
@@ -392,11 +415,12 @@ struct VirtualRangefinder::Impl {
                                   SurfaceEcho& out) const {
     const auto& link = config.link;
     if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) return false;
+    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
     // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
     // Biaxial optics: only the share of the footprint inside the receiver's field.
     const double power_w =
         s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-        physics::received_power_extended_w(link, s.distance_m, s.reflectance, s.angle_deg);
+        physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
     if (power_w <= 0.0) return false;
     out.amplitude_v = power_w * c.volts_per_watt;
     // The comparator is re-armed at every pulse: an echo later than the pulse
@@ -405,7 +429,6 @@ struct VirtualRangefinder::Impl {
     if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
     // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
     // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
     const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
                                 std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
     out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
@@ -460,10 +483,36 @@ struct VirtualRangefinder::Impl {
     return m.delay_ns + shapes->fall_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1]);
   }
 
+  /// How a measurement's setup goes on after its common part.
+  enum class Echo {
+    kNone,   ///< nothing returns (the setup is complete)
+    kFast,   ///< one surface, single peak: the device's tabulated echo (fast_echo)
+    kExact,  ///< several surfaces, crosstalk or blanking: the composite echo (exact_echo)
+  };
+
   [[nodiscard]] MeasurementSetup setup(const Target& target, const Conditions& cond) const {
+    MeasurementSetup m;
+    SurfaceEcho e;
+    switch (setup_common(target, cond, m, e)) {
+      case Echo::kNone:
+        break;
+      case Echo::kFast:
+        fast_echo(m, e);
+        fast_edges(m, fast_lag_ns(m));
+        break;
+      case Echo::kExact:
+        exact_echo(target, cond, m);
+        break;
+    }
+    return m;
+  }
+
+  /// The part of the setup every echo needs: noise, delays, comparator
+  /// levels; and which echo the target gives (`e`: the fast path's one surface).
+  [[nodiscard]] Echo setup_common(const Target& target, const Conditions& cond, MeasurementSetup& m,
+                                  SurfaceEcho& e) const {
     const auto& rx = config.link.receiver;
     const ConditionState& c = condition_state(cond);
-    MeasurementSetup m;
     const double background_w = background_free ? 0.0 : background_power_w(target);
     const double threshold = config.discriminator.threshold_v;
     m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
@@ -499,71 +548,93 @@ struct VirtualRangefinder::Impl {
     m.turn_on_start_ms = cond.ms_since_laser_on;
     // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
     const double sigma = m.noise_at_threshold_v;
-    const double level_lo = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
-    const double level_hi = threshold + kLevelSpanSigma * sigma;
-    m.level_begin_v = level_lo;
-    m.level_end_v = level_hi;
+    m.level_begin_v = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
+    m.level_end_v = threshold + kLevelSpanSigma * sigma;
     m.blanking_ns = config.discriminator.blanking_ns;
-    // Optical crosstalk from the emitter into the receiver: a copy of the pulse
-    // at zero range (the same receive chain as the echoes); optical, so it
-    // follows the laser power and the APD gain.
-    const double crosstalk_v = rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
-
+    if (!shapes) return Echo::kExact;
     // Fast path: one surface whose echo has a single peak, analytic mode.
-    if (shapes) {
-      int surfaces = 0;
-      SurfaceEcho e;
-      for (const auto& s : target.surfaces) {
-        SurfaceEcho one;
-        if (surface_echo(s, c, one)) {
-          e = one;
-          if (++surfaces > 1) break;  // a mixed pixel: the exact path
-        }
-      }
-      if (surfaces == 0 && crosstalk_v <= 0.0) {
-        set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
-        return m;
-      }
-      // (No crosstalk, and the echo starts after any blanking.)
-      const bool after_blanking =
-          m.blanking_ns <= 0.0 || m.blanking_ns <= e.delay_ns + pulse.begin_ns() - e.spread_ns;
-      if (surfaces == 1 && e.spread_ns <= shapes->max_spread_ns() && crosstalk_v <= 0.0 &&
-          after_blanking) {
-        m.fast = true;
-        m.delay_ns = e.delay_ns;
-        m.spread = shapes->at(e.spread_ns);
-        m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
-        m.inv_row_peak_v[1] =
-            m.spread.w > 0 ? 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row + 1)) : 0.0;
-        m.peak_v = e.amplitude_v * shapes->peak(m.spread);
-        m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
-        m.level_top_v = m.peak_v;
-        m.saturated = m.peak_v > rx.saturation_v;
-        m.recovery_ns =
-            m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
-        if (m.peak_v >= threshold) {
-          m.edge_correlation =
-              pulse.noise_correlation(fall_at(m, threshold) - rise_at(m, threshold));
-        } else {
-          m.edge_correlation = 1.0;  // no crossing at the threshold: the tables' flat top
-        }
-        // A shot's alarm needs its 24-bit uniform below the probability, so one
-        // below 2^-26 never fires: the window need not be worked out.
-        const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
-        if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
-          m.false_alarm_probability = 0.0;
-        else
-          set_false_alarm_window(m, level_lo <= m.peak_v ? rise_at(m, level_lo) : m.peak_time_ns);
-        return m;
+    int surfaces = 0;
+    for (const auto& s : target.surfaces) {
+      SurfaceEcho one;
+      if (surface_echo(s, c, one)) {
+        e = one;
+        if (++surfaces > 1) return Echo::kExact;  // a mixed pixel
       }
     }
+    const double crosstalk_v = crosstalk_at(c);
+    if (surfaces == 0 && crosstalk_v <= 0.0) {
+      set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
+      return Echo::kNone;
+    }
+    // (No crosstalk, and the echo starts after any blanking.)
+    const bool after_blanking =
+        m.blanking_ns <= 0.0 || m.blanking_ns <= e.delay_ns + pulse.begin_ns() - e.spread_ns;
+    return surfaces == 1 && e.spread_ns <= shapes->max_spread_ns() && crosstalk_v <= 0.0 &&
+                   after_blanking
+               ? Echo::kFast
+               : Echo::kExact;
+  }
 
+  /// Optical crosstalk from the emitter into the receiver: a copy of the pulse
+  /// at zero range (the same receive chain as the echoes); optical, so it
+  /// follows the laser power and the APD gain.
+  [[nodiscard]] double crosstalk_at(const ConditionState& c) const {
+    const auto& rx = config.link.receiver;
+    return rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
+  }
+
+  /// Fast path: the echo A g_h(t - delay) of one surface, read off the table.
+  void fast_echo(MeasurementSetup& m, const SurfaceEcho& e) const {
+    const auto& rx = config.link.receiver;
+    m.fast = true;
+    m.delay_ns = e.delay_ns;
+    m.spread = shapes->at(e.spread_ns);
+    m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
+    m.inv_row_peak_v[1] =
+        m.spread.w > 0 ? 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row + 1)) : 0.0;
+    m.peak_v = e.amplitude_v * shapes->peak(m.spread);
+    m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
+    m.level_top_v = m.peak_v;
+    m.saturated = m.peak_v > rx.saturation_v;
+    m.recovery_ns =
+        m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+  }
+
+  /// Fast path: time over the threshold of the noise-free echo (0 if it stays below).
+  [[nodiscard]] double fast_lag_ns(const MeasurementSetup& m) const {
+    const double threshold = config.discriminator.threshold_v;
+    return m.peak_v >= threshold ? fall_at(m, threshold) - rise_at(m, threshold) : 0.0;
+  }
+
+  /// Fast path: the noise's correlation at the two crossings and the false alarms.
+  void fast_edges(MeasurementSetup& m, double lag_ns) const {
+    const double threshold = config.discriminator.threshold_v;
+    // No crossing at the threshold: the tables' flat top.
+    m.edge_correlation = m.peak_v >= threshold ? pulse.noise_correlation(lag_ns) : 1.0;
+    // A shot's alarm needs its 24-bit uniform below the probability, so one
+    // below 2^-26 never fires: the window need not be worked out.
+    const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
+    if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
+      m.false_alarm_probability = 0.0;
+    else
+      set_false_alarm_window(
+          m, m.level_begin_v <= m.peak_v ? rise_at(m, m.level_begin_v) : m.peak_time_ns);
+  }
+
+  /// The exact path: the composite echo of all surfaces (and the crosstalk)
+  /// on a fine grid, and its crossing tables.
+  void exact_echo(const Target& target, const Conditions& cond, MeasurementSetup& m) const {
+    const auto& rx = config.link.receiver;
+    const ConditionState& c = condition_state(cond);
+    const double threshold = config.discriminator.threshold_v;
+    const double level_lo = m.level_begin_v, level_hi = m.level_end_v;
+    const double crosstalk_v = crosstalk_at(c);
     thread_local std::vector<EchoComponent> comps;
     components(target, c, comps);
     if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
       set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
-      return m;
+      return;
     }
 
     // Noise-free composite echo on a fine grid.
@@ -597,7 +668,7 @@ struct VirtualRangefinder::Impl {
     if (i_gate >= n) {
       set_false_alarm_window(m, pulse_period_ns);  // everything blanked
       m.composite.clear();
-      return m;
+      return;
     }
     const auto peak_it = std::max_element(m.composite.begin() + static_cast<std::ptrdiff_t>(i_gate),
                                           m.composite.end());
@@ -614,6 +685,8 @@ struct VirtualRangefinder::Impl {
     // noise), the first upcrossing and the following downcrossing of the echo.
     const double level_step = (level_hi - level_lo) / static_cast<double>(kLevels - 1);
     m.inv_level_step = 1.0 / level_step;
+    m.rise_ns.resize(kLevels);
+    m.fall_ns.resize(kLevels);
     m.level_top_v = 0;
     auto time_at = [&](std::size_t i, double frac) {
       return m.grid_begin_ns + (static_cast<double>(i) + frac) * kCompositeStepNs;
@@ -713,7 +786,7 @@ struct VirtualRangefinder::Impl {
             std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
     set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
-    return m;
+    return;
   }
 
   /// Noise crossings count from the end of the blanking to `end_ns`.
@@ -746,15 +819,23 @@ struct VirtualRangefinder::Impl {
     return (q * q - m.noise_floor_var_v2) / k;
   }
 
-  [[nodiscard]] bool crossings_analytic(const MeasurementSetup& m, double z_rise, double z_fall_ind,
-                                        double& rise, double& fall) const {
+  /// The comparator's effective levels at the rising and the falling crossing
+  /// for the noise z_rise there and z_fall_ind independent of it (the noise at
+  /// the fall is correlated with the rise's through the receiver bandwidth).
+  void analytic_levels(const MeasurementSetup& m, double z_rise, double z_fall_ind,
+                       double& level_rise, double& level_fall) const {
     const double threshold = config.discriminator.threshold_v;
-    const double level_rise = crossing_level(m, threshold, z_rise);
-    if ((!m.fast && m.composite.empty()) || level_rise > m.peak_v || level_rise > m.level_top_v)
-      return false;
+    level_rise = crossing_level(m, threshold, z_rise);
     const double z_fall = m.edge_correlation * z_rise +
                           std::sqrt(1.0 - m.edge_correlation * m.edge_correlation) * z_fall_ind;
-    const double level_fall = crossing_level(m, threshold, z_fall);
+    level_fall = crossing_level(m, threshold, z_fall);
+  }
+
+  /// The echo's crossings of those levels; false when the rising level is not crossed.
+  [[nodiscard]] bool analytic_crossings(const MeasurementSetup& m, double level_rise,
+                                        double level_fall, double& rise, double& fall) const {
+    if ((!m.fast && m.composite.empty()) || level_rise > m.peak_v || level_rise > m.level_top_v)
+      return false;
     rise = rise_at(m, level_rise);
     if (std::isnan(rise)) return false;  // blanked: no crossing after the comparator is released
     fall = level_fall >= m.level_top_v ? m.peak_time_ns : fall_at(m, level_fall);
@@ -861,20 +942,17 @@ struct VirtualRangefinder::Impl {
     return true;
   }
 
-  /// One shot, returning false when no echo crossed the threshold.
-  /// Delay offset (ns) common to every shot of one measurement: the run's
-  /// power-on offset plus the slow 1/f wander at the measurement's time
-  /// (stream i starts i measurement periods after power-on).
-  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, std::uint64_t stream) const {
+  /// The run's draws (power-on offset, the phases of the 1/f wander's
+  /// octaves): they depend on the seed only, so they are worked out once per
+  /// thread and seed.
+  struct RunDraws {
+    std::uint64_t device = 0, seed = 0;
+    double offset = 0;
+    std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
+  };
+  [[nodiscard]] const RunDraws& run_draws(const CounterRng& rng) const {
     const auto& mc = config.measurement;
-    // The run's draws (power-on offset, the octaves' phases) depend on the seed
-    // only: worked out once per thread and seed.
-    struct Run {
-      std::uint64_t device = 0, seed = 0;
-      double offset = 0;
-      std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
-    };
-    thread_local Run run;
+    thread_local RunDraws run;
     if (run.device != id || run.seed != rng.seed()) {
       const auto power_on = rng.draw(kPowerOnStream, 0, 0);
       run.offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
@@ -889,51 +967,95 @@ struct VirtualRangefinder::Impl {
       run.device = id;
       run.seed = rng.seed();
     }
-    if (mc.flicker_delay_ps <= 0.0) return run.offset;
+    return run;
+  }
+
+  /// Delay offset (ns) common to every shot of one measurement: the run's
+  /// power-on offset plus the slow 1/f wander at the measurement's time
+  /// (stream i starts i measurement periods after power-on).
+  [[nodiscard]] double slow_offset_ns(const RunDraws& run, std::uint64_t stream) const {
+    double offset = 0;
+    slow_offsets_ns(run, stream, 1, &offset);
+    return offset;
+  }
+
+  /// The offsets of n <= kLanes consecutive streams from stream0 (in stages
+  /// over the streams: the octaves' sum vectorizes).
+  void slow_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
+                       double* offsets) const {
+    const auto& mc = config.measurement;
+    if (mc.flicker_delay_ps <= 0.0) {
+      std::fill(offsets, offsets + n, run.offset);
+      return;
+    }
     // 1/f noise has equal power per octave: one sinusoid of random phase per
     // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
     // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
-    const double t_s = static_cast<double>(stream) * mc.shots / config.link.laser.repetition_hz;
     const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
-    // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
-    const double cycles = kFlickerLowestHz * t_s;
-    const auto phase = static_cast<std::uint32_t>(
-        static_cast<std::uint64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFFu);
-    double sin_a = 0, cos_a = 0;
-    sincos_of_phase(phase, sin_a, cos_a);
-    double wander = 0;
-    for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
-      wander += sin_a * run.cos_phase[k] + cos_a * run.sin_phase[k];  // sin(a + phase)
-      const double s2 = 2.0 * sin_a * cos_a;
-      cos_a = (cos_a - sin_a) * (cos_a + sin_a);
-      sin_a = s2;
+    std::array<double, kLanes> sin_a, cos_a;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double t_s =
+          static_cast<double>(stream0 + i) * mc.shots / config.link.laser.repetition_hz;
+      // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
+      const double cycles = kFlickerLowestHz * t_s;
+      const auto phase = static_cast<std::uint32_t>(
+          static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
+      sincos_of_phase(phase, sin_a[i], cos_a[i]);
     }
-    return run.offset + amplitude * wander;
+    for (std::size_t i = 0; i < n; ++i) {
+      double s = sin_a[i], c = cos_a[i], wander = 0;
+      for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
+        wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
+        const double s2 = 2.0 * s * c;
+        c = (c - s) * (c + s);
+        s = s2;
+      }
+      offsets[i] = run.offset + amplitude * wander;
+    }
   }
 
-  [[nodiscard]] bool shot(const MeasurementSetup& m, const CounterRng& rng, std::uint64_t stream,
-                          std::uint32_t index, double offset_ns, double& start_ns,
-                          double& stop_rise_ns, double& stop_fall_ns) const {
-    const auto r = rng.draw(stream, index, 0);
+  /// Noise alone firing the comparator before the echo (a false alarm) when
+  /// the shot's uniform u_false falls below the window's probability: its
+  /// first threshold upcrossing after the comparator is armed (at emission) is
+  /// exponential with Rice's rate, in both modes.
+  [[nodiscard]] static bool false_alarm(const MeasurementSetup& m, double u_false, double& rise,
+                                        double& fall) {
+    if (u_false >= m.false_alarm_probability) return false;
+    // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
+    rise = m.blanking_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
+    // Mean excursion length above the level: P(X > u) / nu.
+    fall =
+        rise + 0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
+    return true;
+  }
+
+  /// One shot, returning false when no echo crossed the threshold. `r` is the
+  /// shot's first draw, rng.draw(stream, index, 0).
+  [[nodiscard]] bool shot(const MeasurementSetup& m, const std::array<std::uint32_t, 4>& r,
+                          const CounterRng& rng, std::uint64_t stream, std::uint32_t index,
+                          double offset_ns, double& start_ns, double& stop_rise_ns,
+                          double& stop_fall_ns) const {
     double rise = 0, fall = 0;
     bool echo = false;
-    // Stationary noise far from the echo: its first threshold upcrossing after the
-    // comparator is armed (at emission) is exponential with Rice's rate, in both modes.
-    const double u_false = unit_open(r[3]);
-    if (u_false < m.false_alarm_probability) {
-      // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-      rise = m.blanking_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
-      // Mean excursion length above the level: P(X > u) / nu.
-      fall = rise +
-             0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
+    if (false_alarm(m, unit_open(r[3]), rise, fall)) {
       echo = true;
     } else if (mode == SimulationMode::kAnalytic) {
       const auto z = normal_pair(r[0], r[1]);
-      echo = crossings_analytic(m, z[0], z[1], rise, fall);
+      double level_rise = 0, level_fall = 0;
+      analytic_levels(m, z[0], z[1], level_rise, level_fall);
+      echo = analytic_crossings(m, level_rise, level_fall, rise, fall);
     } else {
       echo = crossings_waveform(m, rng, stream, index, unit_open(r[0]), rise, fall);
     }
     if (!echo) return false;
+    stops(m, r, index, offset_ns, rise, fall, start_ns, stop_rise_ns, stop_fall_ns);
+    return true;
+  }
+
+  /// The TDC's start and stops of a shot whose echo crosses at rise and fall.
+  void stops(const MeasurementSetup& m, const std::array<std::uint32_t, 4>& r, std::uint32_t index,
+             double offset_ns, double rise, double fall, double& start_ns, double& stop_rise_ns,
+             double& stop_fall_ns) const {
     // laser_sync: the laser fires on a clock edge, so the start has a fixed
     // phase and the stop's phase is set by the range: the INL stays, periodic
     // in range. Asynchronous: the start phase is uniform over a coarse period,
@@ -944,36 +1066,31 @@ struct VirtualRangefinder::Impl {
     start_ns = tdc.quantize_ns(phase, m.tdc_bin_scale);
     stop_rise_ns = tdc.quantize_ns(phase + delay + rise, m.tdc_bin_scale);
     stop_fall_ns = tdc.quantize_ns(phase + delay + fall, m.tdc_bin_scale);
-    return true;
   }
 
   [[nodiscard]] ranging::RawMeasurement measure(const Target& target, const Conditions& cond,
                                                 std::uint64_t seed, std::uint64_t stream,
                                                 int shots) const {
+    const int n = shots > 0 ? shots : config.measurement.shots;
+    if (n == 1) {
+      ranging::RawMeasurement out;
+      measure_single_shots({&target, 1}, {&cond, 1}, seed, stream, {&out, 1});
+      return out;
+    }
     const CounterRng rng(seed);
     const auto m = setup(target, cond);
-    const int n = shots > 0 ? shots : config.measurement.shots;
-    const double offset_ns = slow_offset_ns(rng, stream);
+    const double offset_ns = slow_offset_ns(run_draws(rng), stream);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
     double sum_tof = 0, sum_width = 0;
     std::uint32_t valid = 0;
-    if (n == 1) {
-      // One stop is its own median: the gate keeps it.
-      double start = 0, rise = 0, fall = 0;
-      if (shot(m, rng, stream, 0, offset_ns, start, rise, fall)) {
-        sum_tof = rise - start;
-        sum_width = fall - rise;
-        valid = 1;
-      }
-      return finish(m, cond, rng, stream, n, sum_tof, sum_width, valid);
-    }
     thread_local std::vector<std::array<double, 2>> stops;
     stops.clear();
     for (int i = 0; i < n; ++i) {
       double start = 0, rise = 0, fall = 0;
-      if (!shot(m, rng, stream, static_cast<std::uint32_t>(i), offset_ns, start, rise, fall))
+      const auto index = static_cast<std::uint32_t>(i);
+      if (!shot(m, rng.draw(stream, index, 0), rng, stream, index, offset_ns, start, rise, fall))
         continue;
       stops.push_back({rise - start, fall - rise});
     }
@@ -993,18 +1110,100 @@ struct VirtualRangefinder::Impl {
       sum_width += st[1];
       ++valid;
     }
-    return finish(m, cond, rng, stream, n, sum_tof, sum_width, valid);
+    const auto extra = rng.draw(stream, kMeasurementCounter, 0);
+    return finish(m, cond, normal_pair(extra[0], extra[1]), n, sum_tof, sum_width, valid);
+  }
+
+  /// Single-shot measurements, target k on stream first_stream + k, worked in
+  /// lanes of kLanes measurements: each stage (the setup's parts, the random
+  /// draws, the slow offsets, the comparator levels, the crossings, the TDC and
+  /// the result) runs over all lanes before the next, so the lanes' independent
+  /// chains of arithmetic overlap. Every lane runs the same functions, in the
+  /// same order, as a lone measurement: the bytes do not depend on the grouping.
+  /// Also compiled for AVX2 (chosen at load where the CPU has it; the Philox
+  /// rounds and the slow offsets vectorize): AVX2 brings no FMA, so neither
+  /// build contracts a multiply-add and both give the same bytes.
+  __attribute__((target_clones("avx2", "default"))) void measure_single_shots(
+      std::span<const Target> targets, std::span<const Conditions> conds, std::uint64_t seed,
+      std::uint64_t first_stream, std::span<ranging::RawMeasurement> out) const {
+    const CounterRng rng(seed);
+    const RunDraws& run = run_draws(rng);
+    thread_local Lanes lanes;
+    auto& m = lanes.setups;
+    const bool analytic = mode == SimulationMode::kAnalytic;
+    for (std::size_t begin = 0; begin < targets.size(); begin += kLanes) {
+      const std::size_t n = std::min(kLanes, targets.size() - begin);
+      const std::uint64_t stream0 = first_stream + begin;
+      std::size_t n_fast = 0;
+      for (std::size_t k = 0; k < n; ++k) {
+        m[k].reset();
+        switch (setup_common(targets[begin + k], conds[begin + k], m[k], lanes.echoes[k])) {
+          case Echo::kNone:
+            break;
+          case Echo::kFast:
+            lanes.fast[n_fast++] = k;
+            break;
+          case Echo::kExact:
+            exact_echo(targets[begin + k], conds[begin + k], m[k]);
+            break;
+        }
+      }
+      for (std::size_t j = 0; j < n_fast; ++j)
+        fast_echo(m[lanes.fast[j]], lanes.echoes[lanes.fast[j]]);
+      for (std::size_t j = 0; j < n_fast; ++j) lanes.lag[j] = fast_lag_ns(m[lanes.fast[j]]);
+      for (std::size_t j = 0; j < n_fast; ++j) fast_edges(m[lanes.fast[j]], lanes.lag[j]);
+      rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
+      rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
+      slow_offsets_ns(run, stream0, n, lanes.offsets.data());
+      for (std::size_t k = 0; k < n; ++k) {
+        lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
+        lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
+      }
+      if (analytic) {
+        for (std::size_t k = 0; k < n; ++k)
+          analytic_levels(m[k], lanes.z[k][0], lanes.z[k][1], lanes.level_rise[k],
+                          lanes.level_fall[k]);
+      }
+      for (std::size_t k = 0; k < n; ++k) {
+        double& rise = lanes.rise[k];
+        double& fall = lanes.fall[k];
+        const auto& r = lanes.shot_words;
+        if (false_alarm(m[k], unit_open(r[3][k]), rise, fall))
+          lanes.echo[k] = true;
+        else if (analytic)
+          lanes.echo[k] =
+              analytic_crossings(m[k], lanes.level_rise[k], lanes.level_fall[k], rise, fall);
+        else
+          lanes.echo[k] =
+              crossings_waveform(m[k], rng, stream0 + k, 0, unit_open(r[0][k]), rise, fall);
+      }
+      for (std::size_t k = 0; k < n; ++k) {
+        // One stop is its own median: the gate keeps it.
+        double sum_tof = 0, sum_width = 0;
+        std::uint32_t valid = 0;
+        if (lanes.echo[k]) {
+          double start = 0, stop_rise = 0, stop_fall = 0;
+          const auto& w = lanes.shot_words;
+          stops(m[k], {w[0][k], w[1][k], w[2][k], w[3][k]}, 0, lanes.offsets[k], lanes.rise[k],
+                lanes.fall[k], start, stop_rise, stop_fall);
+          sum_tof = stop_rise - start;
+          sum_width = stop_fall - stop_rise;
+          valid = 1;
+        }
+        out[begin + k] =
+            finish(m[k], conds[begin + k], lanes.z_extra[k], 1, sum_tof, sum_width, valid);
+      }
+    }
   }
 
   /// The measurement from its shots' sums: averages, temperature reading, flags.
+  /// `z` are the measurement's own normals, from rng.draw(stream, kMeasurementCounter, 0).
   [[nodiscard]] ranging::RawMeasurement finish(const MeasurementSetup& m, const Conditions& cond,
-                                               const CounterRng& rng, std::uint64_t stream, int n,
+                                               const std::array<double, 2>& z, int n,
                                                double sum_tof, double sum_width,
                                                std::uint32_t valid) const {
     const double internal_c = m.temperature_reading_c;
     ranging::RawMeasurement out;
-    const auto extra = rng.draw(stream, kMeasurementCounter, 0);
-    const auto z = normal_pair(extra[0], extra[1]);
     // Temperature sensor: noise, then its resolution.
     const auto& th = config.thermal;
     const double reading = internal_c + th.sensor_noise_c * z[0];
@@ -1083,7 +1282,8 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   const auto m = impl_->setup(target, conditions);
   Shot s;
   double start = 0, rise = 0, fall = 0;
-  s.echo = impl_->shot(m, rng, stream, shot, impl_->slow_offset_ns(rng, stream), start, rise, fall);
+  s.echo = impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
+                       impl_->slow_offset_ns(impl_->run_draws(rng), stream), start, rise, fall);
   if (s.echo) {
     s.tof_ns = rise - start;
     s.pulse_width_ns = fall - rise;
@@ -1097,6 +1297,21 @@ ranging::RawMeasurement VirtualRangefinder::measure(const Target& target,
                                                     int shots) const {
   if (oscillator_) return oscillator_->measure(target, conditions, seed, stream, shots);
   return impl_->measure(target, conditions, seed, stream, shots);
+}
+
+void VirtualRangefinder::measure(std::span<const Target> targets,
+                                 std::span<const Conditions> conditions, std::uint64_t seed,
+                                 std::uint64_t first_stream, int shots,
+                                 std::span<ranging::RawMeasurement> out) const {
+  if (conditions.size() != targets.size() || out.size() != targets.size())
+    throw std::invalid_argument("measure: targets, conditions and output differ in size");
+  const int n = shots > 0 ? shots : impl_->config.measurement.shots;
+  if (n == 1 && !oscillator_) {
+    impl_->measure_single_shots(targets, conditions, seed, first_stream, out);
+    return;
+  }
+  for (std::size_t k = 0; k < targets.size(); ++k)
+    out[k] = measure(targets[k], conditions[k], seed, first_stream + k, shots);
 }
 
 void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests, std::uint64_t seed,

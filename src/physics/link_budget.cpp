@@ -32,10 +32,15 @@ double footprint_diameter_m(const LaserConfig& laser, double distance_m) {
 
 double received_power_extended_w(const LinkConfig& link, double distance_m, double reflectance,
                                  double angle_deg) {
+  return received_power_extended_cos_w(link, distance_m, reflectance,
+                                       std::cos(deg_to_rad(angle_deg)));
+}
+
+double received_power_extended_cos_w(const LinkConfig& link, double distance_m, double reflectance,
+                                     double cos_angle) {
   // Extended Lambertian target, paper Eq. 6.
-  return link.laser.peak_power_w * aperture_area_m2(link.receiver) * reflectance *
-         std::cos(deg_to_rad(angle_deg)) / (kPi * distance_m * distance_m) *
-         optics_and_atmosphere(link);
+  return link.laser.peak_power_w * aperture_area_m2(link.receiver) * reflectance * cos_angle /
+         (kPi * distance_m * distance_m) * optics_and_atmosphere(link);
 }
 
 double received_power_small_w(const LinkConfig& link, double distance_m, double cross_section_m2) {

@@ -39,6 +39,26 @@ void reserve_populated(std::vector<T>& v, std::size_t n) {
 #endif
 }
 
+/// A block's targets, conditions and measurements, kept per thread (the
+/// targets' surface lists keep their storage from block to block).
+struct BlockScratch {
+  std::vector<device::Target> targets;
+  std::vector<device::Conditions> conditions;
+  std::vector<ranging::RawMeasurement> raw;
+  void resize(std::size_t n) {
+    if (targets.size() < n) {
+      targets.resize(n);
+      conditions.resize(n);
+      raw.resize(n);
+    }
+  }
+};
+
+BlockScratch& block_scratch() {
+  thread_local BlockScratch scratch;
+  return scratch;
+}
+
 struct Accumulator {
   std::vector<double> weight, range, intensity, sigma, truth, truth_weight;
   explicit Accumulator(std::size_t n)
@@ -83,8 +103,14 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
     const std::size_t end = std::min(n, begin + kProgressBlock);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),
                       [&](const tbb::blocked_range<std::size_t>& block) {
+                        // The block's footprints, then their measurements in one
+                        // call (single shots run in lanes).
+                        BlockScratch& s = block_scratch();
+                        const std::size_t count = block.size();
+                        s.resize(count);
                         Footprint::Result fp;
-                        for (std::size_t i = block.begin(); i != block.end(); ++i) {
+                        for (std::size_t k = 0; k < count; ++k) {
+                          const std::size_t i = block.begin() + k;
                           BeamResult& b = result.beams[i];
                           b.beam = pattern.beams[i];
                           b.beam.origin_m = pose.transform(b.beam.origin_m);
@@ -100,13 +126,19 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                               b.angle_deg = surface.angle_deg;
                             }
                           }
-                          device::Conditions conditions = options.conditions;
+                          // (Swapped, not copied: both buffers are reused.)
+                          std::swap(s.targets[k].surfaces, fp.target.surfaces);
+                          device::Conditions& conditions = s.conditions[k];
+                          conditions = options.conditions;
                           if (options.clocks_follow_beams) {
                             conditions.minutes_since_power_on += b.beam.time_s / 60.0;
                             conditions.ms_since_laser_on += b.beam.time_s * 1e3;
                           }
-                          b.raw = device.measure(fp.target, conditions, options.seed, i, shots);
                         }
+                        device.measure({s.targets.data(), count}, {s.conditions.data(), count},
+                                       options.seed, block.begin(), shots, {s.raw.data(), count});
+                        for (std::size_t k = 0; k < count; ++k)
+                          result.beams[block.begin() + k].raw = s.raw[k];
                       });
     if (options.progress) options.progress(end, n);
   }

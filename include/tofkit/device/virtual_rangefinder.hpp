@@ -74,6 +74,14 @@ class VirtualRangefinder {
                                                 std::uint64_t seed, std::uint64_t stream,
                                                 int shots = 0) const;
 
+  /// Measurements of consecutive streams on the calling thread (a scanner's
+  /// block of beams): target k under conditions[k] on stream first_stream + k,
+  /// the same bytes as measure(targets[k], conditions[k], seed, first_stream + k,
+  /// shots). Single-shot measurements run in lanes, several at a time (faster).
+  void measure(std::span<const Target> targets, std::span<const Conditions> conditions,
+               std::uint64_t seed, std::uint64_t first_stream, int shots,
+               std::span<ranging::RawMeasurement> out) const;
+
   /// Many measurements on all cores (TBB); request i uses stream i, so the
   /// output does not depend on the number of threads.
   void measure_batch(std::span<const MeasureRequest> requests, std::uint64_t seed,

@@ -27,6 +27,9 @@ struct LinkConfig {
 /// paper Eq. 6: Pr = Pt Ar rho cos(phi) / (pi R^2) Tt Tr Ta^2.
 [[nodiscard]] double received_power_extended_w(const LinkConfig& link, double distance_m,
                                                double reflectance, double angle_deg);
+/// The same with cos(phi) given (the same value for cos_angle = cos(phi)).
+[[nodiscard]] double received_power_extended_cos_w(const LinkConfig& link, double distance_m,
+                                                   double reflectance, double cos_angle);
 
 /// Received peak power from a target smaller than the footprint, paper Eq. 4
 /// with its pi right: Pr = Pt Ar sigma / (4 pi^2 theta_t^2 R^4) Tt Tr Ta^2 with
