@@ -1318,11 +1318,32 @@ void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests,
                                        std::span<ranging::RawMeasurement> out) const {
   if (out.size() != requests.size())
     throw std::invalid_argument("measure_batch: output span size differs from the request count");
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, requests.size()),
+  // Runs of requests with one shot count go through the span form (single
+  // shots as lanes); its bytes are those of one-at-a-time calls, so neither the
+  // blocks nor the thread count shows in the output.
+  // Blocks of about 256 shots: 256 single-shot lanes, or one long measurement.
+  double shots_total = 0;
+  for (const auto& r : requests)
+    shots_total += r.shots > 0 ? r.shots : impl_->config.measurement.shots;
+  const double mean_shots =
+      requests.empty() ? 1.0 : shots_total / static_cast<double>(requests.size());
+  const auto grain = static_cast<std::size_t>(std::clamp(256.0 / mean_shots, 1.0, 256.0));
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, requests.size(), grain),
                     [&](const tbb::blocked_range<std::size_t>& range) {
-                      for (std::size_t i = range.begin(); i != range.end(); ++i) {
-                        const auto& r = requests[i];
-                        out[i] = measure(r.target, r.conditions, seed, i, r.shots);
+                      thread_local std::vector<Target> targets;
+                      thread_local std::vector<Conditions> conditions;
+                      for (std::size_t i = range.begin(); i != range.end();) {
+                        std::size_t j = i + 1;
+                        while (j != range.end() && requests[j].shots == requests[i].shots) ++j;
+                        targets.resize(j - i);
+                        conditions.resize(j - i);
+                        for (std::size_t k = i; k != j; ++k) {
+                          targets[k - i] = requests[k].target;  // keeps its capacity
+                          conditions[k - i] = requests[k].conditions;
+                        }
+                        measure(targets, conditions, seed, i, requests[i].shots,
+                                out.subspan(i, j - i));
+                        i = j;
                       }
                     });
 }
