@@ -352,15 +352,14 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // ppm/C), an error periodic in the time of flight (period: the coarse clock)
 // whose amplitude follows the temperature, which plates at one distance
 // cannot separate from a delay drift. The same device with that tempco at 0:
-// 0.36 / 0.28 / 0.39 mm, and the calibrated kind covers 92 / 93 / 90 %. Out-of-domain rows (flagged) are covered at least as
-// well as in-domain ones with both kinds: their shortfall is not a sigma kept
-// from inside the domain. Nor is their sigma a blanket growth: the walk step
-// adds its own extrapolation variance from the fitted shape's covariance, so
-// the flagged rows' RMS sigma stays within a factor 2 of their RMS error with
-// both kinds (measured 0.84 and 0.82 mm against 0.47 mm; with the growth the
-// calibrated kind gave 0.46 mm against 0.56 mm in the weak tercile and 0.80
-// against 0.30 mm in the strong one, and the noise-systematic kind, whose
-// systematic part was then a floored log fit, 12 mm for errors of 0.6 mm).
+// 0.36 / 0.28 / 0.39 mm, and the calibrated kind covers 92 / 93 / 90 %. Out-of-domain rows
+// (flagged) are covered at least as well as in-domain ones with both kinds: their shortfall is not
+// a sigma kept from inside the domain. Nor is their sigma a blanket growth: the walk step adds its
+// own extrapolation variance from the fitted shape's covariance, so the flagged rows' RMS sigma
+// stays within a factor 2 of their RMS error with both kinds (measured 0.84 and 0.82 mm against
+// 0.47 mm; with the growth the calibrated kind gave 0.46 mm against 0.56 mm in the weak tercile and
+// 0.80 against 0.30 mm in the strong one, and the noise-systematic kind, whose systematic part was
+// then a floored log fit, 12 mm for errors of 0.6 mm).
 TEST(WalkModel, SigmaCoverageOnThePlannedProtocol) {
   const device::DeviceConfig config = other_parts();
   const ProtocolRows data = protocol_rows(config, Protocol::kPlannedOneDistance);
