@@ -305,6 +305,14 @@ TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaC
 // RMS error within 17 % (low tercile 0.386 against 0.463 mm, middle 0.278
 // against 0.259 mm, high 0.226 against 0.246 mm): about the uncertainty of a
 // variance from a third of 96 targets (see the B-spline's test above).
+// These figures are one draw (run seed 7). With seeds 8-10 the coverage set
+// sits 0.4-0.5 mm off the calibration (the 1/f delay wander,
+// measurement.flicker_delay_ps, between the calibration rows and the later
+// coverage rows) and every model falls to 46-60 %. With the wander at 0,
+// seeds 7-10: noise-systematic 93.8 / 87.8 / 87.9 / 85.9 % (it under-covers
+// by itself), the default calibrated kind 97.2 / 97.0 / 97.2 / 96.5 % with
+// its low tercile at 99.5-99.8 % every time, and the test set's systematic
+// 0.21-0.31 mm against 0.24-0.26 mm of noise (above it at seed 10).
 TEST(CalibrationOnOtherParts, DISABLED_ChainOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
   expect_noise_level_and_covering_sigma(true);
 }
