@@ -39,24 +39,25 @@ namespace {
 using test::other_parts;
 using test::set_key;
 
-/// A third set of parts: slower receiver, wider pulse, lower threshold.
-device::DeviceConfig slow_wide_parts() {
+/// The other parts with another receiver bandwidth, pulse width and threshold.
+device::DeviceConfig other_parts_with(double bandwidth_mhz, double pulse_width_ns,
+                                      double threshold_v) {
   device::DeviceConfig config = other_parts();
-  set_key(config, "receiver.bandwidth_mhz", 60.0);
-  set_key(config, "laser.pulse_width_ns", 3.0);
-  set_key(config, "discriminator.threshold_v", 0.03);
+  set_key(config, "receiver.bandwidth_mhz", bandwidth_mhz);
+  set_key(config, "laser.pulse_width_ns", pulse_width_ns);
+  set_key(config, "discriminator.threshold_v", threshold_v);
   EXPECT_TRUE(device::validate(config).empty());
   return config;
 }
 
+/// A third set of parts: slower receiver, wider pulse, lower threshold.
+device::DeviceConfig slow_wide_parts() {
+  return other_parts_with(60.0, 3.0, 0.03);
+}
+
 /// A fourth: faster receiver, shorter pulse, higher threshold.
 device::DeviceConfig fast_parts() {
-  device::DeviceConfig config = other_parts();
-  set_key(config, "receiver.bandwidth_mhz", 200.0);
-  set_key(config, "laser.pulse_width_ns", 1.0);
-  set_key(config, "discriminator.threshold_v", 0.08);
-  EXPECT_TRUE(device::validate(config).empty());
-  return config;
+  return other_parts_with(200.0, 1.0, 0.08);
 }
 
 enum class Protocol {

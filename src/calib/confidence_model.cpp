@@ -62,13 +62,18 @@ VectorXd gamma_log_fit(const MatrixXd& design, const VectorXd& y, const VectorXd
   return beta;
 }
 
-/// Validates fit data; returns the amplitude and range extents.
-SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
-                            const std::string& who) {
+/// Validates fit data; returns the amplitude and range extents. `intensity`
+/// names the amplitude column in messages. need_range_spread: a range column
+/// without spread is refused (with need_range); without it, the range domain
+/// is widened to 1 m (a model that does not depend on range only needs a
+/// valid one).
+SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range, const std::string& who,
+                            bool need_range_spread = true,
+                            const std::string& intensity = "amplitude") {
   const std::size_t n = data.residual_m.size();
   if (data.amplitude.size() != n || (need_range && data.range_m.size() != n)) {
-    throw std::invalid_argument(who + ": " + (need_range ? "range_m, " : "") +
-                                "amplitude and residual_m must have the same length");
+    throw std::invalid_argument(who + ": " + (need_range ? "range_m, " : "") + intensity +
+                                " and residual_m must have the same length");
   }
   if (n == 0) throw std::invalid_argument(who + ": no rows");
   SurfaceDomain d;
@@ -79,7 +84,8 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
       throw std::invalid_argument(who + ": non-finite residual_m at row " + std::to_string(k));
     }
     if (!std::isfinite(data.amplitude[k])) {
-      throw std::invalid_argument(who + ": non-finite amplitude at row " + std::to_string(k));
+      throw std::invalid_argument(who + ": non-finite " + intensity + " at row " +
+                                  std::to_string(k));
     }
     d.amplitude_min = std::min(d.amplitude_min, data.amplitude[k]);
     d.amplitude_max = std::max(d.amplitude_max, data.amplitude[k]);
@@ -92,10 +98,11 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range,
     }
   }
   if (!(d.amplitude_min < d.amplitude_max)) {
-    throw std::invalid_argument(who + ": no spread in amplitude");
+    throw std::invalid_argument(who + ": no spread in " + intensity);
   }
   if (need_range && !(d.range_min_m < d.range_max_m)) {
-    throw std::invalid_argument(who + ": no spread in range_m");
+    if (need_range_spread) throw std::invalid_argument(who + ": no spread in range_m");
+    d.range_max_m = d.range_min_m + 1.0;
   }
   return d;
 }
@@ -401,30 +408,15 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
   options.validate();
   const std::string who = "fit_noise_systematic_confidence";
   const std::size_t n = data.residual_m.size();
-  if (data.range_m.size() != n || data.intensity.size() != n || data.group.size() != n) {
-    throw std::invalid_argument(who +
-                                ": range_m, intensity, residual_m and group differ in length");
+  if (data.group.size() != n) {
+    throw std::invalid_argument(who + ": group and residual_m differ in length");
   }
-  if (n == 0) throw std::invalid_argument(who + ": no rows");
-  SurfaceDomain d;
-  d.amplitude_min = d.range_min_m = std::numeric_limits<double>::infinity();
-  d.amplitude_max = d.range_max_m = -std::numeric_limits<double>::infinity();
-  for (std::size_t k = 0; k < n; ++k) {
-    if (!std::isfinite(data.residual_m[k]) || !std::isfinite(data.range_m[k]) ||
-        !(data.intensity[k] > 0) || !std::isfinite(data.intensity[k])) {
-      throw std::invalid_argument(who + ": row " + std::to_string(k) +
-                                  " needs a finite residual and range and a positive intensity");
-    }
-    d.amplitude_min = std::min(d.amplitude_min, data.intensity[k]);
-    d.amplitude_max = std::max(d.amplitude_max, data.intensity[k]);
-    d.range_min_m = std::min(d.range_min_m, data.range_m[k]);
-    d.range_max_m = std::max(d.range_max_m, data.range_m[k]);
+  // (Intensity in the amplitude's place; sigma does not depend on range here.)
+  const SurfaceDomain d =
+      validate_data({data.range_m, data.intensity, data.residual_m}, true, who, false, "intensity");
+  if (!(d.amplitude_min > 0)) {
+    throw std::invalid_argument(who + ": intensity must be positive (a log axis)");
   }
-  if (!(d.amplitude_min < d.amplitude_max)) {
-    throw std::invalid_argument(who + ": no spread in intensity");
-  }
-  // sigma does not depend on range here; the range domain only has to be valid.
-  if (!(d.range_min_m < d.range_max_m)) d.range_max_m = d.range_min_m + 1.0;
 
   CalibratedConfidenceParams p;
   p.intensity = options.intensity;

@@ -162,8 +162,9 @@ NormalEquations accumulate(std::size_t nodes, const std::vector<Hat>& hats,
   return eq;
 }
 
-/// Penalized node values: min |A v - r|^2 + lambda s |D2 v|^2, s = trace(A^T A) / nodes.
-Eigen::VectorXd solve_nodes(const NormalEquations& eq, double lambda_rel) {
+/// A^T A + lambda s D2^T D2 (+ a tiny ridge), s = trace(A^T A) / nodes, D2 the
+/// nodes' second differences.
+Eigen::MatrixXd penalized_normal(const NormalEquations& eq, double lambda_rel) {
   Eigen::MatrixXd normal = eq.normal;
   const Eigen::Index k = normal.rows();
   const double scale = normal.trace() / static_cast<double>(k);
@@ -173,7 +174,12 @@ Eigen::VectorXd solve_nodes(const NormalEquations& eq, double lambda_rel) {
       for (int q = 0; q < 3; ++q) normal(j + p, j + q) += lambda_rel * scale * d[p] * d[q];
   }
   normal.diagonal().array() += 1e-12 * scale;
-  return normal.ldlt().solve(eq.rhs);
+  return normal;
+}
+
+/// Penalized node values: min |A v - r|^2 + lambda s |D2 v|^2.
+Eigen::VectorXd solve_nodes(const NormalEquations& eq, double lambda_rel) {
+  return penalized_normal(eq, lambda_rel).ldlt().solve(eq.rhs);
 }
 
 std::vector<Hat> hats_of(const std::vector<double>& t, const std::vector<double>& x) {
@@ -285,20 +291,12 @@ ranging::Pipeline refine_walk(const ranging::Pipeline& chain, std::span<const ra
   const std::vector<double> t = nodes_at(best_nodes);
   const NormalEquations all =
       accumulate(t.size(), hats_of(t, x), r, std::vector<char>(x.size(), 1));
-  const Eigen::VectorXd v = solve_nodes(all, best_lambda);
+  const Eigen::LDLT<Eigen::MatrixXd> factor = penalized_normal(all, best_lambda).ldlt();
+  const Eigen::VectorXd v = factor.solve(all.rhs);
   if (info) {
     // Effective parameters: trace of the hat matrix A (A'A + lambda s P)^-1 A'
     // = trace((A'A + lambda s P)^-1 A'A), P the second-difference penalty.
-    Eigen::MatrixXd penalized = all.normal;
-    const Eigen::Index k = penalized.rows();
-    const double scale = penalized.trace() / static_cast<double>(k);
-    for (Eigen::Index j = 0; j + 2 < k; ++j) {
-      const double d[3] = {1, -2, 1};
-      for (int p = 0; p < 3; ++p)
-        for (int q = 0; q < 3; ++q) penalized(j + p, j + q) += best_lambda * scale * d[p] * d[q];
-    }
-    penalized.diagonal().array() += 1e-12 * scale;
-    const double edf = penalized.ldlt().solve(all.normal).trace();
+    const double edf = factor.solve(all.normal).trace();
     *info = {static_cast<int>(t.size()), best_lambda, best, without, edf};
   }
   // g + d as one piecewise-linear function: nodes at the union of both knot sets.

@@ -60,11 +60,12 @@ struct Problem {
   double reference = 0, metres_per_ns = 0;
   double onset_min_ns = 0, onset_max_ns = 0;  ///< bounds of w_sat (with clipping)
 
-  /// residual_i = model_i - e_i; false when the shape cannot be tabulated.
-  bool residuals(const Eigen::VectorXd& p, Eigen::VectorXd& r) const {
+  /// residual_i = constant - (c_air / 2) (t_rise(w_i) - t_rise(w_ref)) - e_i for
+  /// `shape`; false when the shape cannot be tabulated.
+  bool residuals(const ranging::WalkShape& shape, double constant, Eigen::VectorXd& r) const {
     ranging::WalkCurve curve;
     try {
-      curve = ranging::walk_curve(shape_of(p), 600);
+      curve = ranging::walk_curve(shape, 600);
     } catch (const std::invalid_argument&) {
       return false;
     }
@@ -72,10 +73,21 @@ struct Problem {
     r.resize(static_cast<Eigen::Index>(rows.size()));
     for (std::size_t k = 0; k < rows.size(); ++k) {
       const std::size_t i = rows[k];
-      const double model = p(0) - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
+      const double model =
+          constant - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
       r(static_cast<Eigen::Index>(k)) = model - e[i];
     }
     return r.allFinite();
+  }
+  /// The same for the fit's parameter vector p (p(0): the constant).
+  bool residuals(const Eigen::VectorXd& p, Eigen::VectorXd& r) const {
+    ranging::WalkShape shape;
+    try {
+      shape = shape_of(p);
+    } catch (const std::invalid_argument&) {
+      return false;
+    }
+    return residuals(shape, p(0), r);
   }
 };
 
@@ -158,24 +170,11 @@ std::vector<double> shape_covariance(const Problem& problem, double constant,
   const auto k = static_cast<Eigen::Index>(q.size());
   const auto n = static_cast<Eigen::Index>(problem.rows.size());
   if (n <= k + 1) return {};
-  const auto residuals = [&](double c, const std::vector<double>& x, Eigen::VectorXd& r) {
-    ranging::WalkCurve curve;
-    try {
-      curve = ranging::walk_curve(ranging::walk_shape_of(x), 600);
-    } catch (const std::invalid_argument&) {
-      return false;
-    }
-    const double rise_ref = ranging::rise_at_width(curve, problem.reference);
-    r.resize(n);
-    for (Eigen::Index j = 0; j < n; ++j) {
-      const std::size_t i = problem.rows[static_cast<std::size_t>(j)];
-      r(j) = c - problem.metres_per_ns * (ranging::rise_at_width(curve, problem.w[i]) - rise_ref) -
-             problem.e[i];
-    }
-    return r.allFinite();
+  const auto residuals = [&](const std::vector<double>& x, Eigen::VectorXd& r) {
+    return problem.residuals(ranging::walk_shape_of(x), constant, r);
   };
   Eigen::VectorXd r0, r_plus, r_minus;
-  if (!residuals(constant, q, r0)) return {};
+  if (!residuals(q, r0)) return {};
   Eigen::MatrixXd jacobian(n, k + 1);
   jacobian.col(0).setOnes();
   for (Eigen::Index j = 0; j < k; ++j) {
@@ -183,7 +182,7 @@ std::vector<double> shape_covariance(const Problem& problem, double constant,
     std::vector<double> plus = q, minus = q;
     plus[static_cast<std::size_t>(j)] += h;
     minus[static_cast<std::size_t>(j)] -= h;
-    if (!residuals(constant, plus, r_plus) || !residuals(constant, minus, r_minus)) return {};
+    if (!residuals(plus, r_plus) || !residuals(minus, r_minus)) return {};
     jacobian.col(j + 1) = (r_plus - r_minus) / (2 * h);
   }
   const double s2 = r0.squaredNorm() / static_cast<double>(n - k - 1);

@@ -90,13 +90,13 @@ void add_walk(const WalkModel& walk, const InputDomain& domain, double metres_pe
           std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));
     return;
   }
+  const double at_min = walk.relative_rise_variance_ns2(domain.min);
+  const double at_max = walk.relative_rise_variance_ns2(domain.max);
   for (std::size_t i = 0; i < n; ++i) {
     const double w = b.pulse_width[i];
     if (!(outside_widths(w, domain.min, domain.max) > 0)) continue;
     b.outside[i] = std::max(b.outside[i], kMinOutside);  // flagged, no generic growth
-    const double edge = w < domain.min ? domain.min : domain.max;
-    const double excess =
-        walk.relative_rise_variance_ns2(w) - walk.relative_rise_variance_ns2(edge);
+    const double excess = walk.relative_rise_variance_ns2(w) - (w < domain.min ? at_min : at_max);
     b.extra_variance[i] += metres_per_ns * metres_per_ns * std::max(excess, 0.0);
   }
 }
