@@ -8,7 +8,10 @@
 //   Measured/R       footprint + the device's measurement (analytic, 1 shot), a block
 //                    of beams' targets measured in one call as the scanner does (single
 //                    shots run in lanes), results discarded (the scan without its output)
-//   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot)
+//   Scan/R           the full scan: footprint + device measurement (analytic, 1 shot),
+//                    into a fresh ScanResult (a one-off scan: the kernel clears its pages)
+//   ScanFrames/R     the same, frame after frame into one ScanResult (a real-time
+//                    scanner: its results' storage is reused)
 // The second argument is the thread count. With 1 thread the CPU column is
 // the whole cost (useful on a shared machine, where real time includes waits).
 #include <benchmark/benchmark.h>
@@ -221,6 +224,24 @@ void BM_Scan(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
+void BM_ScanFrames(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  auto& f = fixture();
+  const auto config = config_with(static_cast<int>(state.range(0)));
+  const device::VirtualRangefinder dev(config, device::SimulationMode::kAnalytic);
+  const Footprint fp(config);
+  ScanOptions o;
+  o.shots = 1;
+  ScanResult frame;
+  run_scan(f.caster, fp, dev, f.pattern, o, frame);  // the storage, once
+  for (auto _ : state) {
+    run_scan(f.caster, fp, dev, f.pattern, o, frame);
+    benchmark::DoNotOptimize(frame.beams.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
+}
+
 }  // namespace
 
 void rays_and_threads(benchmark::internal::Benchmark* b) {
@@ -233,3 +254,4 @@ BENCHMARK(BM_EmbreeBare)->Apply(rays_and_threads);
 BENCHMARK(BM_Footprint)->Apply(rays_and_threads);
 BENCHMARK(BM_Measured)->Apply(rays_and_threads);
 BENCHMARK(BM_Scan)->Apply(rays_and_threads);
+BENCHMARK(BM_ScanFrames)->Apply(rays_and_threads);

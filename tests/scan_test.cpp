@@ -417,6 +417,56 @@ TEST(ScanScanner, SameBytesOnOneAndTwoThreads) {
   EXPECT_GT(misses, 0);
 }
 
+// Scanning into a result that held another frame (more beams, every beam
+// hit, ranges from a model) leaves the bytes of a fresh scan: nothing of the
+// old frame survives, misses included.
+TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
+  Scene s;
+  s.primitives.push_back(plane({2.0, 0.0, 0}, {-1, 0, 0}, 1.0, 1.0, 0.3));
+  const RayCaster caster(s);
+  device::DeviceConfig config;
+  config.scan.rays_per_beam = 4;
+  const device::VirtualRangefinder dev(config);
+  std::vector<double> az_wide, az_narrow, el;
+  for (int k = -8; k <= 8; ++k) az_wide.push_back(k);         // all on the plate
+  for (int k = -40; k <= 40; k += 8) az_narrow.push_back(k);  // some off it
+  for (int k = -5; k <= 5; ++k) el.push_back(k);
+  ScanOptions o;
+  o.shots = 3;
+  o.seed = 11;
+  ScanResult reused;
+  run_scan(caster, Footprint(config), dev, spherical_pattern({az_wide, el, 10}), o, reused);
+  for (auto& b : reused.beams) b.range = {1.0, 0.01, 7u};
+  reused.has_model = true;
+  const auto pattern = spherical_pattern({az_narrow, el, 10});
+  ASSERT_LT(pattern.beams.size(), reused.beams.size());
+  run_scan(caster, Footprint(config), dev, pattern, o, reused);
+  const ScanResult fresh = run_scan(caster, Footprint(config), dev, pattern, o);
+  auto same = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) == 0; };
+  EXPECT_FALSE(reused.has_model);
+  EXPECT_EQ(reused.pattern.rows, fresh.pattern.rows);
+  EXPECT_EQ(reused.pattern.columns, fresh.pattern.columns);
+  ASSERT_EQ(reused.beams.size(), fresh.beams.size());
+  int misses = 0;
+  for (std::size_t i = 0; i < fresh.beams.size(); ++i) {
+    const BeamResult &a = reused.beams[i], &b = fresh.beams[i];
+    misses += b.surfaces == 0;
+    EXPECT_TRUE(same(a.beam.time_s, b.beam.time_s) && same(a.beam.origin_m, b.beam.origin_m) &&
+                same(a.beam.direction, b.beam.direction) && a.beam.row == b.beam.row &&
+                a.beam.column == b.beam.column)
+        << i;
+    EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
+                same(a.reflectance, b.reflectance) && same(a.angle_deg, b.angle_deg))
+        << i;
+    EXPECT_TRUE(same(a.raw, b.raw)) << i;
+    EXPECT_TRUE(same(a.range.distance_m, b.range.distance_m) &&
+                same(a.range.sigma_m, b.range.sigma_m) &&
+                a.range.correction_flags == b.range.correction_flags)
+        << i;
+  }
+  EXPECT_GT(misses, 0);
+}
+
 TEST(ScanPatterns, RasterSerpentineMirrorAndSpinningGeometry) {
   // Raster: serpentine rows, every point once, time includes moves and dwell.
   const auto r = raster_pattern({{0.0, 0.01, 0.02}, {0.0, 0.01}, 4, 0.01}, 1e-3);

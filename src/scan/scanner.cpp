@@ -84,6 +84,14 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                     const device::VirtualRangefinder& device, const BeamPattern& pattern,
                     const ScanOptions& options) {
   ScanResult result;
+  run_scan(caster, footprint, device, pattern, options, result);
+  return result;
+}
+
+void run_scan(const RayCaster& caster, const Footprint& footprint,
+              const device::VirtualRangefinder& device, const BeamPattern& pattern,
+              const ScanOptions& options, ScanResult& result) {
+  result.has_model = false;
   // The pattern's description without its beams: each beam is kept once, in
   // its BeamResult (world frame).
   result.pattern.name = pattern.name;
@@ -92,10 +100,14 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
   result.pattern.shots_multiplier = pattern.shots_multiplier;
   result.pattern.column_positions_m = pattern.column_positions_m;
   result.pattern.sample_extent_m = pattern.sample_extent_m;
+  result.pattern.beams.clear();
   result.sensor = caster.scene().sensor;
   const RigidTransform pose = result.sensor.to_world();
   const std::size_t n = pattern.beams.size();
-  reserve_populated(result.beams, n);
+  if (result.beams.capacity() < n) {
+    result.beams = {};
+    reserve_populated(result.beams, n);
+  }
   result.beams.resize(n);
   const int base_shots = options.shots > 0 ? options.shots : device.config().measurement.shots;
   const int shots = base_shots * pattern.shots_multiplier;
@@ -118,6 +130,9 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                           footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
                           b.true_range_m = fp.true_range_m;
                           b.surfaces = static_cast<int>(fp.target.surfaces.size());
+                          b.reflectance = ranging::kNaN;
+                          b.angle_deg = ranging::kNaN;
+                          b.range = {};
                           double largest = 0;
                           for (const auto& surface : fp.target.surfaces) {
                             if (surface.fraction > largest) {
@@ -142,7 +157,6 @@ ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                       });
     if (options.progress) options.progress(end, n);
   }
-  return result;
 }
 
 ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,

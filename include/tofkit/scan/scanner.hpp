@@ -50,6 +50,15 @@ struct ScanOptions {
                                   const device::VirtualRangefinder& device,
                                   const BeamPattern& pattern, const ScanOptions& options);
 
+/// The same into `result`, keeping the storage of its beams: a scanner that
+/// produces frame after frame (a spinning lidar in real time) pays for its
+/// results' memory once, not the kernel's clearing of fresh pages every frame
+/// (a megabeam frame is 176 MB). Every field of `result` is overwritten; the
+/// bytes are those of the returning form.
+void run_scan(const RayCaster& caster, const Footprint& footprint,
+              const device::VirtualRangefinder& device, const BeamPattern& pattern,
+              const ScanOptions& options, ScanResult& result);
+
 /// The same with the ray caster, footprint and virtual rangefinder made from
 /// `scene` and `config` (what `tofkit scan` and Python's tofkit.scan run).
 [[nodiscard]] ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
