@@ -44,22 +44,12 @@ struct FitOptions {
   std::string smoothing = "auto";  // bspline: "auto" (GCV) or a penalty weight
 };
 
-/// The conversion the device uses for distance_raw_m (nominal c in air).
-ranging::TimeToDistance time_to_distance_of(const device::DeviceConfig& config) {
-  ranging::TimeToDistance t;
-  t.wavelength_nm = config.link.laser.wavelength_nm;
-  t.air.temperature_c = config.measurement.reference_temperature_c;
-  t.air.pressure_hpa = config.link.environment.pressure_hpa;
-  t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
-  return t;
-}
-
 /// The time-to-distance conversion of the config, checked before any work; a
 /// value the conversion cannot use is reported under the config key that set
 /// it (not the conversion's internal field name).
 ranging::TimeToDistance checked_time_to_distance(const AppContext& ctx) {
   const io::LoadedDeviceConfig loaded = ctx.load_config_traced();
-  const ranging::TimeToDistance t = time_to_distance_of(loaded.config);
+  const ranging::TimeToDistance t = device::nominal_time_to_distance(loaded.config);
   try {
     t.validate();
   } catch (const std::invalid_argument& e) {

@@ -39,16 +39,6 @@ struct Model {
   std::string report;  ///< the fitter's summary (empty for a loaded model)
 };
 
-/// The conversion the device uses for distance_raw_m (nominal c in air), as `tofkit fit` does.
-ranging::TimeToDistance time_to_distance_of(const device::DeviceConfig& config) {
-  ranging::TimeToDistance t;
-  t.wavelength_nm = config.link.laser.wavelength_nm;
-  t.air.temperature_c = config.measurement.reference_temperature_c;
-  t.air.pressure_hpa = config.link.environment.pressure_hpa;
-  t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
-  return t;
-}
-
 Model load_model(const fs::path& path) {
   Model model;
   try {
@@ -153,7 +143,7 @@ Model fit_chain(const py::tuple& columns, const std::string& steps_text,
         "grayvalue");
   }
   options.refine_walk = refine_walk;
-  options.time_to_distance = time_to_distance_of(config);
+  options.time_to_distance = device::nominal_time_to_distance(config);
   options.confidence = confidence_kind(confidence);
   options.confidence_required = true;
   return fit_model(records_of(columns), options, nullptr);
@@ -175,7 +165,8 @@ Model fit_surface(const std::optional<Model>& base, const device::DeviceConfig& 
   }
   if (rcond) options.polynomial.rcond = *rcond;
   options.surface_temperature = temperature;
-  options.time_to_distance = base ? base->pipeline.time_to_distance() : time_to_distance_of(config);
+  options.time_to_distance =
+      base ? base->pipeline.time_to_distance() : device::nominal_time_to_distance(config);
   if (base) options.base = base->pipeline;
   options.confidence = confidence_kind(confidence);
   options.confidence_required = true;

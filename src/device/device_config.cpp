@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "tofkit/device/accurange_preset.hpp"
+#include "tofkit/physics/air.hpp"
 
 namespace tofkit::device {
 namespace {
@@ -254,6 +255,20 @@ double field_value(const ConfigField& field) {
         }
       },
       field.value);
+}
+
+ranging::TimeToDistance nominal_time_to_distance(const DeviceConfig& config) {
+  ranging::TimeToDistance t;
+  t.wavelength_nm = config.link.laser.wavelength_nm;
+  t.air.temperature_c = config.measurement.reference_temperature_c;
+  t.air.pressure_hpa = config.link.environment.pressure_hpa;
+  t.air.relative_humidity_pct = config.link.environment.relative_humidity_pct;
+  return t;
+}
+
+double nominal_light_speed_m_per_ns(const DeviceConfig& config) {
+  const ranging::TimeToDistance t = nominal_time_to_distance(config);
+  return physics::speed_of_light_in_air_m_per_s(t.wavelength_nm, t.air) * 1e-9;
 }
 
 std::vector<std::string> validate(const DeviceConfig& config) {

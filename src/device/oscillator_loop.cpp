@@ -64,11 +64,7 @@ std::pair<double, double> crossing(const std::vector<Step>& steps, bool rising, 
 }  // namespace
 
 OscillatorLoop::OscillatorLoop(DeviceConfig config) : config_(std::move(config)) {
-  physics::AirConditions air{config_.measurement.reference_temperature_c,
-                             config_.link.environment.pressure_hpa,
-                             config_.link.environment.relative_humidity_pct};
-  c_nominal_m_per_ns_ =
-      physics::speed_of_light_in_air_m_per_s(config_.link.laser.wavelength_nm, air) * 1e-9;
+  c_nominal_m_per_ns_ = nominal_light_speed_m_per_ns(config_);
   tau_ns_ = 1e3 / (2.0 * kPi * config_.link.receiver.bandwidth_mhz);
 }
 

@@ -333,11 +333,7 @@ struct VirtualRangefinder::Impl {
     const auto& rx = config.link.receiver;
     volts_per_watt_unity_gain =
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
-    physics::AirConditions air{config.measurement.reference_temperature_c,
-                               config.link.environment.pressure_hpa,
-                               config.link.environment.relative_humidity_pct};
-    c_nominal_m_per_ns =
-        physics::speed_of_light_in_air_m_per_s(config.link.laser.wavelength_nm, air) * 1e-9;
+    c_nominal_m_per_ns = nominal_light_speed_m_per_ns(config);
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
     // The table serves the pulsed core only: an oscillator-loop device never asks.
     if (mode == SimulationMode::kAnalytic && !config.oscillator.enabled)

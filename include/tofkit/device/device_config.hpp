@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "tofkit/physics/link_budget.hpp"
+#include "tofkit/ranging/time_to_distance.hpp"
 
 namespace tofkit::device {
 
@@ -158,6 +159,14 @@ struct ConfigField {
 
 /// Messages, one per bad key ("receiver.bandwidth_mhz = 0 is out of range (0, 1e5]").
 [[nodiscard]] std::vector<std::string> validate(const DeviceConfig& config);
+
+/// The conversion the device reports distance_raw_m with: its wavelength and
+/// the nominal speed of light in air at measurement.reference_temperature_c and
+/// the environment's pressure and humidity (what a model fitted on its rows
+/// assumes unless told otherwise).
+[[nodiscard]] ranging::TimeToDistance nominal_time_to_distance(const DeviceConfig& config);
+/// The speed of light in air (m/ns) of that conversion.
+[[nodiscard]] double nominal_light_speed_m_per_ns(const DeviceConfig& config);
 
 /// Built-in presets: "paper" (the Sensors 2022 rangefinder, Table 1) and
 /// "accurange" (an AccuRange-3000-like 780 nm unit, the thesis's device).
