@@ -286,11 +286,10 @@ TEST(MixedPixel, RangesPassMonotonicallyBetweenTheTwoSurfaces) {
   ASSERT_EQ(r.steps.size(), 17u);
   // Oracle for the ends: the same device on each plain plate.
   const auto plate = [&](double distance) {
-    std::vector<device::MeasureRequest> req(
-        200, {device::Target::plate(distance, o.near_reflectance), {}, 0});
-    std::vector<ranging::GroundTruth> truth(req.size());
+    const std::vector<PlannedMeasurement> plan(
+        200, planned(device::Target::plate(distance, o.near_reflectance), {}));
     // Same seed: the same power-on (its delay offset is common to both).
-    const auto rec = measure_records(accurange(), req, truth, 11);
+    const auto rec = run(accurange(), plan, 11);
     std::vector<double> range;
     for (const auto& x : rec) range.push_back(x.raw.distance_raw_m);
     return sample_stats(range).mean;

@@ -33,18 +33,14 @@ AngleResult run_angle(const device::VirtualRangefinder& device, const AngleOptio
   const auto per = static_cast<std::size_t>(options.samples_per_point);
   device::Conditions c;
   c.ambient_c = options.ambient_c;
-  std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::GroundTruth> truths;
+  std::vector<PlannedMeasurement> plan;
   for (const int g : options.grey_levels) {
     for (const double a : options.angles_deg) {
       const auto target = device::Target::plate(options.distance_m, grey_reflectance(g), a);
-      for (std::size_t k = 0; k < per; ++k) {
-        requests.push_back({target, c, shots});
-        truths.push_back(plate_truth(target, c));
-      }
+      for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, shots));
     }
   }
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
   const auto errors = range_errors_m(result.records);
 
   std::size_t i = 0;

@@ -83,18 +83,6 @@ ExponentialSettling fit_exponential_settling(std::span<const double> time,
   return out;
 }
 
-ranging::GroundTruth plate_truth(const device::Target& target,
-                                 const device::Conditions& conditions) {
-  ranging::GroundTruth t;
-  t.ambient_c = conditions.ambient_c;
-  if (target.surfaces.empty()) return t;
-  const auto& s = target.surfaces.front();
-  t.distance_m = s.distance_m;
-  t.reflectance = s.reflectance;
-  t.angle_deg = s.angle_deg;
-  return t;
-}
-
 int resolve_shots(const device::VirtualRangefinder& device, int shots) {
   return shots > 0 ? shots : device.config().measurement.shots;
 }

@@ -43,8 +43,7 @@ MixedPixelResult run_mixed_pixel(const device::VirtualRangefinder& device,
       static_cast<int>(std::floor(2.0 * options.scan_half_width_mm / options.step_mm + 1e-9)) + 1;
   device::Conditions c;
   c.ambient_c = options.ambient_c;
-  std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::GroundTruth> truths;
+  std::vector<PlannedMeasurement> plan;
   for (int k = 0; k < n_steps; ++k) {
     MixedPixelStep step;
     step.beam_offset_mm = -options.scan_half_width_mm + k * options.step_mm;
@@ -62,13 +61,10 @@ MixedPixelResult run_mixed_pixel(const device::VirtualRangefinder& device,
                                  options.far_reflectance, 0.0});
     ranging::GroundTruth truth{options.near_distance_m, options.near_reflectance, 0.0,
                                options.ambient_c};
-    for (std::size_t s = 0; s < per; ++s) {
-      requests.push_back({target, c, shots});
-      truths.push_back(truth);
-    }
+    for (std::size_t s = 0; s < per; ++s) plan.push_back({{target, c, shots}, truth});
     result.steps.push_back(step);
   }
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
 
   std::vector<double> range(per), amplitude(per);
   for (std::size_t k = 0; k < result.steps.size(); ++k) {

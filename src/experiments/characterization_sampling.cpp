@@ -28,12 +28,11 @@ SamplingResult run_sampling(const device::VirtualRangefinder& device,
   device::Conditions c;
   c.ambient_c = options.ambient_c;
   const auto per = static_cast<std::size_t>(options.samples_per_setting);
-  std::vector<device::MeasureRequest> requests;
+  std::vector<PlannedMeasurement> plan;
   for (int e = options.min_exponent; e <= options.max_exponent; ++e) {
-    for (std::size_t k = 0; k < per; ++k) requests.push_back({target, c, 1 << e});
+    for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, 1 << e));
   }
-  const std::vector<ranging::GroundTruth> truths(requests.size(), plate_truth(target, c));
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
   std::optional<device::OscillatorLoop> loop;
   if (device.config().oscillator.enabled) loop.emplace(device.config());
 

@@ -29,20 +29,16 @@ TemperatureResult run_temperature(const device::VirtualRangefinder& device,
   result.options = options;
   const int shots = resolve_shots(device, options.shots);
   const auto per = static_cast<std::size_t>(options.samples_per_point);
-  std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::GroundTruth> truths;
+  std::vector<PlannedMeasurement> plan;
   for (const double d : options.distances_m) {
     const auto target = device::Target::plate(d, options.reflectance);
     for (const double t : options.ambient_c) {
       device::Conditions c;
       c.ambient_c = t;
-      for (std::size_t k = 0; k < per; ++k) {
-        requests.push_back({target, c, shots});
-        truths.push_back(plate_truth(target, c));
-      }
+      for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, shots));
     }
   }
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
 
   std::size_t i = 0;
   std::vector<double> range(per), sensor(per);

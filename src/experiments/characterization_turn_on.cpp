@@ -31,16 +31,15 @@ TurnOnResult run_turn_on(const device::VirtualRangefinder& device, const TurnOnO
     throw std::invalid_argument("turn-on: duration_ms holds fewer samples than first_samples");
   }
   const auto target = device::Target::plate(options.distance_m, options.reflectance);
-  std::vector<device::MeasureRequest> requests(n);
-  std::vector<ranging::GroundTruth> truths(n);
+  std::vector<PlannedMeasurement> plan;
+  plan.reserve(n);
   for (std::size_t i = 0; i < n; ++i) {
     device::Conditions c;
     c.ambient_c = options.ambient_c;
     c.ms_since_laser_on = static_cast<double>(i) * result.sample_period_ms;  // back to back
-    requests[i] = {target, c, shots};
-    truths[i] = plate_truth(target, c);
+    plan.push_back(planned(target, c, shots));
   }
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
 
   std::vector<double> range(n);
   for (std::size_t i = 0; i < n; ++i) {

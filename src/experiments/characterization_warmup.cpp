@@ -30,18 +30,17 @@ WarmupResult run_warmup(const device::VirtualRangefinder& device, const WarmupOp
   const int shots = resolve_shots(device, options.shots);
   const std::size_t per_minute = static_cast<std::size_t>(options.samples_per_minute);
   const std::size_t n = per_minute * static_cast<std::size_t>(options.duration_min);
-  std::vector<device::MeasureRequest> requests(n);
-  std::vector<ranging::GroundTruth> truths(n);
+  std::vector<PlannedMeasurement> plan;
+  plan.reserve(n);
   for (std::size_t i = 0; i < n; ++i) {
     const double minutes = (static_cast<double>(i) + 0.5) / static_cast<double>(per_minute);
     device::Conditions c;
     c.ambient_c = options.ambient_c;
     c.minutes_since_power_on = minutes;
     c.ms_since_laser_on = minutes * 60e3;  // laser on from power-on
-    requests[i] = {target, c, shots};
-    truths[i] = plate_truth(target, c);
+    plan.push_back(planned(target, c, shots));
   }
-  result.records = measure_records(device, requests, truths, seed);
+  result.records = run(device, plan, seed);
 
   std::vector<double> range(per_minute), temperature(per_minute);
   for (int m = 0; m < options.duration_min; ++m) {

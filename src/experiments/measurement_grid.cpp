@@ -5,40 +5,36 @@
 
 namespace tofkit::experiments {
 
-PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c, double angle_deg,
-                         int shots) {
+PlannedMeasurement planned(device::Target target, const device::Conditions& conditions, int shots) {
   PlannedMeasurement p;
-  p.request.target = device::Target::plate(distance_m, reflectance, angle_deg);
-  p.request.conditions.ambient_c = ambient_c;
-  p.request.shots = shots;
-  p.truth = {distance_m, reflectance, angle_deg, ambient_c};
+  p.truth.ambient_c = conditions.ambient_c;
+  if (!target.surfaces.empty()) {
+    const auto& s = target.surfaces.front();
+    p.truth.distance_m = s.distance_m;
+    p.truth.reflectance = s.reflectance;
+    p.truth.angle_deg = s.angle_deg;
+  }
+  p.request = {std::move(target), conditions, shots};
   return p;
 }
 
-std::vector<ranging::Record> measure_records(const device::VirtualRangefinder& device,
-                                             std::span<const device::MeasureRequest> requests,
-                                             std::span<const ranging::GroundTruth> truths,
-                                             std::uint64_t seed) {
-  if (requests.size() != truths.size())
-    throw std::invalid_argument("measure_records: requests and truths differ in length");
-  std::vector<ranging::RawMeasurement> raw(requests.size());
-  device.measure_batch(requests, seed, raw);
-  std::vector<ranging::Record> records(requests.size());
-  for (std::size_t i = 0; i < raw.size(); ++i) records[i] = {truths[i], raw[i]};
-  return records;
+PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c, double angle_deg,
+                         int shots) {
+  device::Conditions conditions;
+  conditions.ambient_c = ambient_c;
+  return planned(device::Target::plate(distance_m, reflectance, angle_deg), conditions, shots);
 }
 
 std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                  std::span<const PlannedMeasurement> plan, std::uint64_t seed) {
   std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::GroundTruth> truths;
   requests.reserve(plan.size());
-  truths.reserve(plan.size());
-  for (const auto& p : plan) {
-    requests.push_back(p.request);
-    truths.push_back(p.truth);
-  }
-  return measure_records(device, requests, truths, seed);
+  for (const auto& p : plan) requests.push_back(p.request);
+  std::vector<ranging::RawMeasurement> raw(requests.size());
+  device.measure_batch(requests, seed, raw);
+  std::vector<ranging::Record> records(plan.size());
+  for (std::size_t i = 0; i < raw.size(); ++i) records[i] = {plan[i].truth, raw[i]};
+  return records;
 }
 
 std::vector<double> log_spaced(double first, double last, int count) {

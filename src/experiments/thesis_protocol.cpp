@@ -40,8 +40,7 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
   const int shots = resolve_shots(device, o.shots) * o.samples_per_point;
   const std::uint64_t chart_seed = derive_seed(seed, kChartSalt);
   Scan scan;
-  std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::GroundTruth> truths;
+  std::vector<PlannedMeasurement> plan;
   device::Conditions c;
   c.ambient_c = o.ambient_c + ambient_offset_c;
   std::uint64_t index = 0;
@@ -54,13 +53,14 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
             0.05 * rho, 1.0);
         const double d_point =
             d + o.point_distance_sd_mm * 1e-3 * point_normal(chart_seed, index, 1);
-        requests.push_back({device::Target::plate(d_point, rho_point), c, shots});
-        truths.push_back({d, rho, 0.0, c.ambient_c});
+        // The truth is the chart's: the stripe's nominal distance and grey.
+        plan.push_back(
+            {{device::Target::plate(d_point, rho_point), c, shots}, {d, rho, 0.0, c.ambient_c}});
         scan.grey.push_back(g);
       }
     }
   }
-  scan.records = measure_records(device, requests, truths, seed);
+  scan.records = run(device, plan, seed);
   return scan;
 }
 

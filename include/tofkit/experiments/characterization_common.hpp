@@ -61,10 +61,6 @@ struct ExponentialSettling {
                                                            std::span<const double> offset_mm,
                                                            double tolerance_mm);
 
-/// The truth of a one-surface target under given conditions.
-[[nodiscard]] ranging::GroundTruth plate_truth(const device::Target& target,
-                                               const device::Conditions& conditions);
-
 /// Shots per output: `shots`, or the device's measurement.shots when 0.
 [[nodiscard]] int resolve_shots(const device::VirtualRangefinder& device, int shots);
 

@@ -17,17 +17,18 @@ struct PlannedMeasurement {
   ranging::GroundTruth truth;
 };
 
+/// A measurement of `target` under `conditions` (`shots` 0: the device's
+/// measurement.shots), its truth that of the target's first surface.
+[[nodiscard]] PlannedMeasurement planned(device::Target target,
+                                         const device::Conditions& conditions, int shots = 0);
+
 /// A flat Lambertian plate at normal or oblique incidence.
 [[nodiscard]] PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c,
                                        double angle_deg = 0.0, int shots = 0);
 
-/// Measures every request (request i on random stream i, all cores) and pairs
-/// it with its truth. Throws std::invalid_argument when the spans differ in length.
-[[nodiscard]] std::vector<ranging::Record> measure_records(
-    const device::VirtualRangefinder& device, std::span<const device::MeasureRequest> requests,
-    std::span<const ranging::GroundTruth> truths, std::uint64_t seed);
-
-/// Measures every plan on all cores (reproducible for a seed, any thread count).
+/// Measures every plan (plan i on random stream i, all cores; reproducible for
+/// a seed, any thread count) and pairs each result with its truth: the one way
+/// every protocol, characterization and test measures.
 [[nodiscard]] std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                                std::span<const PlannedMeasurement> plan,
                                                std::uint64_t seed);
