@@ -161,19 +161,17 @@ void send_frames(const EmulateOptions& o, std::uint64_t total, const FrameSource
 // The plate grid of `tofkit measure`: frame i is request i of measure's order
 // (repeats innermost), on random stream i.
 void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
-  const std::vector<PlatePoint> grid =
-      parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures).points();
+  // The grid's points (count 1); frame i measures point i / count.
+  const std::vector<experiments::PlannedMeasurement> points = experiments::plate_grid_plan(
+      parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures));
   const device::DeviceConfig config = ctx.load_config();
-  const std::uint64_t total = grid.size() * static_cast<std::uint64_t>(o.count);
+  const std::uint64_t total = points.size() * static_cast<std::uint64_t>(o.count);
   const device::VirtualRangefinder rangefinder(config, simulation_mode(o.mode));
   const auto source = [&](std::uint64_t first, std::span<ranging::RawMeasurement> out) {
     tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t k) {
       const std::uint64_t i = first + k;
-      const PlatePoint& g = grid[i / static_cast<std::uint64_t>(o.count)];
-      device::Conditions conditions;
-      conditions.ambient_c = g.ambient_c;
-      out[k] = rangefinder.measure(device::Target::plate(g.distance_m, g.reflectance, g.angle_deg),
-                                   conditions, o.seed, i, o.shots);
+      const device::MeasureRequest& r = points[i / static_cast<std::uint64_t>(o.count)].request;
+      out[k] = rangefinder.measure(r.target, r.conditions, o.seed, i, o.shots);
     });
   };
   send_frames(o, total, source, "");

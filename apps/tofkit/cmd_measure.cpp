@@ -57,11 +57,14 @@ int parse_count(const std::string& text) {
 }
 
 void run_measure(const MeasureOptions& o, const AppContext& ctx) {
-  const PlateGrid grid = parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures);
+  experiments::PlateGrid grid =
+      parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures);
+  grid.count = o.count;
+  grid.shots = o.shots;
   const device::DeviceConfig config = ctx.load_config();
   require_output_directory(o.out, "--out");
 
-  const double rows = static_cast<double>(o.count) * grid.size();
+  const double rows = grid.rows();
   const auto max_rows = static_cast<double>(io::resource_limits().max_rows);
   if (rows > max_rows) {
     throw std::invalid_argument(fmt::format(
@@ -89,30 +92,14 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
     }
   }
 
-  // Cartesian product: distance outermost, then reflectance, angle, temperature,
-  // repeats innermost. Request i uses random stream i (thread-count independent).
-  std::vector<device::MeasureRequest> requests;
-  std::vector<ranging::Record> records;
-  requests.reserve(static_cast<std::size_t>(rows));
-  records.reserve(static_cast<std::size_t>(rows));
-  for (const PlatePoint& p : grid.points()) {
-    device::Conditions conditions;
-    conditions.ambient_c = p.ambient_c;
-    for (int k = 0; k < o.count; ++k) {
-      requests.push_back(device::MeasureRequest{
-          device::Target::plate(p.distance_m, p.reflectance, p.angle_deg), conditions, o.shots});
-      ranging::Record record;
-      record.truth = ranging::GroundTruth{p.distance_m, p.reflectance, p.angle_deg, p.ambient_c};
-      records.push_back(record);
-    }
-  }
-
+  // The grid's order (experiments/plate_grid.hpp): request i on random stream i
+  // (thread-count independent).
+  const std::vector<experiments::PlannedMeasurement> plan =
+      experiments::plate_grid_plan(grid, max_rows);
   const auto mode = simulation_mode(o.mode);
   const auto start = std::chrono::steady_clock::now();
   const device::VirtualRangefinder rangefinder(config, mode);
-  std::vector<ranging::RawMeasurement> raw(requests.size());
-  rangefinder.measure_batch(requests, o.seed, raw);
-  for (std::size_t i = 0; i < raw.size(); ++i) records[i].raw = raw[i];
+  const std::vector<ranging::Record> records = experiments::run(rangefinder, plan, o.seed);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

@@ -3,18 +3,20 @@
 #include <fmt/format.h>
 
 #include <stdexcept>
+#include <vector>
 
 #include "tofkit/io/value_list.hpp"
 
 namespace tofkit::app {
 namespace {
 
-std::vector<double> checked_list(const std::string& text, const char* option, double min,
-                                 double max) {
+std::vector<double> checked_list(const std::string& text, const char* option,
+                                 experiments::ValueRange range) {
   std::vector<double> values = io::parse_value_list(text, option);
   for (const double v : values) {
-    if (!(v >= min && v <= max)) {
-      throw std::invalid_argument(fmt::format("{}: {} is outside [{}, {}]", option, v, min, max));
+    if (!(v >= range.min && v <= range.max)) {
+      throw std::invalid_argument(
+          fmt::format("{}: {} is outside [{}, {}]", option, v, range.min, range.max));
     }
   }
   return values;
@@ -22,34 +24,14 @@ std::vector<double> checked_list(const std::string& text, const char* option, do
 
 }  // namespace
 
-double PlateGrid::size() const {
-  double n = 1;
-  for (const auto* list : {&distances_m, &reflectances, &angles_deg, &ambients_c}) {
-    n *= static_cast<double>(list->size());
-  }
-  return n;
-}
-
-std::vector<PlatePoint> PlateGrid::points() const {
-  std::vector<PlatePoint> out;
-  out.reserve(static_cast<std::size_t>(size()));
-  for (const double d : distances_m) {
-    for (const double rho : reflectances) {
-      for (const double angle : angles_deg) {
-        for (const double t : ambients_c) out.push_back({d, rho, angle, t});
-      }
-    }
-  }
-  return out;
-}
-
-PlateGrid parse_plate_grid(const std::string& distances, const std::string& reflectances,
-                           const std::string& angles, const std::string& temperatures) {
-  PlateGrid g;
-  g.distances_m = checked_list(distances, "--distance", 1e-3, 1e5);
-  g.reflectances = checked_list(reflectances, "--reflectance", 0.0, 1.0);
-  g.angles_deg = checked_list(angles, "--angle", 0.0, 89.9);
-  g.ambients_c = checked_list(temperatures, "--temperature", -60.0, 150.0);
+experiments::PlateGrid parse_plate_grid(const std::string& distances,
+                                        const std::string& reflectances, const std::string& angles,
+                                        const std::string& temperatures) {
+  experiments::PlateGrid g;
+  g.distances_m = checked_list(distances, "--distance", experiments::kDistanceRange_m);
+  g.reflectances = checked_list(reflectances, "--reflectance", experiments::kReflectanceRange);
+  g.angles_deg = checked_list(angles, "--angle", experiments::kAngleRange_deg);
+  g.ambient_c = checked_list(temperatures, "--temperature", experiments::kTemperatureRange_c);
   return g;
 }
 

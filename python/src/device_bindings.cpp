@@ -85,12 +85,7 @@ py::array measure(const device::DeviceConfig& config, const experiments::PlateGr
   auto* records = static_cast<ranging::Record*>(out.mutable_data());
   {
     py::gil_scoped_release release;
-    std::vector<device::MeasureRequest> requests;
-    requests.reserve(plan.size());
-    for (const auto& p : plan) requests.push_back(p.request);
-    std::vector<ranging::RawMeasurement> raw(plan.size());
-    rangefinder.measure_batch(requests, seed, raw);
-    for (std::size_t i = 0; i < plan.size(); ++i) records[i] = {plan[i].truth, raw[i]};
+    experiments::run(rangefinder, plan, seed, {records, plan.size()});
   }
   return out;
 }

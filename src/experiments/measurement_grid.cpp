@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 namespace tofkit::experiments {
 
@@ -27,14 +28,22 @@ PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c
 
 std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                  std::span<const PlannedMeasurement> plan, std::uint64_t seed) {
+  std::vector<ranging::Record> records(plan.size());
+  run(device, plan, seed, records);
+  return records;
+}
+
+void run(const device::VirtualRangefinder& device, std::span<const PlannedMeasurement> plan,
+         std::uint64_t seed, std::span<ranging::Record> out) {
+  if (out.size() != plan.size())
+    throw std::invalid_argument("run: " + std::to_string(out.size()) + " records for a plan of " +
+                                std::to_string(plan.size()));
   std::vector<device::MeasureRequest> requests;
   requests.reserve(plan.size());
   for (const auto& p : plan) requests.push_back(p.request);
   std::vector<ranging::RawMeasurement> raw(requests.size());
   device.measure_batch(requests, seed, raw);
-  std::vector<ranging::Record> records(plan.size());
-  for (std::size_t i = 0; i < raw.size(); ++i) records[i] = {plan[i].truth, raw[i]};
-  return records;
+  for (std::size_t i = 0; i < raw.size(); ++i) out[i] = {plan[i].truth, raw[i]};
 }
 
 std::vector<double> log_spaced(double first, double last, int count) {

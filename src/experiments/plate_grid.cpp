@@ -13,13 +13,13 @@ std::string number(double v, int precision = 15) {
   return out.str();
 }
 
-void check_all(const std::vector<double>& values, const char* name, double min, double max,
+void check_all(const std::vector<double>& values, const char* name, ValueRange range,
                std::vector<std::string>& problems) {
   if (values.empty()) problems.push_back(std::string(name) + ": no values");
   for (const double v : values) {
-    if (!(v >= min && v <= max)) {
-      problems.push_back(std::string(name) + ": " + number(v) + " is outside [" + number(min) +
-                         ", " + number(max) + "]");
+    if (!(v >= range.min && v <= range.max)) {
+      problems.push_back(std::string(name) + ": " + number(v) + " is outside [" +
+                         number(range.min) + ", " + number(range.max) + "]");
       return;  // one message per list
     }
   }
@@ -38,10 +38,10 @@ double PlateGrid::rows() const {
 std::vector<std::string> PlateGrid::problems(double max_rows) const {
   std::vector<std::string> out;
   // Physical ranges: the same as tofkit measure's options.
-  check_all(distances_m, "distance_m", 1e-3, 1e5, out);
-  check_all(reflectances, "reflectance", 0.0, 1.0, out);
-  check_all(angles_deg, "angle_deg", 0.0, 89.9, out);
-  check_all(ambient_c, "temperature_c", -60.0, 150.0, out);
+  check_all(distances_m, "distance_m", kDistanceRange_m, out);
+  check_all(reflectances, "reflectance", kReflectanceRange, out);
+  check_all(angles_deg, "angle_deg", kAngleRange_deg, out);
+  check_all(ambient_c, "temperature_c", kTemperatureRange_c, out);
   if (count < 1) out.push_back("count: " + std::to_string(count) + " is below 1");
   if (shots < 0) out.push_back("shots: " + std::to_string(shots) + " is below 0");
   if (out.empty() && rows() > max_rows) {

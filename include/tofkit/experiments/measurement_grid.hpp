@@ -32,6 +32,10 @@ struct PlannedMeasurement {
 [[nodiscard]] std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
                                                std::span<const PlannedMeasurement> plan,
                                                std::uint64_t seed);
+/// The same into `out` (one record per plan; throws std::invalid_argument when
+/// the sizes differ), e.g. a NumPy array's memory.
+void run(const device::VirtualRangefinder& device, std::span<const PlannedMeasurement> plan,
+         std::uint64_t seed, std::span<ranging::Record> out);
 
 /// `count` values from `first` to `last`, evenly spaced on a log scale.
 [[nodiscard]] std::vector<double> log_spaced(double first, double last, int count);

@@ -15,6 +15,16 @@
 
 namespace tofkit::experiments {
 
+/// The physical range each list's values must lie in (tofkit measure's and
+/// emulate's options are checked against the same).
+struct ValueRange {
+  double min, max;
+};
+inline constexpr ValueRange kDistanceRange_m{1e-3, 1e5};
+inline constexpr ValueRange kReflectanceRange{0.0, 1.0};
+inline constexpr ValueRange kAngleRange_deg{0.0, 89.9};
+inline constexpr ValueRange kTemperatureRange_c{-60.0, 150.0};
+
 struct PlateGrid {
   std::vector<double> distances_m;
   std::vector<double> reflectances;
