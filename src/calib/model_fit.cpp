@@ -630,6 +630,22 @@ std::vector<double> group_leverages(std::span<const ranging::Record> records,
   if (summary.chain && summary.chain->walk && !refit.chain_options.walk_initial) {
     refit.chain_options.walk_initial = summary.chain->walk->shape;
   }
+  // A B-spline surface keeps the fit's choices (intensity axis, knots,
+  // smoothing, axis weights): its search by cross-validation is what costs.
+  if (summary.surface && o.surface.kind == SurfaceKind::bspline) {
+    const SurfaceFitResult& s = *summary.surface;
+    refit.surface_intensity = summary.surface_intensity == "pulse_width_ns"
+                                  ? SurfaceIntensity::pulse_width
+                                  : SurfaceIntensity::amplitude;
+    BSplineFitOptions& b = refit.bspline;
+    b.choose_intervals_by_gcv = b.choose_smoothing_by_gcv = false;
+    b.intervals_range = s.intervals[0];
+    b.intervals_amplitude = s.intervals[1];
+    if (s.intervals[2] > 0) b.intervals_temperature = s.intervals[2];
+    b.smoothing = s.smoothing;
+    b.axis_placement = {s.placement[0], s.placement[1], s.placement[2]};
+    for (int k = 0; k < 3; ++k) b.axis_weight[k] = s.axis_weight[k];
+  }
   std::vector<ranging::Record> rows(records.begin(), records.end());
   const std::vector<ranging::Range> base =
       corrected_ranges(fit_correction(rows, refit, nullptr, nullptr), records);
