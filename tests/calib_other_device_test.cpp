@@ -10,6 +10,8 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <numeric>
+#include <random>
 #include <string>
 #include <tuple>
 #include <variant>
@@ -115,42 +117,55 @@ struct GridData {
   std::vector<ranging::Record> coverage;
 };
 
+/// The grid's rows at run seed `seed`. in_time_order: the calibration rows
+/// first, then `test`, then `coverage`, as a session would measure them;
+/// false: the whole plan in one fixed shuffled order (each row keeps its place
+/// in the returned sets), so the calibration spans the session.
+GridData make_grid_data(std::uint64_t seed, bool in_time_order) {
+  const device::VirtualRangefinder device(experiments::indoors(other_parts()));
+  std::vector<experiments::PlannedMeasurement> plan;
+  for (double d = 0.5; d <= 9.0 + 1e-9; d += 0.5) {
+    for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
+      for (int repeat = 0; repeat < 2; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  const std::size_t calibration_rows = plan.size();
+  for (double d = 0.75; d <= 8.75 + 1e-9; d += 1.0) {
+    for (double rho : {0.09, 0.2, 0.35, 0.55, 0.75}) {
+      for (int repeat = 0; repeat < 6; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  const std::size_t test_end = plan.size();
+  // Appended, so the rows above keep their random streams.
+  for (double d = 0.625; d <= 8.875 + 1e-9; d += 0.25) {
+    for (double rho : {0.09, 0.16, 0.2, 0.3, 0.35, 0.5, 0.55, 0.7, 0.75}) {
+      for (int repeat = 0; repeat < 6; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  std::vector<std::size_t> order(plan.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  if (!in_time_order) std::shuffle(order.begin(), order.end(), std::mt19937_64(3));
+  std::vector<experiments::PlannedMeasurement> measured;
+  for (std::size_t k : order) measured.push_back(plan[k]);
+  const std::vector<ranging::Record> run = experiments::run(device, measured, seed);
+  std::vector<ranging::Record> rows(plan.size());
+  for (std::size_t k = 0; k < order.size(); ++k) rows[order[k]] = run[k];
+  const auto at = [&](std::size_t k) { return rows.begin() + static_cast<std::ptrdiff_t>(k); };
+  GridData out;
+  out.calibration.assign(rows.begin(), at(calibration_rows));
+  out.test.assign(at(calibration_rows), at(test_end));
+  out.coverage.assign(at(test_end), rows.end());
+  return out;
+}
+
 const GridData& grid_data() {
-  static const GridData data = [] {
-    const device::VirtualRangefinder device(experiments::indoors(other_parts()));
-    std::vector<experiments::PlannedMeasurement> plan;
-    for (double d = 0.5; d <= 9.0 + 1e-9; d += 0.5) {
-      for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
-        for (int repeat = 0; repeat < 2; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    const std::size_t calibration_rows = plan.size();
-    for (double d = 0.75; d <= 8.75 + 1e-9; d += 1.0) {
-      for (double rho : {0.09, 0.2, 0.35, 0.55, 0.75}) {
-        for (int repeat = 0; repeat < 6; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    const std::size_t test_end = plan.size();
-    // Appended, so the rows above keep their random streams.
-    for (double d = 0.625; d <= 8.875 + 1e-9; d += 0.25) {
-      for (double rho : {0.09, 0.16, 0.2, 0.3, 0.35, 0.5, 0.55, 0.7, 0.75}) {
-        for (int repeat = 0; repeat < 6; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    std::vector<ranging::Record> rows = experiments::run(device, plan, 7);
-    const auto at = [&](std::size_t k) { return rows.begin() + static_cast<std::ptrdiff_t>(k); };
-    GridData out;
-    out.calibration.assign(rows.begin(), at(calibration_rows));
-    out.test.assign(at(calibration_rows), at(test_end));
-    out.coverage.assign(at(test_end), rows.end());
-    return out;
-  }();
+  static const GridData data = make_grid_data(7, true);
   return data;
 }
 
@@ -315,6 +330,49 @@ TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaC
 // 0.21-0.31 mm against 0.24-0.26 mm of noise (above it at seed 10).
 TEST(CalibrationOnOtherParts, DISABLED_ChainOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
   expect_noise_level_and_covering_sigma(true);
+}
+
+// Why sigma has no drift term of its own. The device's 1/f delay wander
+// (measurement.flicker_delay_ps, 5 ps rms over octaves from 1 mHz) moves the
+// coverage rows, measured 0.3-2.3 s after the 0.2 s of calibration rows,
+// 0.44-0.54 mm off at run seeds 8 and 9 (seed 7: 0.04 mm). The calibration
+// cannot see that: its own residuals trend by 0.01-0.05 mm along its rows,
+// below what 216 rows resolve, so no term fitted from them can. Measured in
+// one shuffled order the calibration spans the session, and the wander is in
+// every cross-fitted residual (a held-out target's rows lie at other times
+// than its fold's training rows): the default calibrated confidence then
+// covers 93 % or more at the seeds where the time-ordered session gives
+// 81-89 %. A drift variance estimated from the calibration's time structure
+// and added to sigma^2 would count what the residuals already carry twice.
+TEST(CalibrationOnOtherParts, CrossFittedSigmaCarriesTheWanderTheCalibrationSpans) {
+  for (std::uint64_t seed : {8, 9}) {
+    for (bool in_time_order : {true, false}) {
+      const GridData data = make_grid_data(seed, in_time_order);
+      calib::ModelFitOptions options;
+      options.chain = calib::ChainSteps{true, true, false};
+      options.refine_walk = true;
+      const calib::ModelFitResult fit = calib::fit_model(data.calibration, options);
+      const HeldOutFigures f = held_out_figures(fit.pipeline, data.coverage);
+      double mean = 0;
+      std::size_t rows = 0;
+      for (const auto& r : data.coverage) {
+        const double e = r.truth.distance_m - fit.pipeline.apply(r.raw).distance_m;
+        if (!std::isfinite(e)) continue;
+        mean += e;
+        ++rows;
+      }
+      mean /= static_cast<double>(rows);
+      std::printf("seed %d, %s: mean error %.3f mm; %s\n", static_cast<int>(seed),
+                  in_time_order ? "in time order" : "shuffled", mean * 1e3, f.summary().c_str());
+      if (in_time_order) {
+        EXPECT_GT(std::fabs(mean), 0.3e-3);
+        EXPECT_LT(f.within_2sigma, 0.93) << f.summary();
+      } else {
+        EXPECT_LT(std::fabs(mean), 0.15e-3);
+        EXPECT_GE(f.within_2sigma, 0.93) << f.summary();
+      }
+    }
+  }
 }
 
 // The B-spline surface on the same grid, with the periodic step: each axis's
