@@ -457,12 +457,12 @@ TEST(NoiseSystematicConfidence, PointwiseOptimismFromLeverages) {
 // fitted by least squares (the mean of all rows' errors) a target of n rows among N has h = n / N
 // exactly, the leverages sum to 1 (its one parameter) and the largest
 // optimism is (1 + 3 / N) / (1 - 3 / N) for the targets of three rows.
-TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
+std::vector<ranging::Record> offset_targets(int targets) {
   std::mt19937_64 rng(910);
   std::normal_distribution<double> unit;
   std::vector<ranging::Record> records;
   const double metres_per_ns = ranging::metres_per_ns(ranging::TimeToDistance{});
-  for (int g = 0; g < 40; ++g) {
+  for (int g = 0; g < targets; ++g) {
     const double distance = 1.0 + 0.2 * g, amplitude = 0.05 * (1 + g);
     const double systematic = 0.3e-3 * unit(rng);
     for (int k = 0; k < (g % 2 == 0 ? 3 : 2); ++k) {
@@ -480,6 +480,10 @@ TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
       records.push_back(r);
     }
   }
+  return records;
+}
+
+ModelFitOptions offset_options() {
   ModelFitOptions options;
   options.chain = ChainSteps{true, false, false};
   // Least squares: a robust loss weights rows by their residuals, and the
@@ -488,7 +492,12 @@ TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
   options.chain_options.temperature.robust.loss = RobustLoss::kNone;
   options.confidence = ConfidenceKind::noise_systematic;
   options.confidence_required = true;
-  const ModelFitResult fit = fit_model(records, options);
+  return options;
+}
+
+TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
+  const std::vector<ranging::Record> records = offset_targets(40);
+  const ModelFitResult fit = fit_model(records, offset_options());
   ASSERT_TRUE(fit.summary.confidence.has_value()) << fit.report;
   const auto& c = *fit.summary.confidence;
   const double n = static_cast<double>(records.size());
@@ -497,6 +506,19 @@ TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
   EXPECT_NEAR(c.leverage_sum, 1.0, 1e-6);
   EXPECT_NEAR(c.optimism_max, (1 + 3 / n) / (1 - 3 / n), 1e-6);
   EXPECT_NEAR(c.optimism, ((1 + 3 / n) / (1 - 3 / n) + (1 + 2 / n) / (1 - 2 / n)) / 2, 1e-6);
+}
+
+// Above 500 targets a refit per target costs too much: one optimism
+// (G + p) / (G - p) for all, said in the report, no leverages.
+TEST(NoiseSystematicConfidence, ManyTargetsTakeOneOptimism) {
+  const ModelFitResult fit = fit_model(offset_targets(501), offset_options());
+  ASSERT_TRUE(fit.summary.confidence.has_value()) << fit.report;
+  const auto& c = *fit.summary.confidence;
+  EXPECT_EQ(c.groups, 501u);
+  EXPECT_EQ(c.leverage_sum, 0.0);
+  EXPECT_NEAR(c.optimism, 502.0 / 500.0, 1e-12);
+  EXPECT_EQ(c.optimism_max, c.optimism);
+  EXPECT_NE(fit.report.find("more than 500 targets"), std::string::npos) << fit.report;
 }
 
 }  // namespace

@@ -622,8 +622,10 @@ double effective_parameters(const ModelFitSummary& s) {
 /// One refit per group: the price of a pointwise optimism. NaN for groups
 /// without a usable row.
 std::vector<double> group_leverages(std::span<const ranging::Record> records,
-                                    const std::vector<std::size_t>& group_of, std::size_t groups,
-                                    const ModelFitOptions& o, const ModelFitSummary& summary) {
+                                    const std::vector<std::size_t>& group_of,
+                                    const std::vector<char>& wanted, const ModelFitOptions& o,
+                                    const ModelFitSummary& summary) {
+  const std::size_t groups = wanted.size();
   constexpr double kStepM = 1e-5;  // 10 um: about 1/30 of a row's noise
   ModelFitOptions refit = o;
   refit.confidence = ConfidenceKind::none;
@@ -653,6 +655,7 @@ std::vector<double> group_leverages(std::span<const ranging::Record> records,
   for (std::size_t i = 0; i < records.size(); ++i) members[group_of[i]].push_back(i);
   std::vector<double> leverage(groups, ranging::kNaN);
   for (std::size_t g = 0; g < groups; ++g) {
+    if (!wanted[g]) continue;
     for (std::size_t i : members[g]) rows[i].truth.distance_m += kStepM;
     const ranging::Pipeline moved = fit_correction(rows, refit, nullptr, nullptr);
     for (std::size_t i : members[g]) rows[i].truth.distance_m = records[i].truth.distance_m;
@@ -668,6 +671,10 @@ std::vector<double> group_leverages(std::span<const ranging::Record> records,
   }
   return leverage;
 }
+
+/// Above this many targets the noise-systematic confidence takes one optimism
+/// (G + p) / (G - p) for all instead of a refit per target.
+constexpr std::size_t kMaxLeverageRefits = 500;
 
 /// noise_systematic: in-sample residuals of the kept model on every row,
 /// grouped by truth; the intensity axis the correction reads; each group's
@@ -706,12 +713,23 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
       pulse_width ? ranging::IntensityInput::pulse_width : ranging::IntensityInput::amplitude;
   std::string why;
   double leverage_sum = 0, optimism_sum = 0, optimism_max = 0;
+  const bool pointwise = used_groups <= kMaxLeverageRefits;
   if (!(g > p + 1)) {
     why = format("%zu targets for %.1f effective parameters", used_groups, p);
+  } else if (!pointwise) {
+    // One refit per target costs too much here: one optimism for all.
+    options.optimism = optimism_sum = optimism_max = (g + p) / (g - p);
+    optimism_sum *= g;
+    try {
+      result.pipeline.set_confidence(
+          fit_noise_systematic_confidence({range, intensity, residual, group}, options));
+    } catch (const std::invalid_argument& e) {
+      why = e.what();
+    }
   } else {
     try {
       // Pointwise optimism (1 + h) / (1 - h) from each target's leverage h.
-      const std::vector<double> h = group_leverages(records, group_of, groups, o, result.summary);
+      const std::vector<double> h = group_leverages(records, group_of, seen, o, result.summary);
       std::vector<double> leverage(group.size());
       for (std::size_t k = 0; k < group.size(); ++k) {
         const double v = h[group[k]];
@@ -747,6 +765,16 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   c.leverage_sum = leverage_sum;
   c.optimism = optimism_sum / g;
   c.optimism_max = optimism_max;
+  if (!pointwise) {
+    result.report += format(
+        "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
+        "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f for every target (more "
+        "than %zu targets: their leverages are not measured)\n",
+        pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
+        c.optimism, p, kMaxLeverageRefits);
+    result.summary.confidence = c;
+    return;
+  }
   result.report += format(
       "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
       "RMS %.3f mm); optimism (1 + h) / (1 - h) per target from its leverage h: mean %.3f, "

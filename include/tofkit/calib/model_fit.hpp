@@ -36,8 +36,9 @@ struct SurfaceSpec {
 /// thesis: the thesis's cubic; noise_systematic: noise of one row from the
 /// repeats' scatter plus the correction's systematic error from the targets'
 /// mean residuals, each times its pointwise optimism (1 + h) / (1 - h) from
-/// the target's leverage h (one refit per target), on the correction's own
-/// intensity axis (fit_noise_systematic_confidence).
+/// the target's leverage h (one refit per target; above 500 targets one
+/// optimism (G + p) / (G - p) for all), on the correction's own intensity
+/// axis (fit_noise_systematic_confidence).
 enum class ConfidenceKind { none, calibrated, thesis, noise_systematic };
 
 /// A B-spline surface's intensity axis: the amplitude (log scale), the pulse
@@ -145,7 +146,8 @@ struct ModelFitSummary {
     long every_kth_group = 0;  ///< hold-out: every k-th group (0: cross-fitting)
     ErrorStats held_out;       ///< of the out-of-fold / held-out residuals
     /// noise_systematic: the correction's effective parameters p, the sum of
-    /// the targets' leverages h (measured by refits; about p), and the mean
+    /// the targets' leverages h (measured by refits; about p; 0: not measured,
+    /// more than 500 targets), and the mean
     /// and largest pointwise optimism (1 + h) / (1 - h) applied to the targets'
     /// systematic errors.
     double effective_parameters = 0;
