@@ -10,6 +10,8 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <numeric>
+#include <random>
 #include <string>
 #include <tuple>
 #include <variant>
@@ -115,42 +117,55 @@ struct GridData {
   std::vector<ranging::Record> coverage;
 };
 
+/// The grid's rows at run seed `seed`. in_time_order: the calibration rows
+/// first, then `test`, then `coverage`, as a session would measure them;
+/// false: the whole plan in one fixed shuffled order (each row keeps its place
+/// in the returned sets), so the calibration spans the session.
+GridData make_grid_data(std::uint64_t seed, bool in_time_order) {
+  const device::VirtualRangefinder device(experiments::indoors(other_parts()));
+  std::vector<experiments::PlannedMeasurement> plan;
+  for (double d = 0.5; d <= 9.0 + 1e-9; d += 0.5) {
+    for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
+      for (int repeat = 0; repeat < 2; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  const std::size_t calibration_rows = plan.size();
+  for (double d = 0.75; d <= 8.75 + 1e-9; d += 1.0) {
+    for (double rho : {0.09, 0.2, 0.35, 0.55, 0.75}) {
+      for (int repeat = 0; repeat < 6; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  const std::size_t test_end = plan.size();
+  // Appended, so the rows above keep their random streams.
+  for (double d = 0.625; d <= 8.875 + 1e-9; d += 0.25) {
+    for (double rho : {0.09, 0.16, 0.2, 0.3, 0.35, 0.5, 0.55, 0.7, 0.75}) {
+      for (int repeat = 0; repeat < 6; ++repeat) {
+        plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
+      }
+    }
+  }
+  std::vector<std::size_t> order(plan.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  if (!in_time_order) std::shuffle(order.begin(), order.end(), std::mt19937_64(3));
+  std::vector<experiments::PlannedMeasurement> measured;
+  for (std::size_t k : order) measured.push_back(plan[k]);
+  const std::vector<ranging::Record> run = experiments::run(device, measured, seed);
+  std::vector<ranging::Record> rows(plan.size());
+  for (std::size_t k = 0; k < order.size(); ++k) rows[order[k]] = run[k];
+  const auto at = [&](std::size_t k) { return rows.begin() + static_cast<std::ptrdiff_t>(k); };
+  GridData out;
+  out.calibration.assign(rows.begin(), at(calibration_rows));
+  out.test.assign(at(calibration_rows), at(test_end));
+  out.coverage.assign(at(test_end), rows.end());
+  return out;
+}
+
 const GridData& grid_data() {
-  static const GridData data = [] {
-    const device::VirtualRangefinder device(experiments::indoors(other_parts()));
-    std::vector<experiments::PlannedMeasurement> plan;
-    for (double d = 0.5; d <= 9.0 + 1e-9; d += 0.5) {
-      for (double rho : {0.06, 0.12, 0.25, 0.45, 0.65, 0.85}) {
-        for (int repeat = 0; repeat < 2; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    const std::size_t calibration_rows = plan.size();
-    for (double d = 0.75; d <= 8.75 + 1e-9; d += 1.0) {
-      for (double rho : {0.09, 0.2, 0.35, 0.55, 0.75}) {
-        for (int repeat = 0; repeat < 6; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    const std::size_t test_end = plan.size();
-    // Appended, so the rows above keep their random streams.
-    for (double d = 0.625; d <= 8.875 + 1e-9; d += 0.25) {
-      for (double rho : {0.09, 0.16, 0.2, 0.3, 0.35, 0.5, 0.55, 0.7, 0.75}) {
-        for (int repeat = 0; repeat < 6; ++repeat) {
-          plan.push_back(experiments::plate(d, rho, kGridTemperatureC, 0.0, kGridShots));
-        }
-      }
-    }
-    std::vector<ranging::Record> rows = experiments::run(device, plan, 7);
-    const auto at = [&](std::size_t k) { return rows.begin() + static_cast<std::ptrdiff_t>(k); };
-    GridData out;
-    out.calibration.assign(rows.begin(), at(calibration_rows));
-    out.test.assign(at(calibration_rows), at(test_end));
-    out.coverage.assign(at(test_end), rows.end());
-    return out;
-  }();
+  static const GridData data = make_grid_data(7, true);
   return data;
 }
 
@@ -263,9 +278,19 @@ void expect_noise_level_and_covering_sigma(bool chain) {
 // inside their training domain; 0.302 mm before); the coverage does not.
 // Measured with the periodic TDC step and the noise-systematic confidence
 // (noise from the repeats, the systematic part by maximum likelihood on the
-// targets' mean residuals, times the optimism): coverage set 93.2 % within 2
-// sigma, terciles 89.6 / 98.1 / 91.8 % (`test`: 98.4 %, 97.6 / 97.6 / 100 %);
-// the default calibrated confidence 98.4 %, 97.8 / 97.6 / 99.8 %. The coverage
+// targets' mean residuals, each scaled by its own optimism (1 + h) / (1 - h)
+// from its leverage h: mean 2.99, the leverages summing to 24.5 against
+// p = 24.6): coverage set 95.8 % within 2 sigma, terciles 95.9 / 98.8 / 92.7 %
+// (`test`: 98.4 %, 97.6 / 97.6 / 100 %); with one optimism (G + p) / (G - p)
+// for all targets 93.2 %, 89.6 / 98.1 / 91.8 %; the default calibrated
+// confidence 98.4 %, 97.8 / 97.6 / 99.8 %. Other run seeds (8, 9, 10): the
+// wander (see CrossFittedSigmaCarriesTheWanderTheCalibrationSpans) takes it to
+// 58.7 / 69.9 / 77.9 % (one optimism: 53.3 / 62.7 / 74.0 %); with
+// measurement.flicker_delay_ps = 0, seeds 7-10: 96.2 / 91.2 / 92.6 / 92.4 %
+// (one optimism: 94.9 / 89.0 / 89.0 / 90.8 %); on slower parts
+// (receiver.bandwidth_mhz 60, laser.pulse_width_ns 3, discriminator.threshold_v
+// 0.03) without the wander 96.1 / 94.9 / 95.7 / 96.3 % (one optimism: 95.7 /
+// 94.6 / 94.6 / 95.1 %), its terciles 93.6-98.7 %. The coverage
 // set has targets the surface does not reach (systematic 1.30 mm RMS there
 // against 0.25 mm for the chain; 0.39 mm without the one target below):
 // +-1-1.4 mm at 0.6-1.9 m for bright targets (pulse widths 9.2-10.2 ns, where
@@ -296,25 +321,80 @@ TEST(CalibrationOnOtherParts, DISABLED_BSplineOnAGridReachesTheNoiseAndItsSigmaC
 // DISABLED (issue 8 open): the systematic half passes (see
 // ChainWithThePeriodicStepReachesTheNoise: 0.234 mm against 0.252 mm); the
 // coverage does not quite. Measured with the periodic step and the
-// noise-systematic confidence (optimism 3.17 for p = 50 effective parameters
-// on 96 targets): coverage set 93.9 % within 2 sigma, terciles 92.2 / 96.4 /
-// 93.2 % (`test`: 94.0 %, 96.4 / 91.7 / 94.0 %); with the systematic part
-// fitted as a floored log fit instead of by maximum likelihood, 96.7 %, 96.8 /
-// 98.1 / 95.2 %; the default calibrated confidence without the step 97.4 %,
-// 99.8 / 93.5 / 98.8 %. Per tercile the model's sigma matches the held-out
-// RMS error within 17 % (low tercile 0.386 against 0.463 mm, middle 0.278
-// against 0.259 mm, high 0.226 against 0.246 mm): about the uncertainty of a
-// variance from a third of 96 targets (see the B-spline's test above).
+// noise-systematic confidence, each target's systematic error scaled by its
+// own optimism (1 + h) / (1 - h) from its leverage h (mean 4.49, largest 30.4;
+// the leverages sum to 48.3 against p = 49.9 effective parameters): coverage
+// set 96.5 % within 2 sigma, terciles 94.5 / 98.5 / 96.6 % (`test`: 96.0 %,
+// 96.4 / 94.0 / 97.6 %). With one optimism (G + p) / (G - p) = 3.17 for all
+// 96 targets it was 93.9 %, 92.2 / 96.4 / 93.2 %: the refinement is flexible
+// where the targets are sparse (h 0.75-0.95 at pulse widths 3.9-5 ns, 0.25-0.5
+// elsewhere), and there one optimism gave too little. The default calibrated
+// confidence without the step: 97.4 %, 99.8 / 93.5 / 98.8 %.
 // These figures are one draw (run seed 7). With seeds 8-10 the coverage set
-// sits 0.4-0.5 mm off the calibration (the 1/f delay wander,
-// measurement.flicker_delay_ps, between the calibration rows and the later
-// coverage rows) and every model falls to 46-60 %. With the wander at 0,
-// seeds 7-10: noise-systematic 93.8 / 87.8 / 87.9 / 85.9 % (it under-covers
-// by itself), the default calibrated kind 97.2 / 97.0 / 97.2 / 96.5 % with
-// its low tercile at 99.5-99.8 % every time, and the test set's systematic
-// 0.21-0.31 mm against 0.24-0.26 mm of noise (above it at seed 10).
+// sits 0.43-0.54 mm off the calibration (the 1/f delay wander between the
+// calibration rows and the later coverage rows, which the calibration cannot
+// see: CrossFittedSigmaCarriesTheWanderTheCalibrationSpans) and every model
+// falls short: noise-systematic 64.3 / 73.5 / 73.4 % (one optimism: 45.6 /
+// 55.9 / 68.3 %), calibrated 81.0 / 89.2 / 92.8 %. With the wander at 0,
+// seeds 7-10: noise-systematic 97.0 / 95.9 / 93.7 / 88.9 % (one optimism:
+// 93.8 / 87.8 / 87.9 / 85.9 %), its middle tercile 88.9-99.1 % and high
+// tercile 85.1-97.1 %; the default calibrated kind 97.2 / 97.0 / 97.2 / 96.5 %
+// with its low tercile at 99.5-99.8 % every time (its 5-fold cross-fitting
+// leaves gaps where the walk bends: a held-out bright plate at 1.5-2.5 m is
+// predicted 1.2-2.8 mm off, while the coverage set's high tercile has 0.32-0.35
+// mm of systematic error); and the test set's systematic 0.21-0.31 mm against 0.24-0.26 mm of noise
+// (above it at seed 10). On slower parts (receiver.bandwidth_mhz 60, laser.pulse_width_ns 3,
+// discriminator.threshold_v 0.03) without the wander: noise-systematic 95.5 / 95.2 / 95.3 / 94.8 %
+// (one optimism: 92.8 / 91.6 / 95.2 / 94.7 %), its middle tercile over (94.2-99.7 %), its high one
+// under (90.6-93.9 %); with the wander 96.1 / 88.4 / 87.1 / 87.5 %. An oracle sigma (each tercile's
+// held-out RMS error) covers 94.2-96.2 % per tercile at these seeds without
+// the wander: the band is reachable, but a model's tercile sigma rests on
+// about 30 targets (see the B-spline's test above).
 TEST(CalibrationOnOtherParts, DISABLED_ChainOnAGridReachesTheNoiseAndItsSigmaCoversEveryTercile) {
   expect_noise_level_and_covering_sigma(true);
+}
+
+// Why sigma has no drift term of its own. The device's 1/f delay wander
+// (measurement.flicker_delay_ps, 5 ps rms over octaves from 1 mHz) moves the
+// coverage rows, measured 0.3-2.3 s after the 0.2 s of calibration rows,
+// 0.44-0.54 mm off at run seeds 8 and 9 (seed 7: 0.04 mm). The calibration
+// cannot see that: its own residuals trend by 0.01-0.05 mm along its rows,
+// below what 216 rows resolve, so no term fitted from them can. Measured in
+// one shuffled order the calibration spans the session, and the wander is in
+// every cross-fitted residual (a held-out target's rows lie at other times
+// than its fold's training rows): the default calibrated confidence then
+// covers 93 % or more at the seeds where the time-ordered session gives
+// 81-89 %. A drift variance estimated from the calibration's time structure
+// and added to sigma^2 would count what the residuals already carry twice.
+TEST(CalibrationOnOtherParts, CrossFittedSigmaCarriesTheWanderTheCalibrationSpans) {
+  for (std::uint64_t seed : {8, 9}) {
+    for (bool in_time_order : {true, false}) {
+      const GridData data = make_grid_data(seed, in_time_order);
+      calib::ModelFitOptions options;
+      options.chain = calib::ChainSteps{true, true, false};
+      options.refine_walk = true;
+      const calib::ModelFitResult fit = calib::fit_model(data.calibration, options);
+      const HeldOutFigures f = held_out_figures(fit.pipeline, data.coverage);
+      double mean = 0;
+      std::size_t rows = 0;
+      for (const auto& r : data.coverage) {
+        const double e = r.truth.distance_m - fit.pipeline.apply(r.raw).distance_m;
+        if (!std::isfinite(e)) continue;
+        mean += e;
+        ++rows;
+      }
+      mean /= static_cast<double>(rows);
+      std::printf("seed %d, %s: mean error %.3f mm; %s\n", static_cast<int>(seed),
+                  in_time_order ? "in time order" : "shuffled", mean * 1e3, f.summary().c_str());
+      if (in_time_order) {
+        EXPECT_GT(std::fabs(mean), 0.3e-3);
+        EXPECT_LT(f.within_2sigma, 0.93) << f.summary();
+      } else {
+        EXPECT_LT(std::fabs(mean), 0.15e-3);
+        EXPECT_GE(f.within_2sigma, 0.93) << f.summary();
+      }
+    }
+  }
 }
 
 // The B-spline surface on the same grid, with the periodic step: each axis's
@@ -418,7 +498,8 @@ TEST(CalibrationOnOtherParts, BSplineChoosesThePulseWidthAxisWhereTheAmplitudeCl
 // Pipeline::kOutOfDomainSigmaGrowth) covers 44.1 % within 2 sigma (terciles
 // 23.4 / 60.5 / 48.4 %; in-domain rows alone 54.1 %, 35 / 58 / 69 %);
 // fit_model's calibrated confidence 68.5 % (36.3 / 79.0 / 90.3 %);
-// noise-systematic 48.9 % (30.6 / 67.7 / 48.4 %). The in-domain error is
+// noise-systematic 58.3 % (53.2 / 74.2 / 47.6 %; 48.9 %, 30.6 / 67.7 / 48.4 %
+// with one optimism (G + p) / (G - p) for all targets). The in-domain error is
 // 0.7-0.9 mm RMS at every test distance, 3.38 m included, against 0.25 mm on
 // the calibration plates: not an error of range but of the chain's additive
 // form, a walk and a temperature hinge fitted on two one-dimensional sweeps

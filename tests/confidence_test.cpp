@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "tofkit/calib/confidence_model.hpp"
+#include "tofkit/calib/model_fit.hpp"
 #include "tofkit/io/surface_json.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 
@@ -344,6 +345,180 @@ TEST(NoiseSystematicConfidence, SystematicTrendByMaximumLikelihood) {
       if (trend == 0) EXPECT_LT(s2, 0.1 * noise2) << intensity[k];
     }
   }
+}
+
+// Oracle for the pointwise optimism: targets whose in-sample mean residual is
+// shrunk as a fit of leverage h shrinks it, (b + noise mean) sqrt(1 - h) (a
+// projection: variance (s^2 + nu)(1 - h)), with h rising from 0.1 to 0.8
+// along log intensity, and fresh targets whose error adds the fit's own error
+// at them, N(0, (s^2 + nu) h). With the leverages the model must give sigma^2
+// = noise^2 + s^2 + (s^2 + nu) h within 12 % in sigma at both ends and the
+// middle, and cover the fresh rows at 2 sigma 93-97 %; the global optimism
+// (G + p) / (G - p) with p the leverages' sum must fall short where h is large.
+struct ShrunkTargets {
+  Targets rows;
+  std::vector<double> leverage;
+};
+
+double leverage_at(double intensity) {
+  return 0.1 + 0.7 * (std::log(intensity) - std::log(0.1)) / (std::log(10.0) - std::log(0.1));
+}
+
+constexpr double kNoise2AtUnitIntensity = 0.09e-6, kSystematic2 = 0.04e-6;
+constexpr int kRepeats = 3;
+
+double new_row_variance(double intensity) {
+  const double noise2 = kNoise2AtUnitIntensity / intensity;
+  return noise2 + kSystematic2 + (kSystematic2 + noise2 / kRepeats) * leverage_at(intensity);
+}
+
+ShrunkTargets make_shrunk_targets(int count, bool fresh, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> log_i(std::log(0.1), std::log(10.0));
+  std::normal_distribution<double> unit;
+  ShrunkTargets t;
+  for (int g = 0; g < count; ++g) {
+    const double intensity = std::exp(log_i(rng)), h = leverage_at(intensity);
+    const double noise = std::sqrt(kNoise2AtUnitIntensity / intensity);
+    const double systematic = std::sqrt(kSystematic2) * unit(rng);
+    std::vector<double> e(kRepeats);
+    double mean = 0;
+    for (double& v : e) mean += (v = noise * unit(rng)) / kRepeats;
+    // In-sample: the mean shrunk by the fit; fresh: the fit's error at the target added.
+    const double shift =
+        fresh ? systematic + std::sqrt((kSystematic2 + noise * noise / kRepeats) * h) * unit(rng)
+              : std::sqrt(1 - h) * (systematic + mean) - mean;
+    for (double v : e) {
+      t.rows.range_m.push_back(3.0);
+      t.rows.intensity.push_back(intensity);
+      t.rows.residual_m.push_back(v + shift);
+      t.rows.group.push_back(static_cast<std::uint32_t>(g));
+      t.leverage.push_back(h);
+    }
+  }
+  return t;
+}
+
+TEST(NoiseSystematicConfidence, PointwiseOptimismFromLeverages) {
+  const ShrunkTargets fit = make_shrunk_targets(800, false, 900);
+  const Targets& r = fit.rows;
+  const auto model = fit_noise_systematic_confidence(
+      {r.range_m, r.intensity, r.residual_m, r.group, fit.leverage});
+  double mean_h = 0;
+  for (double h : fit.leverage) mean_h += h / static_cast<double>(fit.leverage.size());
+  NoiseSystematicOptions global;
+  global.optimism = (1 + mean_h) / (1 - mean_h);  // (G + p) / (G - p), p = G mean_h
+  const auto flat =
+      fit_noise_systematic_confidence({r.range_m, r.intensity, r.residual_m, r.group}, global);
+  const std::vector<double> range{3.0, 3.0, 3.0}, intensity{0.15, 1.0, 8.0};
+  std::vector<double> sigma(3), sigma_flat(3);
+  model->sigma(range, intensity, sigma);
+  flat->sigma(range, intensity, sigma_flat);
+  for (std::size_t k = 0; k < 3; ++k) {
+    const double expected = std::sqrt(new_row_variance(intensity[k]));
+    std::printf("I %.2f (h %.2f): sigma %.4f mm, global optimism %.4f mm, truth %.4f mm\n",
+                intensity[k], leverage_at(intensity[k]), sigma[k] * 1e3, sigma_flat[k] * 1e3,
+                expected * 1e3);
+    EXPECT_NEAR(sigma[k], expected, 0.12 * expected) << "intensity " << intensity[k];
+  }
+  // Where h = 0.77 the global optimism misses a third of the variance or more.
+  EXPECT_LT(sigma_flat[2], 0.85 * std::sqrt(new_row_variance(intensity[2])));
+  const ShrunkTargets fresh = make_shrunk_targets(5000, true, 901);
+  std::vector<double> s(fresh.rows.residual_m.size());
+  model->sigma(fresh.rows.range_m, fresh.rows.intensity, s);
+  std::size_t inside = 0;
+  for (std::size_t k = 0; k < s.size(); ++k)
+    inside += std::abs(fresh.rows.residual_m[k]) <= 2 * s[k];
+  const double share = static_cast<double>(inside) / static_cast<double>(s.size());
+  EXPECT_GT(share, 0.93);
+  EXPECT_LT(share, 0.97);
+  // Refusals name the problem.
+  const auto refused = [&](std::vector<double> leverage, double optimism, const char* what) {
+    NoiseSystematicOptions o;
+    o.optimism = optimism;
+    try {
+      (void)fit_noise_systematic_confidence(
+          {r.range_m, r.intensity, r.residual_m, r.group, leverage}, o);
+      ADD_FAILURE() << "accepted: " << what;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+    }
+  };
+  refused(std::vector<double>(3, 0.5), 1.0, "leverage and residual_m differ in length");
+  std::vector<double> bad = fit.leverage;
+  bad[7] = 1.0;
+  refused(bad, 1.0, "leverage at row 7 must be in [0, 1)");
+  bad[7] = std::numeric_limits<double>::quiet_NaN();
+  refused(bad, 1.0, "leverage at row 7 must be in [0, 1)");
+  refused(fit.leverage, 2.0, "exclusive");
+}
+
+// fit_model measures each target's leverage by refits: for an offset alone
+// fitted by least squares (the mean of all rows' errors) a target of n rows among N has h = n / N
+// exactly, the leverages sum to 1 (its one parameter) and the largest
+// optimism is (1 + 3 / N) / (1 - 3 / N) for the targets of three rows.
+std::vector<ranging::Record> offset_targets(int targets) {
+  std::mt19937_64 rng(910);
+  std::normal_distribution<double> unit;
+  std::vector<ranging::Record> records;
+  const double metres_per_ns = ranging::metres_per_ns(ranging::TimeToDistance{});
+  for (int g = 0; g < targets; ++g) {
+    const double distance = 1.0 + 0.2 * g, amplitude = 0.05 * (1 + g);
+    const double systematic = 0.3e-3 * unit(rng);
+    for (int k = 0; k < (g % 2 == 0 ? 3 : 2); ++k) {
+      ranging::Record r;
+      r.truth.distance_m = distance;
+      r.truth.reflectance = 0.5;
+      r.truth.angle_deg = 0;
+      r.truth.ambient_c = 20;
+      r.raw.distance_raw_m = distance + 0.05 + systematic + 0.2e-3 * unit(rng);
+      r.raw.tof_ns = r.raw.distance_raw_m / metres_per_ns;
+      r.raw.amplitude = amplitude;
+      r.raw.pulse_width_ns = 3.0 + 0.1 * g;
+      r.raw.temperature_c = 25;
+      r.raw.shots_valid = 100;
+      records.push_back(r);
+    }
+  }
+  return records;
+}
+
+ModelFitOptions offset_options() {
+  ModelFitOptions options;
+  options.chain = ChainSteps{true, false, false};
+  // Least squares: a robust loss weights rows by their residuals, and the
+  // refits then measure the M-estimator's influence instead.
+  options.chain_options.grayvalue.robust.loss = RobustLoss::kNone;
+  options.chain_options.temperature.robust.loss = RobustLoss::kNone;
+  options.confidence = ConfidenceKind::noise_systematic;
+  options.confidence_required = true;
+  return options;
+}
+
+TEST(NoiseSystematicConfidence, FitModelMeasuresLeveragesByRefits) {
+  const std::vector<ranging::Record> records = offset_targets(40);
+  const ModelFitResult fit = fit_model(records, offset_options());
+  ASSERT_TRUE(fit.summary.confidence.has_value()) << fit.report;
+  const auto& c = *fit.summary.confidence;
+  const double n = static_cast<double>(records.size());
+  std::printf("%s", fit.report.c_str());
+  EXPECT_NEAR(c.effective_parameters, 1.0, 1e-12);
+  EXPECT_NEAR(c.leverage_sum, 1.0, 1e-6);
+  EXPECT_NEAR(c.optimism_max, (1 + 3 / n) / (1 - 3 / n), 1e-6);
+  EXPECT_NEAR(c.optimism, ((1 + 3 / n) / (1 - 3 / n) + (1 + 2 / n) / (1 - 2 / n)) / 2, 1e-6);
+}
+
+// Above 500 targets a refit per target costs too much: one optimism
+// (G + p) / (G - p) for all, said in the report, no leverages.
+TEST(NoiseSystematicConfidence, ManyTargetsTakeOneOptimism) {
+  const ModelFitResult fit = fit_model(offset_targets(501), offset_options());
+  ASSERT_TRUE(fit.summary.confidence.has_value()) << fit.report;
+  const auto& c = *fit.summary.confidence;
+  EXPECT_EQ(c.groups, 501u);
+  EXPECT_EQ(c.leverage_sum, 0.0);
+  EXPECT_NEAR(c.optimism, 502.0 / 500.0, 1e-12);
+  EXPECT_EQ(c.optimism_max, c.optimism);
+  EXPECT_NE(fit.report.find("more than 500 targets"), std::string::npos) << fit.report;
 }
 
 }  // namespace

@@ -775,6 +775,56 @@ TEST(BSplineSurface, CrossValidationChoosesQuantileKnotsWhereTheDataCrowd) {
   EXPECT_LT(q.cv_rms_m, u.cv_rms_m) << q.summary() << "\n" << u.summary();
 }
 
+// A result's choices (intervals, placement per axis, smoothing, axis
+// weights) given back as fixed options refit the same surface: what
+// fit_model's leverage refits rely on (a refit linear in the data, without
+// the cross-validated search). The data crowd at short range, so the range
+// axis gets quantile knots and the amplitude axis may not.
+TEST(BSplineSurface, ARefitWithAResultsChoicesReproducesItsSurface) {
+  std::mt19937_64 rng(61);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 0.0005);
+  Table train;
+  for (int k = 0; k < 1500; ++k) {
+    const double v = unit(rng);
+    const double r = 1.0 + 29.0 * v * v * v, a = 20.0 * std::pow(200.0, unit(rng));
+    train.range_m.push_back(r);
+    train.amplitude.push_back(a);
+    train.error_m.push_back(0.004 * std::sin(3.0 * r) / r + 0.01 * std::exp(-a / 300.0) +
+                            gauss(rng));
+  }
+  BSplineFitOptions options;
+  options.choose_intervals_by_gcv = true;
+  const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
+  BSplineFitOptions fixed;
+  fixed.intervals_range = fit.intervals[0];
+  fixed.intervals_amplitude = fit.intervals[1];
+  fixed.smoothing = fit.smoothing;
+  fixed.axis_placement = {fit.placement[0], fit.placement[1], fit.placement[2]};
+  for (int k = 0; k < 3; ++k) fixed.axis_weight[k] = fit.axis_weight[k];
+  const SurfaceFitResult again = fit_bspline_surface(train.data(), fixed);
+  EXPECT_EQ(fit.placement[0], KnotPlacement::quantile) << fit.summary();
+  for (int k = 0; k < 2; ++k) {
+    EXPECT_EQ(again.placement[k], fit.placement[k]);
+    EXPECT_EQ(again.knots[k], fit.knots[k]);
+    EXPECT_EQ(again.axis_weight[k], fit.axis_weight[k]);
+  }
+  EXPECT_NEAR(again.effective_parameters, fit.effective_parameters, 1e-9);
+  const std::size_t n = train.range_m.size();
+  std::vector<double> a(n), b(n), t(n, 20.0);
+  std::vector<std::uint8_t> fa(n), fb(n);
+  fit.surface->evaluate({train.range_m, train.amplitude, t}, a, fa);
+  again.surface->evaluate({train.range_m, train.amplitude, t}, b, fb);
+  for (std::size_t k = 0; k < n; ++k) EXPECT_NEAR(a[k], b[k], 1e-12) << k;
+  fixed.axis_weight[1] = 0;
+  try {
+    fixed.validate();
+    ADD_FAILURE() << "axis_weight 0 accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("axis_weight[1]"), std::string::npos) << e.what();
+  }
+}
+
 TEST(SurfaceJson, NonUniformKnotsRoundTripAndOldFilesLoadUniform) {
   const Table train = make_table(3000, walk_truth, 0.002, 61);
   const Table probe = make_table(500, walk_truth, 0.0, 62);

@@ -265,8 +265,9 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
              "--confidence", o->confidence,
              "confidence model: calibrated (default: sigma over amplitude and range, fitted "
              "on out-of-fold residuals), noise-systematic (noise from the repeats' scatter plus "
-             "the targets' systematic error times (G + p) / (G - p), on the correction's "
-             "intensity axis), thesis (Section 4.8) or none")
+             "the targets' systematic error, each times (1 + h) / (1 - h) for its leverage h "
+             "(one refit per target), on the correction's intensity axis), thesis (Section "
+             "4.8) or none")
           ->check(CLI::IsMember({"none", "thesis", "calibrated", "noise-systematic"}))
           ->capture_default_str();
   CLI::Option* fraction =

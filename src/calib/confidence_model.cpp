@@ -411,6 +411,21 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
   if (data.group.size() != n) {
     throw std::invalid_argument(who + ": group and residual_m differ in length");
   }
+  const bool pointwise = !data.leverage.empty();
+  if (pointwise) {
+    if (data.leverage.size() != n) {
+      throw std::invalid_argument(who + ": leverage and residual_m differ in length");
+    }
+    if (options.optimism != 1.0) {
+      throw std::invalid_argument(who + ": leverage and an optimism other than 1 are exclusive");
+    }
+    for (std::size_t k = 0; k < n; ++k) {
+      if (!(data.leverage[k] >= 0 && data.leverage[k] < 1)) {
+        throw std::invalid_argument(who + ": leverage at row " + std::to_string(k) +
+                                    " must be in [0, 1)");
+      }
+    }
+  }
   // (Intensity in the amplitude's place; sigma does not depend on range here.)
   const SurfaceDomain d =
       validate_data({data.range_m, data.intensity, data.residual_m}, true, who, false, "intensity");
@@ -429,7 +444,7 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
   // Per target: rows, mean log intensity, mean and sample variance of the residual.
   struct Target {
     std::size_t rows = 0;
-    double u = 0, sum = 0, sum2 = 0;
+    double u = 0, sum = 0, sum2 = 0, leverage = 0;
   };
   std::vector<Target> targets;
   std::vector<std::size_t> index_of;  // group id -> index in targets (+1; 0: none yet)
@@ -444,10 +459,12 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
     ++t.rows;
     t.u += std::log(data.intensity[k]);
     t.sum += data.residual_m[k];
+    if (pointwise) t.leverage += data.leverage[k];
   }
   for (Target& t : targets) {
     t.u /= static_cast<double>(t.rows);
     t.sum /= static_cast<double>(t.rows);  // now the mean
+    t.leverage = std::min(t.leverage / static_cast<double>(t.rows), kMaxLeverage);
   }
   for (std::size_t k = 0; k < n; ++k) {
     Target& t = targets[index_of[data.group[k]] - 1];
@@ -457,7 +474,10 @@ std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
   for (const Target& t : targets) {
     const double x = p.amplitude_scaling.apply(t.u);
     x_all.push_back(x);
-    mean2.push_back(t.sum * t.sum);
+    // Pointwise optimism: the in-sample mean's variance (s^2 + nu)(1 - h)
+    // scaled to a new target's (s^2 + nu)(1 + h); nu is kept below, so the
+    // fitted excess is s^2 (1 + h) + nu h.
+    mean2.push_back(t.sum * t.sum * (1.0 + t.leverage) / (1.0 - t.leverage));
     rows_of.push_back(static_cast<double>(t.rows));
     if (t.rows < 2) continue;
     x_rep.push_back(x);

@@ -613,8 +613,72 @@ double effective_parameters(const ModelFitSummary& s) {
   return p;
 }
 
+/// Each truth group's leverage on its own mean residual, h_g = d(mean
+/// corrected distance of g) / d(truth of g): the correction refitted with the
+/// group's truth moved by a small step (the fit is linear in the truth for
+/// fixed choices of knots, smoothing and harmonics, and the step is far below
+/// the residuals that choose them; a walk step starts from the full fit's
+/// shape), against a refit on the rows as they are with the same options.
+/// One refit per group: the price of a pointwise optimism. NaN for groups
+/// without a usable row.
+std::vector<double> group_leverages(std::span<const ranging::Record> records,
+                                    const std::vector<std::size_t>& group_of,
+                                    const std::vector<char>& wanted, const ModelFitOptions& o,
+                                    const ModelFitSummary& summary) {
+  const std::size_t groups = wanted.size();
+  constexpr double kStepM = 1e-5;  // 10 um: about 1/30 of a row's noise
+  ModelFitOptions refit = o;
+  refit.confidence = ConfidenceKind::none;
+  if (summary.chain && summary.chain->walk && !refit.chain_options.walk_initial) {
+    refit.chain_options.walk_initial = summary.chain->walk->shape;
+  }
+  // A B-spline surface keeps the fit's choices (intensity axis, knots,
+  // smoothing, axis weights): its search by cross-validation is what costs.
+  if (summary.surface && o.surface.kind == SurfaceKind::bspline) {
+    const SurfaceFitResult& s = *summary.surface;
+    refit.surface_intensity = summary.surface_intensity == "pulse_width_ns"
+                                  ? SurfaceIntensity::pulse_width
+                                  : SurfaceIntensity::amplitude;
+    BSplineFitOptions& b = refit.bspline;
+    b.choose_intervals_by_gcv = b.choose_smoothing_by_gcv = false;
+    b.intervals_range = s.intervals[0];
+    b.intervals_amplitude = s.intervals[1];
+    if (s.intervals[2] > 0) b.intervals_temperature = s.intervals[2];
+    b.smoothing = s.smoothing;
+    b.axis_placement = {s.placement[0], s.placement[1], s.placement[2]};
+    for (int k = 0; k < 3; ++k) b.axis_weight[k] = s.axis_weight[k];
+  }
+  std::vector<ranging::Record> rows(records.begin(), records.end());
+  const std::vector<ranging::Range> base =
+      corrected_ranges(fit_correction(rows, refit, nullptr, nullptr), records);
+  std::vector<std::vector<std::size_t>> members(groups);
+  for (std::size_t i = 0; i < records.size(); ++i) members[group_of[i]].push_back(i);
+  std::vector<double> leverage(groups, ranging::kNaN);
+  for (std::size_t g = 0; g < groups; ++g) {
+    if (!wanted[g]) continue;
+    for (std::size_t i : members[g]) rows[i].truth.distance_m += kStepM;
+    const ranging::Pipeline moved = fit_correction(rows, refit, nullptr, nullptr);
+    for (std::size_t i : members[g]) rows[i].truth.distance_m = records[i].truth.distance_m;
+    double sum = 0;
+    std::size_t used = 0;
+    for (std::size_t i : members[g]) {
+      const double after = moved.apply(records[i].raw).distance_m;
+      if (!std::isfinite(after) || !std::isfinite(base[i].distance_m)) continue;
+      sum += (after - base[i].distance_m) / kStepM;
+      ++used;
+    }
+    if (used > 0) leverage[g] = sum / static_cast<double>(used);
+  }
+  return leverage;
+}
+
+/// Above this many targets the noise-systematic confidence takes one optimism
+/// (G + p) / (G - p) for all instead of a refit per target.
+constexpr std::size_t kMaxLeverageRefits = 500;
+
 /// noise_systematic: in-sample residuals of the kept model on every row,
-/// grouped by truth; the intensity axis the correction reads.
+/// grouped by truth; the intensity axis the correction reads; each group's
+/// leverage for its pointwise optimism.
 void fit_repeats_confidence(std::span<const ranging::Record> records, const ModelFitOptions& o,
                             ModelFitResult& result) {
   bool pulse_width = result.summary.chain.has_value() && (o.chain->grayvalue || o.chain->walk);
@@ -648,13 +712,41 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   options.intensity =
       pulse_width ? ranging::IntensityInput::pulse_width : ranging::IntensityInput::amplitude;
   std::string why;
+  double leverage_sum = 0, optimism_sum = 0, optimism_max = 0;
+  const bool pointwise = used_groups <= kMaxLeverageRefits;
   if (!(g > p + 1)) {
     why = format("%zu targets for %.1f effective parameters", used_groups, p);
-  } else {
-    options.optimism = (g + p) / (g - p);
+  } else if (!pointwise) {
+    // One refit per target costs too much here: one optimism for all.
+    options.optimism = optimism_sum = optimism_max = (g + p) / (g - p);
+    optimism_sum *= g;
     try {
       result.pipeline.set_confidence(
           fit_noise_systematic_confidence({range, intensity, residual, group}, options));
+    } catch (const std::invalid_argument& e) {
+      why = e.what();
+    }
+  } else {
+    try {
+      // Pointwise optimism (1 + h) / (1 - h) from each target's leverage h.
+      const std::vector<double> h = group_leverages(records, group_of, seen, o, result.summary);
+      std::vector<double> leverage(group.size());
+      for (std::size_t k = 0; k < group.size(); ++k) {
+        const double v = h[group[k]];
+        if (!std::isfinite(v)) throw std::invalid_argument("a target without a leverage");
+        leverage[k] = std::clamp(v, 0.0, kMaxLeverage);
+      }
+      std::fill(seen.begin(), seen.end(), 0);
+      for (std::size_t k = 0; k < group.size(); ++k) {
+        if (seen[group[k]]) continue;
+        seen[group[k]] = 1;
+        const double optimism = (1 + leverage[k]) / (1 - leverage[k]);
+        leverage_sum += h[group[k]];
+        optimism_sum += optimism;
+        optimism_max = std::max(optimism_max, optimism);
+      }
+      result.pipeline.set_confidence(
+          fit_noise_systematic_confidence({range, intensity, residual, group, leverage}, options));
     } catch (const std::invalid_argument& e) {
       why = e.what();
     }
@@ -670,12 +762,26 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   c.groups = used_groups;
   c.held_out = error_stats(residual);
   c.effective_parameters = p;
-  c.optimism = options.optimism;
+  c.leverage_sum = leverage_sum;
+  c.optimism = optimism_sum / g;
+  c.optimism_max = optimism_max;
+  if (!pointwise) {
+    result.report += format(
+        "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
+        "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f for every target (more "
+        "than %zu targets: their leverages are not measured)\n",
+        pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
+        c.optimism, p, kMaxLeverageRefits);
+    result.summary.confidence = c;
+    return;
+  }
   result.report += format(
       "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
-      "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f\n",
+      "RMS %.3f mm); optimism (1 + h) / (1 - h) per target from its leverage h: mean %.3f, "
+      "max %.3f (leverages sum to %.1f; p = %.1f effective parameters, (G + p) / (G - p) = "
+      "%.3f)\n",
       pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
-      c.optimism, p);
+      c.optimism, c.optimism_max, leverage_sum, p, (g + p) / (g - p));
   result.summary.confidence = c;
 }
 

@@ -389,7 +389,9 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
                        {"held_out_residual", stats_json(c.held_out)}};
     if (c.kind == calib::ConfidenceKind::noise_systematic) {
       j["confidence"]["effective_parameters"] = c.effective_parameters;
-      j["confidence"]["optimism"] = c.optimism;
+      j["confidence"]["leverage_sum"] = c.leverage_sum;
+      j["confidence"]["optimism_mean"] = c.optimism;
+      j["confidence"]["optimism_max"] = c.optimism_max;
     } else if (c.every_kth_group > 0) {
       j["confidence"]["held_out_every_kth_group"] = c.every_kth_group;
     } else {

@@ -62,6 +62,11 @@ struct NoiseSystematicFitData {
   std::span<const double> intensity;   ///< amplitude or pulse width (> 0)
   std::span<const double> residual_m;  ///< true - corrected, in-sample
   std::span<const std::uint32_t> group;
+  /// Optional, one per row (empty: none): the leverage h in [0, 1) of the
+  /// row's target on its own mean residual (d mean fitted / d mean truth, the
+  /// same for every row of a target). With it each target's optimism is its
+  /// own, (1 + h) / (1 - h), instead of NoiseSystematicOptions::optimism.
+  std::span<const double> leverage = {};
 };
 
 struct NoiseSystematicOptions {
@@ -82,8 +87,23 @@ struct NoiseSystematicOptions {
 /// as weights; averaging noise falls as 1/SNR), the systematic part from the
 /// targets' mean residuals less the noise of a mean (noise^2 / n), by the same
 /// fit. Needs repeats (>= 10 targets with two or more rows).
+///
+/// With data.leverage the optimism is pointwise (Mallows' C_p per target: an
+/// in-sample mean residual has variance (s^2 + nu)(1 - h), a new target's
+/// error s^2 + nu + (s^2 + nu) h): each target's squared mean residual is
+/// scaled by (1 + h) / (1 - h) before the fit, so the fitted excess over the
+/// noise of a mean is s^2 (1 + h) + nu h, a new row's error variance less its
+/// noise, where the correction is flexible (sparse targets, steep curves) and
+/// not where it is stiff. The leverages sum to the correction's effective
+/// parameters, so on average this is the global (G + p) / (G - p).
+/// Leverages above kMaxLeverage are taken as kMaxLeverage.
 [[nodiscard]] std::shared_ptr<const ConfidenceModel> fit_noise_systematic_confidence(
     const NoiseSystematicFitData& data, const NoiseSystematicOptions& options = {});
+
+/// The largest leverage used by fit_noise_systematic_confidence (optimism 39):
+/// a target that alone determines its fitted value (h -> 1) has a mean
+/// residual of zero whatever its error, and says nothing about it.
+inline constexpr double kMaxLeverage = 0.95;
 
 /// How well a confidence model's sigma describes residuals: the share with
 /// |residual| <= 2 sigma, overall and per intensity tercile of these data.

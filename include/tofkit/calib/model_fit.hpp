@@ -35,8 +35,10 @@ struct SurfaceSpec {
 /// calibrated: fitted on out-of-fold residuals, coverage calibrated per band;
 /// thesis: the thesis's cubic; noise_systematic: noise of one row from the
 /// repeats' scatter plus the correction's systematic error from the targets'
-/// mean residuals times the optimism (G + p) / (G - p), on the correction's
-/// own intensity axis (fit_noise_systematic_confidence).
+/// mean residuals, each times its pointwise optimism (1 + h) / (1 - h) from
+/// the target's leverage h (one refit per target; above 500 targets one
+/// optimism (G + p) / (G - p) for all), on the correction's own intensity
+/// axis (fit_noise_systematic_confidence).
 enum class ConfidenceKind { none, calibrated, thesis, noise_systematic };
 
 /// A B-spline surface's intensity axis: the amplitude (log scale), the pulse
@@ -143,10 +145,15 @@ struct ModelFitSummary {
     int folds = 0;             ///< cross-fitting folds (0: hold-out)
     long every_kth_group = 0;  ///< hold-out: every k-th group (0: cross-fitting)
     ErrorStats held_out;       ///< of the out-of-fold / held-out residuals
-    /// noise_systematic: the correction's effective parameters p and the
-    /// optimism (G + p) / (G - p) applied to the systematic part.
+    /// noise_systematic: the correction's effective parameters p, the sum of
+    /// the targets' leverages h (measured by refits; about p; 0: not measured,
+    /// more than 500 targets), and the mean
+    /// and largest pointwise optimism (1 + h) / (1 - h) applied to the targets'
+    /// systematic errors.
     double effective_parameters = 0;
+    double leverage_sum = 0;
     double optimism = 0;
+    double optimism_max = 0;
   };
   std::optional<Confidence> confidence;
   double residual_rms_m = 0;

@@ -1,8 +1,10 @@
 #pragma once
 /// \file Least-squares fits of correction surfaces.
 
+#include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -65,6 +67,13 @@ struct BSplineFitOptions {
   /// the placement (uniform or quantile) per axis; the intervals_* and
   /// knot_placement above are then ignored. Implies choose_smoothing_by_gcv.
   bool choose_intervals_by_gcv = false;
+  /// When nothing is chosen by cross-validation: each axis's penalty weight
+  /// relative to `smoothing` (range, amplitude, temperature), and each axis's
+  /// knot placement (unset: knot_placement on every axis). With a result's
+  /// intervals, smoothing, placement and axis_weight they refit its surface
+  /// with the same choices (a refit that is linear in the data).
+  double axis_weight[3] = {1, 1, 1};
+  std::optional<std::array<KnotPlacement, 3>> axis_placement;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
