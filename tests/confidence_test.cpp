@@ -80,6 +80,40 @@ TEST(CalibratedConfidence, HeldOutCoverageMeetsTargetOverallAndPerTercile) {
   }
 }
 
+// Rows at two distances only (plates at one distance and a temperature run at
+// another): the range may enter linearly, no more. Found on such a calibration,
+// where higher powers of range, free between the two distances, cancelled on
+// them and gave sigma = 1e60 m (or infinity) at the distances between. Every
+// sigma between and around must stay near the true one, and its range
+// dependence must be the straight line through the two distances' variances.
+TEST(CalibratedConfidence, RowsAtTwoDistancesGiveAtMostALinearRangeTerm) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  Residuals sample;
+  for (std::size_t k = 0; k < 4000; ++k) {
+    const double r = (k % 2 == 0 ? 1.778 : 6.5) + 0.0003 * gauss(rng);
+    const double a = 10.0 * std::pow(500.0, unit(rng));
+    const double s = true_sigma(r, a);
+    sample.range_m.push_back(r);
+    sample.amplitude.push_back(a);
+    sample.residual_m.push_back(s * gauss(rng));
+    sample.true_sigma_m.push_back(s);
+  }
+  const auto model = fit_calibrated_confidence(sample.data());
+  const auto& p = dynamic_cast<const CalibratedConfidence&>(*model).params();
+  for (const auto& e : p.exponents) EXPECT_LE(e[1], 1) << e[0] << " " << e[1];
+  for (double range : {1.778, 2.5, 3.5, 4.2, 5.0, 6.5}) {
+    for (double amplitude : {20.0, 100.0, 500.0, 2500.0}) {
+      double sigma = 0;
+      model->sigma(std::span<const double>(&range, 1), std::span<const double>(&amplitude, 1),
+                   std::span<double>(&sigma, 1));
+      EXPECT_NEAR(sigma / true_sigma(range, amplitude), 1.0, 0.2)
+          << "r " << range << " a " << amplitude;
+    }
+  }
+}
+
 TEST(CalibratedConfidence, SigmaFollowsTheTrueSigma) {
   // For Gaussian residuals the 95 % two-sided quantile is 1.96 sigma, so the
   // calibrated sigma should be 0.98 of the true one wherever data are dense.

@@ -110,6 +110,21 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range, cons
 /// Smallest max/min ratio of the fitting data's ranges for range terms.
 constexpr double kMinRangeRatio = 1.5;
 
+/// Distances the rows were measured at: clusters of sorted ranges parted by
+/// gaps wider than 2 cm (far above the noise of a corrected range, far below
+/// the spacing of plates). A polynomial of degree k in range needs k + 1 of
+/// them: with fewer its higher powers are free between the distances (at two
+/// distances y^2 equals 1 and y^3 equals y on both, so their coefficients may
+/// cancel there and explode between).
+std::size_t distinct_distances(std::span<const double> range_m) {
+  constexpr double kGapM = 0.02;
+  std::vector<double> r(range_m.begin(), range_m.end());
+  std::sort(r.begin(), r.end());
+  std::size_t clusters = r.empty() ? 0 : 1;
+  for (std::size_t k = 1; k < r.size(); ++k) clusters += r[k] - r[k - 1] > kGapM ? 1 : 0;
+  return clusters;
+}
+
 /// Monomials x^a y^b with a + b <= order.
 std::vector<std::array<int, 2>> exponents_2d(int order) {
   std::vector<std::array<int, 2>> out;
@@ -209,6 +224,9 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   if (!(d.range_max_m >= kMinRangeRatio * d.range_min_m)) {
     std::erase_if(p.exponents, [](const std::array<int, 2>& e) { return e[1] != 0; });
   }
+  // No higher power of range than the distances can pin down.
+  const auto distances = static_cast<int>(distinct_distances(data.range_m));
+  std::erase_if(p.exponents, [&](const std::array<int, 2>& e) { return e[1] >= distances; });
   p.log_amplitude = options.log_amplitude;
   p.domain = d;
   p.target_coverage_2sigma = options.target_coverage_2sigma;
