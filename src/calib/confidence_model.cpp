@@ -110,19 +110,36 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range, cons
 /// Smallest max/min ratio of the fitting data's ranges for range terms.
 constexpr double kMinRangeRatio = 1.5;
 
-/// Distances the rows were measured at: clusters of sorted ranges parted by
-/// gaps wider than 2 cm (far above the noise of a corrected range, far below
-/// the spacing of plates). A polynomial of degree k in range needs k + 1 of
-/// them: with fewer its higher powers are free between the distances (at two
-/// distances y^2 equals 1 and y^3 equals y on both, so their coefficients may
-/// cancel there and explode between).
-std::size_t distinct_distances(std::span<const double> range_m) {
+/// The distances the rows were measured at: clusters of sorted ranges parted
+/// by gaps wider than 2 cm (far above the noise of a corrected range, far
+/// below the spacing of plates), and how many of them saw a spread of
+/// intensities (at least a quarter of the scaled axis x in [-1, 1]).
+struct RangeSupport {
+  int distances = 0;
+  int spread_distances = 0;
+};
+
+RangeSupport range_support(std::span<const double> range_m, std::span<const double> x) {
   constexpr double kGapM = 0.02;
-  std::vector<double> r(range_m.begin(), range_m.end());
-  std::sort(r.begin(), r.end());
-  std::size_t clusters = r.empty() ? 0 : 1;
-  for (std::size_t k = 1; k < r.size(); ++k) clusters += r[k] - r[k - 1] > kGapM ? 1 : 0;
-  return clusters;
+  constexpr double kSpread = 0.5;
+  std::vector<std::size_t> order(range_m.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t a, std::size_t b) { return range_m[a] < range_m[b]; });
+  RangeSupport s;
+  double lo = 0, hi = 0;
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    const std::size_t i = order[k];
+    if (k == 0 || range_m[i] - range_m[order[k - 1]] > kGapM) {
+      if (k > 0) s.spread_distances += hi - lo >= kSpread ? 1 : 0;
+      ++s.distances;
+      lo = hi = x[i];
+    }
+    lo = std::min(lo, x[i]);
+    hi = std::max(hi, x[i]);
+  }
+  if (!order.empty()) s.spread_distances += hi - lo >= kSpread ? 1 : 0;
+  return s;
 }
 
 /// Monomials x^a y^b with a + b <= order.
@@ -224,9 +241,24 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   if (!(d.range_max_m >= kMinRangeRatio * d.range_min_m)) {
     std::erase_if(p.exponents, [](const std::array<int, 2>& e) { return e[1] != 0; });
   }
-  // No higher power of range than the distances can pin down.
-  const auto distances = static_cast<int>(distinct_distances(data.range_m));
-  std::erase_if(p.exponents, [&](const std::array<int, 2>& e) { return e[1] >= distances; });
+  // No term the distances cannot pin down. A power k of range needs k + 1
+  // distances: with fewer, higher powers are free between them (at two
+  // distances y^2 equals 1 and y^3 equals y on both; their coefficients may
+  // cancel there and explode between). A term in range and intensity together
+  // needs as many distances that each saw a spread of intensities: plates at
+  // one distance and a temperature run at another (one plate) show how the
+  // variance changes with range at one intensity only.
+  const auto coordinate = [&](double a) { return options.log_amplitude ? std::log(a) : a; };
+  p.amplitude_scaling = AxisScaling::over(coordinate(d.amplitude_min), coordinate(d.amplitude_max));
+  {
+    std::vector<double> x(n);
+    for (std::size_t k = 0; k < n; ++k)
+      x[k] = p.amplitude_scaling.apply(coordinate(data.amplitude[k]));
+    const RangeSupport s = range_support(data.range_m, x);
+    std::erase_if(p.exponents, [&](const std::array<int, 2>& e) {
+      return e[1] >= (e[0] == 0 ? s.distances : s.spread_distances);
+    });
+  }
   p.log_amplitude = options.log_amplitude;
   p.domain = d;
   p.target_coverage_2sigma = options.target_coverage_2sigma;
@@ -237,8 +269,6 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     throw std::invalid_argument(who + ": " + std::to_string(n) + " rows; at least " +
                                 std::to_string(min_rows) + " are needed to calibrate coverage");
   }
-  const auto coordinate = [&](double a) { return options.log_amplitude ? std::log(a) : a; };
-  p.amplitude_scaling = AxisScaling::over(coordinate(d.amplitude_min), coordinate(d.amplitude_max));
   p.range_scaling = AxisScaling::over(d.range_min_m, d.range_max_m);
 
   std::vector<double> u(n);
