@@ -271,30 +271,60 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   }
   p.range_scaling = AxisScaling::over(d.range_min_m, d.range_max_m);
 
-  std::vector<double> u(n);
-  MatrixXd design(static_cast<Index>(n), terms);
+  std::vector<double> u(n), xs(n), ys(n);
   VectorXd e2(static_cast<Index>(n));
   double mean_e2 = 0;
   for (std::size_t k = 0; k < n; ++k) {
     u[k] = coordinate(data.amplitude[k]);
-    const double x = p.amplitude_scaling.apply(u[k]);
-    const double y = p.range_scaling.apply(data.range_m[k]);
-    for (Index j = 0; j < terms; ++j) {
-      const auto& e = p.exponents[static_cast<std::size_t>(j)];
-      design(static_cast<Index>(k), j) = std::pow(x, e[0]) * std::pow(y, e[1]);
-    }
+    xs[k] = p.amplitude_scaling.apply(u[k]);
+    ys[k] = p.range_scaling.apply(data.range_m[k]);
     e2(static_cast<Index>(k)) = data.residual_m[k] * data.residual_m[k];
     mean_e2 += e2(static_cast<Index>(k));
   }
   mean_e2 /= static_cast<double>(n);
   if (!(mean_e2 > 0)) throw std::invalid_argument(who + ": every residual is zero");
 
-  // 1. log E[e^2] = X beta by gamma quasi-likelihood (unit weights).
-  const VectorXd beta = gamma_log_fit(design, e2, VectorXd::Ones(static_cast<Index>(n)));
-  // The fitted log-variance (within the fit's clamp of +-60 around the mean's log).
-  const VectorXd eta =
-      (design * beta).cwiseMax(std::log(mean_e2) - 60.0).cwiseMin(std::log(mean_e2) + 60.0);
-  p.coefficients.assign(beta.data(), beta.data() + terms);
+  // 1. log E[e^2] = X beta by gamma quasi-likelihood (unit weights). Terms the
+  //    rows do not pin down show as a fitted variance somewhere in the domain
+  //    (the box the model is evaluated in) far above any at the rows: then
+  //    the terms in range and intensity together go, and if need be every
+  //    range term, and the fit is repeated.
+  const auto log_variance = [&](const VectorXd& beta, double x, double y) {
+    double v = 0;
+    for (std::size_t j = 0; j < p.exponents.size(); ++j) {
+      v += beta(static_cast<Index>(j)) * std::pow(x, p.exponents[j][0]) *
+           std::pow(y, p.exponents[j][1]);
+    }
+    return v;
+  };
+  constexpr double kMaxExcess = 2.772588722239781;  // ln 16: sigma 4 x the rows' largest
+  constexpr int kGrid = 33;
+  VectorXd beta, eta;
+  for (int stage = 0;; ++stage) {
+    const auto columns = static_cast<Index>(p.exponents.size());
+    MatrixXd design(static_cast<Index>(n), columns);
+    for (std::size_t k = 0; k < n; ++k) {
+      for (Index j = 0; j < columns; ++j) {
+        const auto& e = p.exponents[static_cast<std::size_t>(j)];
+        design(static_cast<Index>(k), j) = std::pow(xs[k], e[0]) * std::pow(ys[k], e[1]);
+      }
+    }
+    beta = gamma_log_fit(design, e2, VectorXd::Ones(static_cast<Index>(n)));
+    // The fitted log-variance (within the fit's clamp of +-60 around the mean's log).
+    eta = (design * beta).cwiseMax(std::log(mean_e2) - 60.0).cwiseMin(std::log(mean_e2) + 60.0);
+    double box_max = -std::numeric_limits<double>::infinity();
+    for (int i = 0; i < kGrid; ++i) {
+      for (int j = 0; j < kGrid; ++j) {
+        box_max = std::max(box_max, log_variance(beta, -1.0 + 2.0 * i / (kGrid - 1),
+                                                 -1.0 + 2.0 * j / (kGrid - 1)));
+      }
+    }
+    if (stage == 2 || box_max <= eta.maxCoeff() + kMaxExcess) break;
+    std::erase_if(p.exponents, [&](const std::array<int, 2>& e) {
+      return e[1] > 0 && (stage == 1 || e[0] > 0);
+    });
+  }
+  p.coefficients.assign(beta.data(), beta.data() + beta.size());
 
   // 2. Coverage per intensity band: bands of equal counts along u; k at each
   //    band centre (median u) is set so that the band's share of
