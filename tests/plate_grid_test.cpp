@@ -5,6 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include <cstring>
+#include <vector>
+
+#include "tofkit/device/virtual_rangefinder.hpp"
+
 namespace tofkit::experiments {
 namespace {
 
@@ -66,6 +71,38 @@ TEST(PlateGrid, RowLimit) {
   const auto problems = grid.problems(11);
   ASSERT_EQ(problems.size(), 1u);
   EXPECT_EQ(problems[0], "the grid has 12 rows, more than 11");
+}
+
+// run() into caller's memory gives the bytes of run() into a vector, refuses a
+// span of another length, and planned() takes the truth from the target's
+// first surface (a mixed pixel's truth is its first surface's).
+TEST(PlateGrid, RunIntoASpanAndPlannedTruth) {
+  PlateGrid grid;
+  grid.distances_m = {1.0, 3.0};
+  grid.reflectances = {0.2, 0.8};
+  grid.count = 2;
+  grid.shots = 50;
+  const auto plan = plate_grid_plan(grid);
+  const device::VirtualRangefinder device{device::DeviceConfig{}};
+  const std::vector<ranging::Record> a = run(device, plan, 5);
+  std::vector<ranging::Record> b(plan.size());
+  run(device, plan, 5, b);
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(std::memcmp(&a[i].raw, &b[i].raw, sizeof a[i].raw), 0) << i;
+    EXPECT_EQ(a[i].truth.distance_m, plan[i].truth.distance_m);
+  }
+  std::vector<ranging::Record> short_out(plan.size() - 1);
+  EXPECT_THROW(run(device, plan, 5, short_out), std::invalid_argument);
+  device::Conditions warm;
+  warm.ambient_c = 31.0;
+  const PlannedMeasurement mixed =
+      planned(device::Target{{{0.4, 2.0, 0.3, 10.0}, {0.6, 2.5, 0.7, 0.0}}}, warm, 9);
+  EXPECT_EQ(mixed.truth.distance_m, 2.0);
+  EXPECT_EQ(mixed.truth.reflectance, 0.3);
+  EXPECT_EQ(mixed.truth.angle_deg, 10.0);
+  EXPECT_EQ(mixed.truth.ambient_c, 31.0);
+  EXPECT_EQ(mixed.request.shots, 9);
+  EXPECT_EQ(mixed.request.target.surfaces.size(), 2u);
 }
 
 }  // namespace
