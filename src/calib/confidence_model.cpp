@@ -112,34 +112,14 @@ constexpr double kMinRangeRatio = 1.5;
 
 /// The distances the rows were measured at: clusters of sorted ranges parted
 /// by gaps wider than 2 cm (far above the noise of a corrected range, far
-/// below the spacing of plates), and how many of them saw a spread of
-/// intensities (at least a quarter of the scaled axis x in [-1, 1]).
-struct RangeSupport {
-  int distances = 0;
-  int spread_distances = 0;
-};
-
-RangeSupport range_support(std::span<const double> range_m, std::span<const double> x) {
+/// below the spacing of plates).
+int distinct_distances(std::span<const double> range_m) {
   constexpr double kGapM = 0.02;
-  constexpr double kSpread = 0.5;
-  std::vector<std::size_t> order(range_m.size());
-  std::iota(order.begin(), order.end(), std::size_t{0});
-  std::sort(order.begin(), order.end(),
-            [&](std::size_t a, std::size_t b) { return range_m[a] < range_m[b]; });
-  RangeSupport s;
-  double lo = 0, hi = 0;
-  for (std::size_t k = 0; k < order.size(); ++k) {
-    const std::size_t i = order[k];
-    if (k == 0 || range_m[i] - range_m[order[k - 1]] > kGapM) {
-      if (k > 0) s.spread_distances += hi - lo >= kSpread ? 1 : 0;
-      ++s.distances;
-      lo = hi = x[i];
-    }
-    lo = std::min(lo, x[i]);
-    hi = std::max(hi, x[i]);
-  }
-  if (!order.empty()) s.spread_distances += hi - lo >= kSpread ? 1 : 0;
-  return s;
+  std::vector<double> r(range_m.begin(), range_m.end());
+  std::sort(r.begin(), r.end());
+  int clusters = r.empty() ? 0 : 1;
+  for (std::size_t k = 1; k < r.size(); ++k) clusters += r[k] - r[k - 1] > kGapM ? 1 : 0;
+  return clusters;
 }
 
 /// Monomials x^a y^b with a + b <= order.
@@ -241,24 +221,12 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   if (!(d.range_max_m >= kMinRangeRatio * d.range_min_m)) {
     std::erase_if(p.exponents, [](const std::array<int, 2>& e) { return e[1] != 0; });
   }
-  // No term the distances cannot pin down. A power k of range needs k + 1
-  // distances: with fewer, higher powers are free between them (at two
-  // distances y^2 equals 1 and y^3 equals y on both; their coefficients may
-  // cancel there and explode between). A term in range and intensity together
-  // needs as many distances that each saw a spread of intensities: plates at
-  // one distance and a temperature run at another (one plate) show how the
-  // variance changes with range at one intensity only.
-  const auto coordinate = [&](double a) { return options.log_amplitude ? std::log(a) : a; };
-  p.amplitude_scaling = AxisScaling::over(coordinate(d.amplitude_min), coordinate(d.amplitude_max));
-  {
-    std::vector<double> x(n);
-    for (std::size_t k = 0; k < n; ++k)
-      x[k] = p.amplitude_scaling.apply(coordinate(data.amplitude[k]));
-    const RangeSupport s = range_support(data.range_m, x);
-    std::erase_if(p.exponents, [&](const std::array<int, 2>& e) {
-      return e[1] >= (e[0] == 0 ? s.distances : s.spread_distances);
-    });
-  }
+  // No power of range the distances cannot pin down: range^k needs k + 1 of
+  // them. With fewer, higher powers are free between them (at two distances
+  // y^2 equals 1 and y^3 equals y on both; their coefficients may cancel
+  // there and explode, or sink, between).
+  const int distances = distinct_distances(data.range_m);
+  std::erase_if(p.exponents, [&](const std::array<int, 2>& e) { return e[1] >= distances; });
   p.log_amplitude = options.log_amplitude;
   p.domain = d;
   p.target_coverage_2sigma = options.target_coverage_2sigma;
@@ -269,6 +237,8 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     throw std::invalid_argument(who + ": " + std::to_string(n) + " rows; at least " +
                                 std::to_string(min_rows) + " are needed to calibrate coverage");
   }
+  const auto coordinate = [&](double a) { return options.log_amplitude ? std::log(a) : a; };
+  p.amplitude_scaling = AxisScaling::over(coordinate(d.amplitude_min), coordinate(d.amplitude_max));
   p.range_scaling = AxisScaling::over(d.range_min_m, d.range_max_m);
 
   std::vector<double> u(n), xs(n), ys(n);
@@ -285,10 +255,12 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   if (!(mean_e2 > 0)) throw std::invalid_argument(who + ": every residual is zero");
 
   // 1. log E[e^2] = X beta by gamma quasi-likelihood (unit weights). Terms the
-  //    rows do not pin down show as a fitted variance somewhere in the domain
-  //    (the box the model is evaluated in) far above any at the rows: then
-  //    the terms in range and intensity together go, and if need be every
-  //    range term, and the fit is repeated.
+  //    rows do not pin down (plates at one distance and a temperature run of
+  //    one plate at another show how the variance changes with range at one
+  //    intensity only) show as a fitted sigma somewhere in the domain (the box
+  //    the model is evaluated in) over 4 x the rows' largest or under 1/4 of
+  //    their smallest: then the terms in range and intensity together go, and
+  //    if need be every range term, and the fit is repeated.
   const auto log_variance = [&](const VectorXd& beta, double x, double y) {
     double v = 0;
     for (std::size_t j = 0; j < p.exponents.size(); ++j) {
@@ -297,7 +269,7 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     }
     return v;
   };
-  constexpr double kMaxExcess = 2.772588722239781;  // ln 16: sigma 4 x the rows' largest
+  constexpr double kMaxExcess = 2.772588722239781;  // ln 16: sigma 4 x beyond the rows'
   constexpr int kGrid = 33;
   VectorXd beta, eta;
   for (int stage = 0;; ++stage) {
@@ -313,13 +285,18 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     // The fitted log-variance (within the fit's clamp of +-60 around the mean's log).
     eta = (design * beta).cwiseMax(std::log(mean_e2) - 60.0).cwiseMin(std::log(mean_e2) + 60.0);
     double box_max = -std::numeric_limits<double>::infinity();
+    double box_min = std::numeric_limits<double>::infinity();
     for (int i = 0; i < kGrid; ++i) {
       for (int j = 0; j < kGrid; ++j) {
-        box_max = std::max(box_max, log_variance(beta, -1.0 + 2.0 * i / (kGrid - 1),
-                                                 -1.0 + 2.0 * j / (kGrid - 1)));
+        const double v =
+            log_variance(beta, -1.0 + 2.0 * i / (kGrid - 1), -1.0 + 2.0 * j / (kGrid - 1));
+        box_max = std::max(box_max, v);
+        box_min = std::min(box_min, v);
       }
     }
-    if (stage == 2 || box_max <= eta.maxCoeff() + kMaxExcess) break;
+    if (stage == 2 ||
+        (box_max <= eta.maxCoeff() + kMaxExcess && box_min >= eta.minCoeff() - kMaxExcess))
+      break;
     std::erase_if(p.exponents, [&](const std::array<int, 2>& e) {
       return e[1] > 0 && (stage == 1 || e[0] > 0);
     });
