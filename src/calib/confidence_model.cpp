@@ -261,14 +261,6 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
   //    the model is evaluated in) over 4 x the rows' largest or under 1/4 of
   //    their smallest: then the terms in range and intensity together go, and
   //    if need be every range term, and the fit is repeated.
-  const auto log_variance = [&](const VectorXd& beta, double x, double y) {
-    double v = 0;
-    for (std::size_t j = 0; j < p.exponents.size(); ++j) {
-      v += beta(static_cast<Index>(j)) * std::pow(x, p.exponents[j][0]) *
-           std::pow(y, p.exponents[j][1]);
-    }
-    return v;
-  };
   constexpr double kMaxExcess = 2.772588722239781;  // ln 16: sigma 4 x beyond the rows'
   constexpr int kGrid = 33;
   VectorXd beta, eta;
@@ -282,6 +274,7 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
       }
     }
     beta = gamma_log_fit(design, e2, VectorXd::Ones(static_cast<Index>(n)));
+    p.coefficients.assign(beta.data(), beta.data() + beta.size());
     // The fitted log-variance (within the fit's clamp of +-60 around the mean's log).
     eta = (design * beta).cwiseMax(std::log(mean_e2) - 60.0).cwiseMin(std::log(mean_e2) + 60.0);
     double box_max = -std::numeric_limits<double>::infinity();
@@ -289,7 +282,8 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
     for (int i = 0; i < kGrid; ++i) {
       for (int j = 0; j < kGrid; ++j) {
         const double v =
-            log_variance(beta, -1.0 + 2.0 * i / (kGrid - 1), -1.0 + 2.0 * j / (kGrid - 1));
+            ranging::polynomial_2d(p.exponents, p.coefficients, -1.0 + 2.0 * i / (kGrid - 1),
+                                   -1.0 + 2.0 * j / (kGrid - 1));
         box_max = std::max(box_max, v);
         box_min = std::min(box_min, v);
       }
@@ -301,7 +295,6 @@ std::shared_ptr<const ConfidenceModel> fit_calibrated_confidence(
       return e[1] > 0 && (stage == 1 || e[0] > 0);
     });
   }
-  p.coefficients.assign(beta.data(), beta.data() + beta.size());
 
   // 2. Coverage per intensity band: bands of equal counts along u; k at each
   //    band centre (median u) is set so that the band's share of

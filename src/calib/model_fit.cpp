@@ -712,14 +712,13 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   options.intensity =
       pulse_width ? ranging::IntensityInput::pulse_width : ranging::IntensityInput::amplitude;
   std::string why;
-  double leverage_sum = 0, optimism_sum = 0, optimism_max = 0;
+  double leverage_sum = 0, optimism_mean = 0, optimism_max = 0;
   const bool pointwise = used_groups <= kMaxLeverageRefits;
   if (!(g > p + 1)) {
     why = format("%zu targets for %.1f effective parameters", used_groups, p);
   } else if (!pointwise) {
     // One refit per target costs too much here: one optimism for all.
-    options.optimism = optimism_sum = optimism_max = (g + p) / (g - p);
-    optimism_sum *= g;
+    options.optimism = optimism_mean = optimism_max = (g + p) / (g - p);
     try {
       result.pipeline.set_confidence(
           fit_noise_systematic_confidence({range, intensity, residual, group}, options));
@@ -729,22 +728,19 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   } else {
     try {
       // Pointwise optimism (1 + h) / (1 - h) from each target's leverage h.
-      const std::vector<double> h = group_leverages(records, group_of, seen, o, result.summary);
-      std::vector<double> leverage(group.size());
-      for (std::size_t k = 0; k < group.size(); ++k) {
-        const double v = h[group[k]];
-        if (!std::isfinite(v)) throw std::invalid_argument("a target without a leverage");
-        leverage[k] = std::clamp(v, 0.0, kMaxLeverage);
-      }
-      std::fill(seen.begin(), seen.end(), 0);
-      for (std::size_t k = 0; k < group.size(); ++k) {
-        if (seen[group[k]]) continue;
-        seen[group[k]] = 1;
-        const double optimism = (1 + leverage[k]) / (1 - leverage[k]);
-        leverage_sum += h[group[k]];
-        optimism_sum += optimism;
+      std::vector<double> h = group_leverages(records, group_of, seen, o, result.summary);
+      for (std::size_t t = 0; t < groups; ++t) {
+        if (!seen[t]) continue;
+        if (!std::isfinite(h[t])) throw std::invalid_argument("a target without a leverage");
+        leverage_sum += h[t];
+        h[t] = std::clamp(h[t], 0.0, kMaxLeverage);
+        const double optimism = (1 + h[t]) / (1 - h[t]);
+        optimism_mean += optimism;
         optimism_max = std::max(optimism_max, optimism);
       }
+      optimism_mean /= g;
+      std::vector<double> leverage(group.size());
+      for (std::size_t k = 0; k < group.size(); ++k) leverage[k] = h[group[k]];
       result.pipeline.set_confidence(
           fit_noise_systematic_confidence({range, intensity, residual, group, leverage}, options));
     } catch (const std::invalid_argument& e) {
@@ -763,25 +759,24 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   c.held_out = error_stats(residual);
   c.effective_parameters = p;
   c.leverage_sum = leverage_sum;
-  c.optimism = optimism_sum / g;
+  c.optimism = optimism_mean;
   c.optimism_max = optimism_max;
-  if (!pointwise) {
-    result.report += format(
-        "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
-        "RMS %.3f mm); optimism (G + p) / (G - p) = %.3f with p = %.1f for every target (more "
-        "than %zu targets: their leverages are not measured)\n",
-        pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
-        c.optimism, p, kMaxLeverageRefits);
-    result.summary.confidence = c;
-    return;
-  }
+  const std::string optimism =
+      pointwise
+          ? format(
+                "optimism (1 + h) / (1 - h) per target from its leverage h: mean %.3f, max "
+                "%.3f (leverages sum to %.1f; p = %.1f effective parameters, (G + p) / (G - p) "
+                "= %.3f)",
+                c.optimism, c.optimism_max, leverage_sum, p, (g + p) / (g - p))
+          : format(
+                "optimism (G + p) / (G - p) = %.3f with p = %.1f for every target (more than "
+                "%zu targets: their leverages are not measured)",
+                c.optimism, p, kMaxLeverageRefits);
   result.report += format(
       "confidence: noise-systematic model on %s, fitted on %zu rows of %zu targets (in-sample "
-      "RMS %.3f mm); optimism (1 + h) / (1 - h) per target from its leverage h: mean %.3f, "
-      "max %.3f (leverages sum to %.1f; p = %.1f effective parameters, (G + p) / (G - p) = "
-      "%.3f)\n",
+      "RMS %.3f mm); %s\n",
       pulse_width ? "pulse width" : "amplitude", c.rows, used_groups, c.held_out.rms_m * 1e3,
-      c.optimism, c.optimism_max, leverage_sum, p, (g + p) / (g - p));
+      optimism.c_str());
   result.summary.confidence = c;
 }
 

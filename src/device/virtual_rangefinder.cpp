@@ -782,7 +782,6 @@ struct VirtualRangefinder::Impl {
             std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
     set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
-    return;
   }
 
   /// Noise crossings count from the end of the blanking to `end_ns`.

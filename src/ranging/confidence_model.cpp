@@ -24,6 +24,8 @@ double clamp_to(double x, double lo, double hi) {
   return std::min(std::max(x, lo), hi);
 }
 
+}  // namespace
+
 double polynomial_2d(const std::vector<std::array<int, 2>>& exps, const std::vector<double>& c,
                      double x, double y) {
   // Orders are small (<= 6), so explicit powers cost little.
@@ -37,8 +39,6 @@ double polynomial_2d(const std::vector<std::array<int, 2>>& exps, const std::vec
   for (std::size_t k = 0; k < exps.size(); ++k) v += c[k] * px[exps[k][0]] * py[exps[k][1]];
   return v;
 }
-
-}  // namespace
 
 double band_factor(const std::vector<double>& centre, const std::vector<double>& scale, double u) {
   if (centre.size() == 1 || u <= centre.front()) return scale.front();

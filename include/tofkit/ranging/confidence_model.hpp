@@ -92,6 +92,11 @@ class CalibratedConfidence final : public ConfidenceModel {
   CalibratedConfidenceParams params_;
 };
 
+/// The calibrated model's log-variance polynomial, sum_k c_k x^a_k y^b_k
+/// (exponents a_k, b_k in [0, 7]; x, y the scaled intensity and range).
+[[nodiscard]] double polynomial_2d(const std::vector<std::array<int, 2>>& exps,
+                                   const std::vector<double>& c, double x, double y);
+
 /// The calibrated model's coverage factor k(u): piecewise-linear interpolation
 /// of log k over the band centres (ascending), constant beyond the first and
 /// last centre.
