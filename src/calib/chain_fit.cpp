@@ -357,6 +357,16 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       break;
     }
   }
+  if (steps.walk && options.walk_replicates > 0) {
+    // The final shape's bootstrap replicates, on the final pass's data (e - h).
+    for (std::size_t i = 0; i < ns; ++i) partial[i] = se[i] - h_values[i];
+    WalkFitOptions walk_options;
+    walk_options.initial = result.walk->shape;
+    walk_options.multistart = false;
+    walk_options.replicates = options.walk_replicates;
+    result.walk->shape_replicates =
+        fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options).shape_replicates;
+  }
   if (ns < n) {
     // All rows, the knots found: one joint robust solve.
     const Eigen::VectorXd ev =
@@ -390,7 +400,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     result.pipeline.add_step(ranging::make_walk_step(
         std::make_shared<const ranging::WalkModel>(walk_model->shape(),
                                                    walk_model->reference_pulse_width_ns(),
-                                                   result.walk->shape_covariance),
+                                                   result.walk->shape_replicates),
         // The widths the walk was fitted on (full echoes).
         {result.walk->width_min_ns, result.walk->width_max_ns}));
   }

@@ -632,6 +632,7 @@ std::vector<double> group_leverages(std::span<const ranging::Record> records,
   if (summary.chain && summary.chain->walk && !refit.chain_options.walk_initial) {
     refit.chain_options.walk_initial = summary.chain->walk->shape;
   }
+  refit.chain_options.walk_replicates = 0;  // (their sigma is not used)
   // A B-spline surface keeps the fit's choices (intensity axis, knots,
   // smoothing, axis weights): its search by cross-validation is what costs.
   if (summary.surface && o.surface.kind == SurfaceKind::bspline) {
@@ -927,6 +928,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       if (summary.chain && summary.chain->walk && !fold_options.chain_options.walk_initial) {
         fold_options.chain_options.walk_initial = summary.chain->walk->shape;
       }
+      fold_options.chain_options.walk_replicates = 0;  // (their sigma is not used)
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 #include <stdexcept>
@@ -14,6 +15,8 @@ namespace {
 constexpr std::size_t kMinWalkRows = 6;
 /// Distinct unclipped shapes from which the clipped fit starts.
 constexpr std::size_t kClippingShapeStarts = 3;
+/// A bootstrap replicate's refit stops when a step gains less than this part of its SSE.
+constexpr double kReplicateTolerance = 1e-6;
 /// Bounds of the log-parameters: times 0.005-200 ns, within a factor 30 of each other.
 constexpr double kMinLogTime = -5.3, kMaxLogTime = 5.3, kMaxLogRatio = 3.4;
 
@@ -99,7 +102,9 @@ struct LmResult {
 };
 
 /// Levenberg-Marquardt with Marquardt's diagonal scaling and a forward-difference Jacobian.
-LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_iterations) {
+/// Converged when a step lowers the SSE by less than `tolerance` of it.
+LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_iterations,
+                             double tolerance = 1e-10) {
   LmResult out;
   clamp_parameters(p, problem.onset_min_ns, problem.onset_max_ns);
   Eigen::VectorXd r;
@@ -140,7 +145,7 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
         sse = r.squaredNorm();
         lambda = std::max(lambda * 0.3, 1e-9);
         improved = true;
-        if (gain < 1e-10 * std::max(sse, 1e-18) || step_size < 1e-9) out.converged = true;
+        if (gain < tolerance * std::max(sse, 1e-18) || step_size < 1e-9) out.converged = true;
         break;
       }
       lambda *= 10;
@@ -157,48 +162,43 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
   return out;
 }
 
-/// The parameters' covariance at the optimum, over [constant,
-/// ranging::walk_parameters(shape)] (a reparameterization of the fit's own
-/// vector: the onset as ln a_sat rather than its width), by the Gauss-Newton
-/// approximation s^2 (J^T J)^+ with s^2 = SSE / (n - m) and a central-difference
-/// Jacobian; returns the shape's block (row-major), empty when it cannot be
-/// formed. Directions the rows do not constrain (J^T J singular there) get no
-/// variance.
-std::vector<double> shape_covariance(const Problem& problem, double constant,
-                                     const ranging::WalkShape& shape) {
-  const std::vector<double> q = ranging::walk_parameters(shape);
-  const auto k = static_cast<Eigen::Index>(q.size());
+/// Wild-bootstrap replicates of the fit at `best` (WalkFitOptions::replicates):
+/// e*_i = model_i - s v_i r_i with v_i = +-1 at random, r the residuals and
+/// s = sqrt(n / (n - m)) (the residuals of a fit of m parameters are that much
+/// smaller than the errors), each refitted from `best`.
+std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
+                                                     const Eigen::VectorXd& best, std::size_t count,
+                                                     int max_iterations, int& iterations) {
+  std::vector<ranging::WalkShape> out;
+  Eigen::VectorXd r;
   const auto n = static_cast<Eigen::Index>(problem.rows.size());
-  if (n <= k + 1) return {};
-  const auto residuals = [&](const std::vector<double>& x, Eigen::VectorXd& r) {
-    return problem.residuals(ranging::walk_shape_of(x), constant, r);
+  if (count == 0 || n <= best.size() || !problem.residuals(best, r)) return out;
+  const double inflation = std::sqrt(static_cast<double>(n) / static_cast<double>(n - best.size()));
+  std::vector<double> e(problem.e.begin(), problem.e.end());
+  Problem resampled = problem;
+  resampled.e = e;
+  std::uint64_t state = 0x2545F4914F6CDD1DULL;  // splitmix64, a fixed seed
+  const auto next_bit = [&state] {
+    state += 0x9E3779B97F4A7C15ULL;
+    std::uint64_t z = state;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    return ((z ^ (z >> 31)) & 1U) != 0;
   };
-  Eigen::VectorXd r0, r_plus, r_minus;
-  if (!residuals(q, r0)) return {};
-  Eigen::MatrixXd jacobian(n, k + 1);
-  jacobian.col(0).setOnes();
-  for (Eigen::Index j = 0; j < k; ++j) {
-    const double h = 1e-4;
-    std::vector<double> plus = q, minus = q;
-    plus[static_cast<std::size_t>(j)] += h;
-    minus[static_cast<std::size_t>(j)] -= h;
-    if (!residuals(plus, r_plus) || !residuals(minus, r_minus)) return {};
-    jacobian.col(j + 1) = (r_plus - r_minus) / (2 * h);
-  }
-  const double s2 = r0.squaredNorm() / static_cast<double>(n - k - 1);
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(jacobian.transpose() * jacobian);
-  const Eigen::VectorXd& lambda = eigen.eigenvalues();
-  Eigen::VectorXd inverse = Eigen::VectorXd::Zero(lambda.size());
-  for (Eigen::Index j = 0; j < lambda.size(); ++j) {
-    if (lambda(j) > 1e-10 * lambda.maxCoeff()) inverse(j) = 1.0 / lambda(j);
-  }
-  const Eigen::MatrixXd full =
-      s2 * eigen.eigenvectors() * inverse.asDiagonal() * eigen.eigenvectors().transpose();
-  std::vector<double> out(static_cast<std::size_t>(k * k));
-  for (Eigen::Index a = 0; a < k; ++a) {
-    for (Eigen::Index b = 0; b < k; ++b) {
-      // Symmetric by construction; averaged so that it is so to the last bit.
-      out[static_cast<std::size_t>(a * k + b)] = 0.5 * (full(a + 1, b + 1) + full(b + 1, a + 1));
+  for (std::size_t b = 0; b < count; ++b) {
+    for (Eigen::Index k = 0; k < n; ++k) {
+      const std::size_t i = problem.rows[static_cast<std::size_t>(k)];
+      const double model = problem.e[i] + r(k);
+      e[i] = model - (next_bit() ? inflation : -inflation) * r(k);
+    }
+    // A replicate needs its walk to a small part of the scatter it stands
+    // for, not the last digit of its SSE.
+    const LmResult lm = levenberg_marquardt(resampled, best, max_iterations, kReplicateTolerance);
+    iterations += lm.iterations;
+    if (!std::isfinite(lm.sse)) continue;
+    try {
+      out.push_back(shape_of(lm.p));
+    } catch (const std::invalid_argument&) {
     }
   }
   return out;
@@ -362,7 +362,8 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   result.shape = shape_of(best.p);
   result.constant_m = best.p(0);
   result.rms_m = std::sqrt(best.sse / static_cast<double>(problem.rows.size()));
-  result.shape_covariance = shape_covariance(problem, best.p(0), result.shape);
+  result.shape_replicates = bootstrap_replicates(
+      problem, best.p, options.replicates, options.max_iterations, result.replicate_iterations);
   result.iterations = iterations;
   result.converged = best.converged;
   return result;

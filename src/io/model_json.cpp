@@ -67,6 +67,32 @@ void refuse_unknown_keys(const json& j, const std::string& where,
   }
 }
 
+json walk_shape_to_json(const ranging::WalkShape& shape) {
+  return {{"pulse_sigma_ns", shape.pulse_sigma_ns},
+          {"pole_time_constant_ns", shape.pole_time_constant_ns},
+          {"saturation_log_overdrive", finite_or_null(shape.saturation_log_overdrive)},
+          {"recovery_ns_per_neper", shape.recovery_ns_per_neper}};
+}
+
+ranging::WalkShape walk_shape_from_json(const json& sj, const std::string& sw) {
+  if (!sj.is_object()) fail(sw, "must be an object");
+  refuse_unknown_keys(sj, sw,
+                      {"pulse_sigma_ns", "pole_time_constant_ns", "saturation_log_overdrive",
+                       "recovery_ns_per_neper"});
+  ranging::WalkShape shape;
+  shape.pulse_sigma_ns = number(sj, "pulse_sigma_ns", sw);
+  shape.pole_time_constant_ns = number(sj, "pole_time_constant_ns", sw);
+  shape.saturation_log_overdrive =
+      number_or(sj, "saturation_log_overdrive", sw, std::numeric_limits<double>::infinity());
+  shape.recovery_ns_per_neper = number(sj, "recovery_ns_per_neper", sw);
+  try {
+    shape.validate();
+  } catch (const std::invalid_argument& e) {
+    fail(sw, e.what());
+  }
+  return shape;
+}
+
 json fit_to_json(const ranging::StepFitInfo& fit) {
   return {{"rows", fit.rows}, {"residual_rms_m", finite_or_null(fit.residual_rms_m)}};
 }
@@ -111,14 +137,14 @@ json step_to_json(const ranging::Step& step) {
       j["surface"] = surface_to_json(*step.surface);
       break;
     case ranging::StepKind::kWalk: {
-      const ranging::WalkShape& shape = step.walk->shape();
       j["input"] = "pulse_width_ns";
-      j["shape"] = {{"pulse_sigma_ns", shape.pulse_sigma_ns},
-                    {"pole_time_constant_ns", shape.pole_time_constant_ns},
-                    {"saturation_log_overdrive", finite_or_null(shape.saturation_log_overdrive)},
-                    {"recovery_ns_per_neper", shape.recovery_ns_per_neper}};
+      j["shape"] = walk_shape_to_json(step.walk->shape());
       j["reference_pulse_width_ns"] = step.walk->reference_pulse_width_ns();
-      if (step.walk->has_covariance()) j["shape_covariance"] = step.walk->covariance();
+      if (step.walk->has_replicates()) {
+        json replicates = json::array();
+        for (const auto& r : step.walk->replicates()) replicates.push_back(walk_shape_to_json(r));
+        j["shape_replicates"] = std::move(replicates);
+      }
       j["domain"] = {{"min", finite_or_null(step.domain.min)},
                      {"max", finite_or_null(step.domain.max)}};
       break;
@@ -167,35 +193,38 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
       break;
     case ranging::StepKind::kWalk: {
       refuse_unknown_keys(j, where,
-                          {"kind", "input", "shape", "reference_pulse_width_ns", "shape_covariance",
-                           "domain", "fit"});
+                          {"kind", "input", "shape", "reference_pulse_width_ns", "shape_replicates",
+                           "shape_covariance", "domain", "fit"});
       if (text(j, "input", where) != "pulse_width_ns") {
         fail(where + ".input", "a walk step's input is \"pulse_width_ns\"");
       }
-      const std::string sw = where + ".shape";
-      const json& sj = field(j, "shape", where);
-      refuse_unknown_keys(sj, sw,
-                          {"pulse_sigma_ns", "pole_time_constant_ns", "saturation_log_overdrive",
-                           "recovery_ns_per_neper"});
-      ranging::WalkShape shape;
-      shape.pulse_sigma_ns = number(sj, "pulse_sigma_ns", sw);
-      shape.pole_time_constant_ns = number(sj, "pole_time_constant_ns", sw);
-      shape.saturation_log_overdrive =
-          number_or(sj, "saturation_log_overdrive", sw, std::numeric_limits<double>::infinity());
-      shape.recovery_ns_per_neper = number(sj, "recovery_ns_per_neper", sw);
-      try {
-        shape.validate();
-      } catch (const std::invalid_argument& e) {
-        fail(sw, e.what());
+      const ranging::WalkShape shape =
+          walk_shape_from_json(field(j, "shape", where), where + ".shape");
+      std::vector<ranging::WalkShape> replicates;
+      if (j.contains("shape_replicates")) {
+        const std::string rw = where + ".shape_replicates";
+        const json& rj = j["shape_replicates"];
+        if (!rj.is_array()) fail(rw, "must be an array of shapes");
+        for (std::size_t r = 0; r < rj.size(); ++r) {
+          replicates.push_back(walk_shape_from_json(rj[r], rw + "[" + std::to_string(r) + "]"));
+        }
       }
-      // Optional (older files): row-major over ranging::walk_parameters(shape).
-      std::vector<double> covariance;
-      if (j.contains("shape_covariance")) covariance = numbers(j, "shape_covariance", where);
+      if (j.contains("shape_covariance")) {
+        // Older files: a covariance over ranging::walk_parameters(shape), row-major.
+        if (j.contains("shape_replicates")) {
+          fail(where + ".shape_covariance", "give shape_replicates or shape_covariance, not both");
+        }
+        try {
+          replicates = ranging::walk_sigma_points(shape, numbers(j, "shape_covariance", where));
+        } catch (const std::invalid_argument& e) {
+          fail(where + ".shape_covariance", e.what());
+        }
+      }
       try {
         step.walk = std::make_shared<const ranging::WalkModel>(
-            shape, number(j, "reference_pulse_width_ns", where), std::move(covariance));
+            shape, number(j, "reference_pulse_width_ns", where), std::move(replicates));
       } catch (const std::invalid_argument& e) {
-        fail(where + ".shape_covariance", e.what());
+        fail(where, e.what());
       }
       const json& d = field(j, "domain", where);
       refuse_unknown_keys(d, where + ".domain", {"min", "max"});

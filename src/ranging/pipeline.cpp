@@ -30,7 +30,7 @@ struct BlockBuffers {
   /// outside, in widths of that domain (a double, so the checks vectorize).
   std::array<double, kBlock> outside;
   /// Variance (m^2) a step knows it adds where it extrapolates (a walk step
-  /// with its shape's covariance), added to sigma^2 instead of the growth.
+  /// with its shape's bootstrap replicates), added to sigma^2 instead of the growth.
   std::array<double, kBlock> extra_variance;
   std::array<std::uint32_t, kBlock> flags;
   std::array<std::uint8_t, kBlock> out_of_domain;
@@ -75,7 +75,7 @@ void add_hinge(const PiecewiseLinear& f, const InputDomain& domain, const double
 /// distance += -(c_air / 2) (t_rise(w) - t_rise(w_ref)): a late rising crossing
 /// reads long (walk, DESIGN.md "Discriminator"). Widths outside the fitted
 /// domain are marked but corrected by the shape (its physics extrapolates).
-/// With the shape's covariance, the uncertainty there is the walk's own: the
+/// With the shape's replicates, the uncertainty there is the walk's own: the
 /// variance of its prediction at w beyond that at the domain's nearer edge
 /// (inside, the confidence model measured the error already), so sigma grows
 /// as the fitted shape's uncertainty does; without it, the generic growth.
@@ -84,7 +84,7 @@ void add_walk(const WalkModel& walk, const InputDomain& domain, double metres_pe
   double* rise = b.scratch_a.data();
   walk.relative_rise_ns(b.pulse_width.data(), rise, n);
   for (std::size_t i = 0; i < n; ++i) b.distance[i] -= metres_per_ns * rise[i];
-  if (!walk.has_covariance()) {
+  if (!walk.has_replicates()) {
     for (std::size_t i = 0; i < n; ++i)
       b.outside[i] =
           std::max(b.outside[i], outside_widths(b.pulse_width[i], domain.min, domain.max));

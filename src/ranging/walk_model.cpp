@@ -138,9 +138,55 @@ WalkShape walk_shape_of(std::span<const double> q) {
   return s;
 }
 
+std::vector<WalkShape> walk_sigma_points(const WalkShape& shape,
+                                         std::span<const double> covariance) {
+  const std::vector<double> q = walk_parameters(shape);
+  const auto k = static_cast<Eigen::Index>(q.size());
+  if (covariance.size() != q.size() * q.size()) {
+    throw std::invalid_argument("walk step: shape_covariance must be " + std::to_string(k) + " x " +
+                                std::to_string(k) + " (the shape's " + std::to_string(k) +
+                                " parameters), has " + std::to_string(covariance.size()) +
+                                " values");
+  }
+  const Eigen::Map<const Eigen::MatrixXd> c(covariance.data(), k, k);
+  if (!c.allFinite()) throw std::invalid_argument("walk step: shape_covariance is not finite");
+  const double norm = c.cwiseAbs().maxCoeff();
+  if (!((c - c.transpose()).cwiseAbs().maxCoeff() <= 1e-9 * norm)) {
+    throw std::invalid_argument("walk step: shape_covariance is not symmetric");
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (c + c.transpose()));
+  if (!(eigen.eigenvalues().minCoeff() >= -1e-9 * norm)) {
+    throw std::invalid_argument("walk step: shape_covariance is not positive semi-definite");
+  }
+  std::vector<WalkShape> points;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    const double variance = eigen.eigenvalues()(a);
+    if (!(variance > 0)) continue;
+    const Eigen::VectorXd step =
+        std::sqrt(static_cast<double>(k) * variance) * eigen.eigenvectors().col(a);
+    for (double fraction = 1.0; fraction >= 1.0 / 64; fraction *= 0.5) {
+      std::vector<double> plus = q, minus = q;
+      for (Eigen::Index j = 0; j < k; ++j) {
+        plus[static_cast<std::size_t>(j)] += fraction * step(j);
+        minus[static_cast<std::size_t>(j)] -= fraction * step(j);
+      }
+      try {
+        const WalkShape p = walk_shape_of(plus), m = walk_shape_of(minus);
+        p.validate();
+        m.validate();
+        points.push_back(p);
+        points.push_back(m);
+        break;
+      } catch (const std::invalid_argument&) {
+      }
+    }
+  }
+  return points;
+}
+
 WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns,
-                     std::vector<double> covariance)
-    : shape_(shape), reference_ns_(reference_pulse_width_ns), covariance_(std::move(covariance)) {
+                     std::vector<WalkShape> replicates)
+    : shape_(shape), reference_ns_(reference_pulse_width_ns), replicates_(std::move(replicates)) {
   if (!std::isfinite(reference_pulse_width_ns)) {
     throw std::invalid_argument("walk step: reference_pulse_width_ns must be finite");
   }
@@ -156,60 +202,26 @@ WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns,
   const std::size_t m = curve.width_ns.size();
   slope_above_ = (curve.rise_ns[m - 1] - curve.rise_ns[m - 2]) /
                  (curve.width_ns[m - 1] - curve.width_ns[m - 2]);
-  if (covariance_.empty()) return;
-  // The covariance: over walk_parameters(shape), symmetric, positive semi-definite.
-  const std::vector<double> q = walk_parameters(shape_);
-  const auto k = static_cast<Eigen::Index>(q.size());
-  if (covariance_.size() != q.size() * q.size()) {
-    throw std::invalid_argument("walk step: shape_covariance must be " + std::to_string(k) + " x " +
-                                std::to_string(k) + " (the shape's " + std::to_string(k) +
-                                " parameters), has " + std::to_string(covariance_.size()) +
-                                " values");
-  }
-  const Eigen::Map<const Eigen::MatrixXd> c(covariance_.data(), k, k);
-  if (!c.allFinite()) throw std::invalid_argument("walk step: shape_covariance is not finite");
-  const double norm = c.cwiseAbs().maxCoeff();
-  if (!((c - c.transpose()).cwiseAbs().maxCoeff() <= 1e-9 * norm)) {
-    throw std::invalid_argument("walk step: shape_covariance is not symmetric");
-  }
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (c + c.transpose()));
-  if (!(eigen.eigenvalues().minCoeff() >= -1e-9 * norm)) {
-    throw std::invalid_argument("walk step: shape_covariance is not positive semi-definite");
-  }
-  for (Eigen::Index a = 0; a < k; ++a) {
-    const double variance = eigen.eigenvalues()(a);
-    if (!(variance > 0)) continue;
-    const Eigen::VectorXd step = std::sqrt(variance) * eigen.eigenvectors().col(a);
-    // A step of one standard deviation may leave the shapes the walk can
-    // tabulate (e.g. a time-constant ratio over 1000): then a smaller one,
-    // scaled back up (first order).
-    for (double fraction = 1.0; fraction >= 1.0 / 64; fraction *= 0.5) {
-      std::vector<double> plus = q, minus = q;
-      for (Eigen::Index j = 0; j < k; ++j) {
-        plus[static_cast<std::size_t>(j)] += fraction * step(j);
-        minus[static_cast<std::size_t>(j)] -= fraction * step(j);
-      }
-      try {
-        Axis axis;
-        axis.plus = std::make_shared<const WalkModel>(walk_shape_of(plus), reference_ns_);
-        axis.minus = std::make_shared<const WalkModel>(walk_shape_of(minus), reference_ns_);
-        axis.scale = 1.0 / fraction;
-        axes_.push_back(std::move(axis));
-        break;
-      } catch (const std::invalid_argument&) {
-      }
+  replicate_models_.reserve(replicates_.size());
+  for (std::size_t r = 0; r < replicates_.size(); ++r) {
+    try {
+      replicate_models_.push_back(std::make_shared<const WalkModel>(replicates_[r], reference_ns_));
+    } catch (const std::invalid_argument& e) {
+      throw std::invalid_argument("walk step: shape_replicates[" + std::to_string(r) +
+                                  "]: " + e.what());
     }
   }
 }
 
 double WalkModel::relative_rise_variance_ns2(double width_ns) const {
-  double variance = 0;
-  for (const Axis& a : axes_) {
-    const double half_difference =
-        0.5 * a.scale * (a.plus->relative_rise_ns(width_ns) - a.minus->relative_rise_ns(width_ns));
-    variance += half_difference * half_difference;
+  if (replicate_models_.empty()) return 0.0;
+  const double rise = relative_rise_ns(width_ns);
+  double sum = 0;
+  for (const auto& r : replicate_models_) {
+    const double d = r->relative_rise_ns(width_ns) - rise;
+    sum += d * d;
   }
-  return variance;
+  return sum / static_cast<double>(replicate_models_.size());
 }
 
 double WalkModel::relative_rise_ns(double width_ns) const {

@@ -68,6 +68,10 @@ struct ChainFitOptions {
   /// same data (e.g. cross-fitting folds, started from the full fit's shape),
   /// where the search for the right valley is already done. nullopt: searched.
   std::optional<ranging::WalkShape> walk_initial;
+  /// Walk step: bootstrap replicates of the final shape (WalkFitOptions::
+  /// replicates), which give a flagged row's sigma the walk's own uncertainty
+  /// beyond the fitted widths. 0: none (refits whose sigma is not used).
+  std::size_t walk_replicates = 32;
 };
 
 struct ChainFitResult {

@@ -40,6 +40,13 @@ struct WalkFitOptions {
   /// minima).
   std::optional<ranging::WalkShape> initial;
   bool multistart = true;
+  /// Bootstrap replicates of the shape (0: none). Each refits the shape, from
+  /// the fitted one, to the fitted walk plus the residuals with random signs
+  /// (a wild bootstrap: it keeps each row's own scatter and the rows' widths),
+  /// so their scatter is the fit's own where the parameters trade off along a
+  /// curved valley. Drawn from a fixed seed: the same rows give the same
+  /// replicates.
+  std::size_t replicates = 0;
 };
 
 struct WalkFitResult {
@@ -51,10 +58,10 @@ struct WalkFitResult {
   std::size_t partial_rows = 0;               ///< rows left out: not every shot gave an echo
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
   double rms_m = 0;                ///< RMS residual of the fit
-  /// The shape parameters' covariance (row-major, over
-  /// ranging::walk_parameters(shape)), from the residuals' scatter and the
-  /// fit's Jacobian; empty when it could not be formed.
-  std::vector<double> shape_covariance;
+  /// Bootstrap replicates of the shape (WalkFitOptions::replicates; those
+  /// whose refit failed are left out).
+  std::vector<ranging::WalkShape> shape_replicates;
+  int replicate_iterations = 0;  ///< LM iterations of the replicates' refits
   int iterations = 0;
   bool converged = false;
   [[nodiscard]] std::string summary() const;

@@ -153,7 +153,7 @@ class Pipeline {
   /// domain in widths of that domain (log scale for a surface's positive
   /// amplitude axis): a linear continuation's error grows with the lever arm,
   /// so at a quarter of the domain's width outside, sigma has doubled. A
-  /// walk step with its shape's covariance instead adds the variance of its
+  /// walk step with its shape's bootstrap replicates instead adds the variance of its
   /// own prediction there (WalkModel::relative_rise_variance_ns2, beyond that
   /// at the domain's edge): physics that extrapolates, with a known error.
   static constexpr double kOutOfDomainSigmaGrowth = 4.0;

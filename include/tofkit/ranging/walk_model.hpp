@@ -70,17 +70,27 @@ inline constexpr double kMaxLogOverdrive = 12.0;
 /// The inverse of walk_parameters (2 or 4 values).
 [[nodiscard]] WalkShape walk_shape_of(std::span<const double> parameters);
 
+/// Replicates standing for a parameter covariance (row-major k x k over
+/// walk_parameters(shape), as older model files hold it): the 2k points
+/// q +- sqrt(k lambda_a) v_a along its principal axes, whose mean squared
+/// deviation is the covariance itself (an axis whose full step leaves the
+/// shapes the walk can tabulate is taken at the largest half, quarter, ...
+/// step that stays inside). Throws std::invalid_argument naming the problem
+/// (wrong size, not finite, not symmetric, not positive semi-definite).
+[[nodiscard]] std::vector<WalkShape> walk_sigma_points(const WalkShape& shape,
+                                                       std::span<const double> covariance);
+
 /// The walk tabulated on a uniform grid in pulse width, ready to apply.
 class WalkModel {
  public:
   /// `reference_pulse_width_ns`: the width at which the walk correction is zero
-  /// (the constant lives in the offset step). `covariance`: optional,
-  /// row-major k x k over walk_parameters(shape) (k = 2, or 4 with clipping):
-  /// the fit's parameter covariance, which makes the walk's own uncertainty at
-  /// any width known (relative_rise_variance_ns2). Throws
-  /// std::invalid_argument naming the bad field (wrong size, not finite, not
-  /// symmetric, not positive semi-definite).
-  WalkModel(WalkShape shape, double reference_pulse_width_ns, std::vector<double> covariance = {});
+  /// (the constant lives in the offset step). `replicates`: optional, shapes
+  /// fitted on resampled data (calib::fit_walk's bootstrap), whose scatter
+  /// about `shape` makes the walk's own uncertainty at any width known
+  /// (relative_rise_variance_ns2). Throws std::invalid_argument naming the bad
+  /// field (an invalid shape or replicate).
+  WalkModel(WalkShape shape, double reference_pulse_width_ns,
+            std::vector<WalkShape> replicates = {});
 
   [[nodiscard]] const WalkShape& shape() const { return shape_; }
   [[nodiscard]] double reference_pulse_width_ns() const { return reference_ns_; }
@@ -92,13 +102,14 @@ class WalkModel {
   /// rise_ns[i] = relative_rise_ns(width_ns[i]); NaN in, NaN out.
   void relative_rise_ns(const double* width_ns, double* rise_ns, std::size_t n) const;
 
-  [[nodiscard]] const std::vector<double>& covariance() const { return covariance_; }
-  [[nodiscard]] bool has_covariance() const { return !covariance_.empty(); }
-  /// Variance (ns^2) of relative_rise_ns(width) from the parameters'
-  /// covariance, propagated to first order (delta method) along the
-  /// covariance's principal axes by central differences of the tabulated
-  /// walk: sum_k ((rise_k+(w) - rise_k-(w)) / 2)^2, the shapes at +-1 standard
-  /// deviation along axis k. 0 without a covariance.
+  [[nodiscard]] const std::vector<WalkShape>& replicates() const { return replicates_; }
+  [[nodiscard]] bool has_replicates() const { return !replicates_.empty(); }
+  /// Variance (ns^2) of relative_rise_ns(width): the mean squared difference
+  /// of the replicates' walks from this one's, (1/R) sum_r (rise_r(w) -
+  /// rise(w))^2. It follows the fit's real scatter where the shape's
+  /// parameters trade off along a curved valley (clipping onset against
+  /// recovery), where a linearized (Gauss-Newton) covariance overstates the
+  /// extrapolation's spread many times. 0 without replicates.
   [[nodiscard]] double relative_rise_variance_ns2(double width_ns) const;
 
   /// One line: the shape's numbers.
@@ -112,15 +123,8 @@ class WalkModel {
   double step_ = 0;
   double slope_above_ = 0;    ///< d rise / d w beyond the last node
   std::vector<double> rise_;  ///< relative rise at width k * step_
-  std::vector<double> covariance_;
-  /// Per principal axis with a non-zero variance: the walks at +-1 standard
-  /// deviation along it, and 1 / the fraction of it they were taken at (a
-  /// full step may leave the shape's valid range).
-  struct Axis {
-    std::shared_ptr<const WalkModel> plus, minus;
-    double scale = 1;
-  };
-  std::vector<Axis> axes_;
+  std::vector<WalkShape> replicates_;
+  std::vector<std::shared_ptr<const WalkModel>> replicate_models_;
 };
 
 }  // namespace tofkit::ranging
