@@ -632,6 +632,19 @@ TEST(WalkModel, OutOfDomainSigmaAddsTheWalksOwnVariance) {
   nlohmann::json bad = j;
   bad["steps"][0]["shape_replicates"][1]["pulse_sigma_ns"] = -1.0;
   refused(bad, "shape_replicates[1]", "pulse_sigma_ns");
+  // A file with more replicates than a walk step holds is refused, not tabulated.
+  nlohmann::json many = j;
+  many["steps"][0]["shape_replicates"] = nlohmann::json::array();
+  for (std::size_t r = 0; r <= ranging::kMaxWalkReplicates; ++r)
+    many["steps"][0]["shape_replicates"].push_back(j["steps"][0]["shape_replicates"][0]);
+  try {
+    (void)io::pipeline_from_json(many, "model.json");
+    ADD_FAILURE() << "accepted too many replicates";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("model.json.steps[0]"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("at most 1024 shape_replicates"), std::string::npos)
+        << e.what();
+  }
   // An older file's covariance (ln sigma, ln tau): replicates at its sigma
   // points, whose variance is the delta method's g^T C g (g by central
   // differences here) to first order.

@@ -202,6 +202,10 @@ WalkModel::WalkModel(WalkShape shape, double reference_pulse_width_ns,
   const std::size_t m = curve.width_ns.size();
   slope_above_ = (curve.rise_ns[m - 1] - curve.rise_ns[m - 2]) /
                  (curve.width_ns[m - 1] - curve.width_ns[m - 2]);
+  if (replicates_.size() > kMaxWalkReplicates) {
+    throw std::invalid_argument("walk step: at most " + std::to_string(kMaxWalkReplicates) +
+                                " shape_replicates, has " + std::to_string(replicates_.size()));
+  }
   replicate_models_.reserve(replicates_.size());
   for (std::size_t r = 0; r < replicates_.size(); ++r) {
     try {

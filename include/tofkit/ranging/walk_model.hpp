@@ -70,6 +70,9 @@ inline constexpr double kMaxLogOverdrive = 12.0;
 /// The inverse of walk_parameters (2 or 4 values).
 [[nodiscard]] WalkShape walk_shape_of(std::span<const double> parameters);
 
+/// Most replicates a walk step holds (each is a tabulated walk of its own).
+inline constexpr std::size_t kMaxWalkReplicates = 1024;
+
 /// Replicates standing for a parameter covariance (row-major k x k over
 /// walk_parameters(shape), as older model files hold it): the 2k points
 /// q +- sqrt(k lambda_a) v_a along its principal axes, whose mean squared
@@ -88,7 +91,7 @@ class WalkModel {
   /// fitted on resampled data (calib::fit_walk's bootstrap), whose scatter
   /// about `shape` makes the walk's own uncertainty at any width known
   /// (relative_rise_variance_ns2). Throws std::invalid_argument naming the bad
-  /// field (an invalid shape or replicate).
+  /// field (an invalid shape or replicate, more than kMaxWalkReplicates).
   WalkModel(WalkShape shape, double reference_pulse_width_ns,
             std::vector<WalkShape> replicates = {});
 
