@@ -352,10 +352,9 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // sigma_m on the planned protocol's test rows (measured, not the acceptance's
 // 93-97 %: one distance at 20 C plus a temperature run at one power cannot show
 // the confidence fit the errors of other distances at other temperatures; the
-// shortfall is in domain: with the default calibrated kind 90 % overall, 97 /
-// 88 / 86 % by tercile; 81 %, 71 / 87 / 86 %, before echoes weaker than the
-// confidence's domain got the noise's 1/SNR growth). Measured with 6 repeats of every test target:
-// the test rows' errors (0.54 / 0.35 / 0.34 mm RMS by tercile, sigma 0.87 / 0.29 / 0.33 mm) are
+// shortfall is in domain: with the default calibrated kind 81 % overall, 71 /
+// 87 / 86 % by tercile). Measured with 6 repeats of every test target:
+// the test rows' errors (0.54 / 0.35 / 0.34 mm RMS by tercile, sigma 0.29 / 0.27 / 0.33 mm) are
 // mostly systematic and grow with distance and with the temperature's distance from 20 C (-0.08
 // mm/m, -0.004 mm/(m C)): the TDC's fine bins drift with the board's temperature
 // (tdc.bin_tempco_ppm_per_c, 100 ppm/C), an error periodic in the time of flight (period: the
@@ -364,11 +363,11 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // the calibrated kind covers 92 / 93 / 90 %. Out-of-domain rows (flagged) are covered at least as
 // well as in-domain ones with both kinds: their shortfall is not a sigma kept from inside the
 // domain. Nor is their sigma a blanket growth: the walk step adds its own extrapolation variance
-// from the fitted shape's bootstrap replicates, and the weakest echoes the noise's growth as 1/A,
-// so the flagged rows' RMS sigma stays within 2.5 x their RMS error with both kinds (measured 0.96
-// and 0.36 mm against 0.47 mm; 0.84 and 0.82 mm with the walk's Gauss-Newton covariance and no 1/A
-// growth; with the generic growth the calibrated kind gave 0.46 mm against 0.56 mm in the weak
-// tercile and 0.80 against 0.30 mm in the strong one, and the noise-systematic kind, whose
+// from the fitted shape's bootstrap replicates, so the flagged rows' RMS sigma stays within a
+// factor 2 of their RMS error with both kinds (measured 0.39 and 0.36 mm against 0.47 mm; 0.84 and
+// 0.82 mm with the walk's Gauss-Newton covariance, whose strong tercile had 0.71 mm of RMS sigma
+// for 0.34 mm of error; with the generic growth the calibrated kind gave 0.46 mm against 0.56 mm in
+// the weak tercile and 0.80 against 0.30 mm in the strong one, and the noise-systematic kind, whose
 // systematic part was then a floored log fit, 12 mm for errors of 0.6 mm). The noise-systematic
 // kind with each target's own optimism (1 + h) / (1 - h) from its leverage: 77.4 % (68.1 / 81.5
 // / 82.5 %; one optimism (G + p) / (G - p) for all targets: 76.5 %). Other run seeds (the test uses
@@ -390,7 +389,7 @@ TEST(WalkModel, SigmaCoverageOnThePlannedProtocol) {
     EXPECT_GT(c.all.rows, 300u);
     EXPECT_GT(c.out_of_domain.rows, c.all.rows / 10);
     EXPECT_GE(c.out_of_domain.share, c.in_domain.share);
-    EXPECT_LT(c.out_of_domain_sigma_rms_m, 2.5 * c.out_of_domain_error_rms_m);
+    EXPECT_LT(c.out_of_domain_sigma_rms_m, 2.0 * c.out_of_domain_error_rms_m);
     EXPECT_GT(c.out_of_domain_sigma_rms_m, 0.5 * c.out_of_domain_error_rms_m);
   }
 }

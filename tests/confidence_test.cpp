@@ -154,53 +154,6 @@ TEST(CalibratedConfidence, ADistanceWithOneIntensityGivesNoRangeIntensityTerm) {
   expect_near_truth(*model, {1.778, 2.5, 3.5, 4.5}, {20.0, 100.0, 300.0, 2500.0}, 0.25);
 }
 
-// Weaker echoes than the confidence was fitted on: the noise's variance grows
-// as (A_min / A)^2 (jitter = noise / slope, slope ~ A), its share f of the
-// variance at the edge read off the fitted log-variance's slope there (d ln E
-// / d ln A = -2 f), or the whole first term when a systematic term is apart.
-// Closed forms: E ~ 1/A^2 continues as 1/A^2 (f = 1); a flat E stays flat
-// (f = 0); E ~ 1/A gives f = 1/2; a flat noise term beside a systematic one
-// grows alone. An intensity axis in pulse width is not scaled.
-TEST(CalibratedConfidence, WeakerEchoesThanTheDomainGrowAsOneOverSnr) {
-  const auto model = [](std::vector<double> c, std::vector<double> systematic,
-                        ranging::IntensityInput input = ranging::IntensityInput::amplitude) {
-    ranging::CalibratedConfidenceParams p;
-    p.exponents = {{0, 0}, {1, 0}};
-    p.coefficients = std::move(c);  // ln E = c0 + c1 ln A
-    if (!systematic.empty()) {
-      p.systematic_exponents = {{0, 0}};
-      p.systematic_coefficients = std::move(systematic);
-    }
-    p.intensity = input;
-    p.domain = {1.0, 5.0, 0.5, 4.0};
-    p.band_coordinate = {0.0};
-    p.band_scale = {1.0};
-    return ranging::CalibratedConfidence(p);
-  };
-  const auto sigma = [](const ranging::CalibratedConfidence& m, double a) {
-    double r = 2.0, s = 0;
-    m.sigma({&r, 1}, {&a, 1}, {&s, 1});
-    return s;
-  };
-  const double c0 = std::log(1e-8);
-  for (double a : {0.4, 0.1, 0.02}) {
-    const double ratio = 0.5 / a;
-    const double edge2 = std::exp(c0 - 2 * std::log(0.5));
-    EXPECT_NEAR(sigma(model({c0, -2.0}, {}), a), std::sqrt(edge2) * ratio,
-                1e-6 * std::sqrt(edge2) * ratio);
-    EXPECT_NEAR(sigma(model({c0, 0.0}, {}), a), 1e-4, 1e-12);
-    const double half2 = std::exp(c0 - std::log(0.5));
-    EXPECT_NEAR(sigma(model({c0, -1.0}, {}), a), std::sqrt(half2 * (0.5 + 0.5 * ratio * ratio)),
-                1e-6 * std::sqrt(half2) * ratio);
-    EXPECT_NEAR(sigma(model({c0, 0.0}, {std::log(4e-8)}), a),
-                std::sqrt(1e-8 * ratio * ratio + 4e-8), 1e-12);
-    EXPECT_NEAR(sigma(model({c0, -2.0}, {}, ranging::IntensityInput::pulse_width), a),
-                std::sqrt(edge2), 1e-12);
-  }
-  // Inside the domain nothing changes.
-  EXPECT_NEAR(sigma(model({c0, 0.0}, {std::log(4e-8)}), 1.0), std::sqrt(5e-8), 1e-12);
-}
-
 TEST(CalibratedConfidence, SigmaFollowsTheTrueSigma) {
   // For Gaussian residuals the 95 % two-sided quantile is 1.96 sigma, so the
   // calibrated sigma should be 0.98 of the true one wherever data are dense.

@@ -172,28 +172,6 @@ void CalibratedConfidence::sigma(std::span<const double> range_m, std::span<cons
     const double y = p.range_scaling.apply(clamp_to(range_m[k], d.range_min_m, d.range_max_m));
     const double x = p.amplitude_scaling.apply(u);
     double e2 = std::exp(polynomial_2d(p.exponents, p.coefficients, x, y));
-    if (p.intensity == IntensityInput::amplitude && amplitude[k] < d.amplitude_min &&
-        amplitude[k] > 0) {
-      // Weaker echoes than any fitted: the timing jitter is the noise over the
-      // echo's slope at the threshold, and the slope scales with the amplitude
-      // (same shape), so the noise's variance grows as (A_min / A)^2 (noise ~
-      // 1/SNR) rather than stopping at the edge. The noise's share f of the
-      // variance at the edge: the whole first term when a systematic term is
-      // apart, else from the fitted variance's own slope there, d ln E / d ln A
-      // = -2 f (a variance s^2 + c / A^2 has f = c / (A^2 E)).
-      const double ratio = d.amplitude_min / amplitude[k];
-      double noise_share = 1.0;
-      if (p.systematic_coefficients.empty()) {
-        constexpr double kStep = 0.01;  // inward, in ln A
-        const double a_in = std::min(d.amplitude_min * std::exp(kStep), d.amplitude_max);
-        const double x_in = p.amplitude_scaling.apply(p.log_amplitude ? std::log(a_in) : a_in);
-        const double slope = (polynomial_2d(p.exponents, p.coefficients, x_in, y) -
-                              polynomial_2d(p.exponents, p.coefficients, x, y)) /
-                             std::log(a_in / d.amplitude_min);
-        noise_share = a_in > d.amplitude_min ? std::clamp(-0.5 * slope, 0.0, 1.0) : 1.0;
-      }
-      e2 *= 1.0 - noise_share + noise_share * ratio * ratio;
-    }
     // Noise and systematic error are independent: their variances add.
     if (!p.systematic_coefficients.empty())
       e2 += std::exp(polynomial_2d(p.systematic_exponents, p.systematic_coefficients, x, y));
