@@ -597,3 +597,42 @@ TEST(NoiseSystematicConfidence, ManyTargetsTakeOneOptimism) {
 
 }  // namespace
 }  // namespace tofkit::calib
+
+namespace tofkit::calib {
+namespace {
+
+// A calibration whose rows all stand at one distance cannot see errors that
+// change with range: the fit says so (and counts the distances); with a
+// second distance it does not. Ranges that are not finite are not counted.
+TEST(ModelFit, ACalibrationAtOneDistanceSaysSoInItsReport) {
+  const auto rows_at = [](std::vector<double> distances) {
+    std::vector<ranging::Record> rows;
+    for (double d : distances) {
+      for (int k = 0; k < 12; ++k) {
+        ranging::Record r;
+        r.truth.distance_m = d;
+        r.raw.tof_ns = 2.0 * (d + 0.2 + 1e-4 * k) / 0.2997;
+        r.raw.shots_valid = 100;
+        r.raw.amplitude = 0.5 + 0.1 * k;
+        r.raw.pulse_width_ns = 5.0;
+        r.raw.temperature_c = 20.0;
+        rows.push_back(r);
+      }
+    }
+    return rows;
+  };
+  ModelFitOptions options;
+  options.chain = ChainSteps{true, false, false};
+  options.confidence = ConfidenceKind::none;
+  const ModelFitResult one = fit_model(rows_at({2.0}), options);
+  EXPECT_EQ(one.summary.distances, 1);
+  EXPECT_NE(one.report.find("one distance (2.000 m)"), std::string::npos) << one.report;
+  const ModelFitResult two = fit_model(rows_at({2.0, 3.5}), options);
+  EXPECT_EQ(two.summary.distances, 2);
+  EXPECT_EQ(two.report.find("one distance"), std::string::npos) << two.report;
+  const std::vector<double> ranges{1.0, std::numeric_limits<double>::quiet_NaN(), 1.01, 3.0};
+  EXPECT_EQ(distinct_distances(ranges), 2);
+}
+
+}  // namespace
+}  // namespace tofkit::calib

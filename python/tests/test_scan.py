@@ -151,21 +151,18 @@ def test_errors_carry_the_cli_message(cli, tmp_path):
 
 def test_the_gil_is_released_while_scanning():
     """Another Python thread keeps running during a scan."""
-    import time
-
     grid = "-15:15:0.25"  # 121 x 121 beams
 
     def work():
         return tofkit.scan(BLOCKS, "spherical", azimuth=grid, elevation=grid, shots=10)
 
-    start = time.perf_counter()
-    work()
-    alone = time.perf_counter() - start
-    gaps = np.array(pauses_of_another_thread(work))
-    print(f"\nscan alone {alone * 1e3:.0f} ms; longest pause of the other thread "
+    work()  # (first call: the scene's acceleration structure)
+    gaps, ran = pauses_of_another_thread(work)
+    gaps = np.array(gaps)
+    print(f"\nscan {ran * 1e3:.0f} ms; longest pause of the other thread "
           f"{gaps.max() * 1e3:.1f} ms over {len(gaps)} ticks")
     assert len(gaps) > 100
-    assert gaps.max() < 0.5 * alone
+    assert gaps.max() < 0.5 * ran
 
 
 def test_example_03_runs(tmp_path):

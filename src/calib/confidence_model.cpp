@@ -110,18 +110,6 @@ SurfaceDomain validate_data(const ConfidenceFitData& data, bool need_range, cons
 /// Smallest max/min ratio of the fitting data's ranges for range terms.
 constexpr double kMinRangeRatio = 1.5;
 
-/// The distances the rows were measured at: clusters of sorted ranges parted
-/// by gaps wider than 2 cm (far above the noise of a corrected range, far
-/// below the spacing of plates).
-int distinct_distances(std::span<const double> range_m) {
-  constexpr double kGapM = 0.02;
-  std::vector<double> r(range_m.begin(), range_m.end());
-  std::sort(r.begin(), r.end());
-  int clusters = r.empty() ? 0 : 1;
-  for (std::size_t k = 1; k < r.size(); ++k) clusters += r[k] - r[k - 1] > kGapM ? 1 : 0;
-  return clusters;
-}
-
 /// Monomials x^a y^b with a + b <= order.
 std::vector<std::array<int, 2>> exponents_2d(int order) {
   std::vector<std::array<int, 2>> out;
@@ -145,6 +133,17 @@ std::string percent(double v) {
 }
 
 }  // namespace
+
+int distinct_distances(std::span<const double> range_m) {
+  constexpr double kGapM = 0.02;
+  std::vector<double> r;
+  for (double v : range_m)
+    if (std::isfinite(v)) r.push_back(v);
+  std::sort(r.begin(), r.end());
+  int clusters = r.empty() ? 0 : 1;
+  for (std::size_t k = 1; k < r.size(); ++k) clusters += r[k] - r[k - 1] > kGapM ? 1 : 0;
+  return clusters;
+}
 
 // ------------------------------------------------------------------ thesis
 

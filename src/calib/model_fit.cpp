@@ -893,6 +893,19 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   summary.rows_fit = fit_rows.size();
 
   result.pipeline = fit_correction(fit_rows, o, &summary, &report);
+  {
+    std::vector<double> truth;
+    for (const auto& r : records)
+      if (r.raw.has_echo()) truth.push_back(r.truth.distance_m);
+    summary.distances = distinct_distances(truth);
+    if (summary.distances == 1) {
+      report += format(
+          "note: every calibration row stands at one distance (%.3f m): errors that change with "
+          "range (such as the TDC's nonlinearity, periodic in the time of flight) are neither "
+          "corrected nor in sigma; plates at a few more distances measure them\n",
+          truth.front());
+    }
+  }
 
   if (from_repeats) {
     fit_repeats_confidence(records, o, result);

@@ -119,4 +119,9 @@ struct ConfidenceCoverage {
 [[nodiscard]] ConfidenceCoverage coverage_2sigma(const ConfidenceModel& model,
                                                  const ConfidenceFitData& data);
 
+/// The distances rows were measured at: clusters of sorted ranges parted by
+/// gaps wider than 2 cm (far above the noise of a corrected range, far below
+/// the spacing of plates). Non-finite ranges are not counted.
+[[nodiscard]] int distinct_distances(std::span<const double> range_m);
+
 }  // namespace tofkit::calib

@@ -157,6 +157,10 @@ struct ModelFitSummary {
   };
   std::optional<Confidence> confidence;
   double residual_rms_m = 0;
+  /// Distances the calibration rows' truths stand at (calib::distinct_distances).
+  /// One: neither the correction nor its sigma can see errors that change with
+  /// range (the report says so).
+  int distances = 0;
 };
 
 struct ModelFitResult {
