@@ -914,7 +914,9 @@ struct VirtualRangefinder::Impl {
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          above = rise >= m.blanking_ns;  // a blanked crossing is not seen
+          // A blanked crossing is not seen; without blanking every one is (a
+          // strong echo of a long pulse crosses before the pulse's centre, t = 0).
+          above = m.blanking_ns <= 0.0 || rise >= m.blanking_ns;
         } else if (above) {
           if (v > rx.saturation_v) {
             clipped = true;
