@@ -13,11 +13,13 @@
 #include <string>
 #include <vector>
 
+#include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/physics/environment.hpp"
 #include "tofkit/physics/link_budget.hpp"
+#include "tofkit/physics/pulse_template.hpp"
 
 using namespace tofkit;
 using namespace tofkit::device;
@@ -495,6 +497,30 @@ TEST(Device, ModesAgreeWhereLongPulsesCrossBeforeTheirCentre) {
     const double se = std::sqrt((a.sd * a.sd + w.sd * w.sd) / shots);
     EXPECT_NEAR(a.mean, w.mean, std::max(1e-3, 3.0 * se));
     EXPECT_NEAR(w.sd / a.sd, 1.0, 0.15);
+  }
+}
+
+// A fast receiver (1 GHz, pole time constant 0.10 ns) against the default
+// 100 ps sampling: the waveform mode samples at least 6 times per time
+// constant (device::waveform_step_ns). At 100 ps its means read 0.8-2.0 mm
+// long against the analytic mode; now within 0.35 mm.
+TEST(Device, ModesAgreeForAFastReceiver) {
+  auto cfg = preset("paper");
+  cfg.link.receiver.bandwidth_mhz = 1000.0;
+  ASSERT_EQ(cfg.measurement.sample_period_ps, 100.0);
+  EXPECT_NEAR(waveform_step_ns(cfg), physics::two_pole_time_constant_ns(1000.0) / 6.0, 1e-15);
+  const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
+  const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
+  const int shots = static_cast<int>(6000 * sanitized_scale());
+  for (double r : {2.0, 5.0}) {
+    for (double rho : {0.1, 0.8}) {
+      SCOPED_TRACE(testing::Message() << "R=" << r << " rho=" << rho);
+      const auto a = single_shots(analytic, Target::plate(r, rho), shots, 17);
+      const auto w = single_shots(waveform, Target::plate(r, rho), shots, 17);
+      EXPECT_EQ(w.echoes, a.echoes);
+      EXPECT_NEAR(a.mean, w.mean, 1e-3);
+      EXPECT_NEAR(w.sd / a.sd, 1.0, 0.15);
+    }
   }
 }
 

@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <string>
 
+#include "tofkit/physics/pulse_template.hpp"
+
 namespace tofkit::device {
 namespace {
 
@@ -20,8 +22,7 @@ double pulse_sigma_ns(const DeviceConfig& c) {
 
 // Time constant of the receiver's two equal poles with overall -3 dB bandwidth B.
 double receiver_tau_ns(const DeviceConfig& c) {
-  const double pole_mhz = c.link.receiver.bandwidth_mhz / std::sqrt(std::sqrt(2.0) - 1.0);
-  return 1e3 / (2.0 * kPi * pole_mhz);
+  return physics::two_pole_time_constant_ns(c.link.receiver.bandwidth_mhz);
 }
 
 double template_span_ns(const DeviceConfig& c) {
@@ -74,10 +75,15 @@ std::vector<LimitViolation> check_config_limits(const DeviceConfig& config) {
   return out;
 }
 
+double waveform_step_ns(const DeviceConfig& config) {
+  return std::min(config.measurement.sample_period_ps * 1e-3,
+                  receiver_tau_ns(config) / kWaveformSamplesPerPole);
+}
+
 std::vector<LimitViolation> check_waveform_limits(const DeviceConfig& config,
                                                   double echo_spread_ns) {
   std::vector<LimitViolation> out = check_config_limits(config);
-  const double dt_ns = config.measurement.sample_period_ps * 1e-3;
+  const double dt_ns = waveform_step_ns(config);
   const double tau = receiver_tau_ns(config);
   // Record: from before the earliest rise (4 ns + 6 tau) to after the latest
   // fall (4 ns), around the echo and the template; burn-in of 6 tau before it.

@@ -204,7 +204,7 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("measurement.window_ns", &m.window_ns, 0, 1e5, kOpen,
             "waveform-mode record length around the echo"),
       field("measurement.sample_period_ps", &m.sample_period_ps, 0, 1e6, kOpen,
-            "waveform-mode sampling period"),
+            "waveform-mode sampling period (at most: 6 per receiver pole time constant)"),
       field("measurement.reference_temperature_c", &m.reference_temperature_c, -100, 200, kClosed,
             "air temperature the device assumes for the speed of light"),
 

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "random_draws.hpp"
+#include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
@@ -846,7 +847,7 @@ struct VirtualRangefinder::Impl {
     if (m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
     const double threshold = config.discriminator.threshold_v;
-    const double dt = config.measurement.sample_period_ps * 1e-3;
+    const double dt = waveform_step_ns(config);
     const double tau = pulse.pole_time_constant_ns();
     const double a = std::exp(-dt / tau);
     // Two cascaded one-pole filters of white noise: var = (1-a)^4 (1+a^2) / (1-a^2)^3.

@@ -90,7 +90,8 @@ struct MeasurementConfig {
                               ///< from the median stop are dropped before averaging (0: off).
                               ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).
   double window_ns = 30.0;                ///< waveform-mode record length around the echo
-  double sample_period_ps = 100.0;        ///< waveform-mode sampling period
+  double sample_period_ps = 100.0;        ///< waveform-mode sampling period (at most: finer
+                                          ///< for a fast receiver, device::waveform_step_ns)
   double reference_temperature_c = 20.0;  ///< air temperature the device assumes for c_air
 };
 
