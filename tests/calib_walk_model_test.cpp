@@ -364,7 +364,7 @@ CoverageFigures walk_chain_coverage(const ProtocolRows& data, const device::Devi
 // well as in-domain ones with both kinds: their shortfall is not a sigma kept from inside the
 // domain. Nor is their sigma a blanket growth: the walk step adds its own extrapolation variance
 // from the fitted shape's bootstrap replicates, so the flagged rows' RMS sigma stays within a
-// factor 2 of their RMS error with both kinds (measured 0.39 and 0.36 mm against 0.47 mm; 0.84 and
+// factor 2 of their RMS error with both kinds (measured 0.38 and 0.35 mm against 0.47 mm; 0.84 and
 // 0.82 mm with the walk's Gauss-Newton covariance, whose strong tercile had 0.71 mm of RMS sigma
 // for 0.34 mm of error; with the generic growth the calibrated kind gave 0.46 mm against 0.56 mm in
 // the weak tercile and 0.80 against 0.30 mm in the strong one, and the noise-systematic kind, whose

@@ -3,9 +3,9 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 #include <cstdio>
 #include <limits>
+#include <random>
 #include <stdexcept>
 #include <vector>
 
@@ -168,7 +168,7 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
 /// smaller than the errors), each refitted from `best`.
 std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
                                                      const Eigen::VectorXd& best, std::size_t count,
-                                                     int max_iterations, int& iterations) {
+                                                     int max_iterations) {
   std::vector<ranging::WalkShape> out;
   Eigen::VectorXd r;
   const auto n = static_cast<Eigen::Index>(problem.rows.size());
@@ -177,14 +177,9 @@ std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
   std::vector<double> e(problem.e.begin(), problem.e.end());
   Problem resampled = problem;
   resampled.e = e;
-  std::uint64_t state = 0x2545F4914F6CDD1DULL;  // splitmix64, a fixed seed
-  const auto next_bit = [&state] {
-    state += 0x9E3779B97F4A7C15ULL;
-    std::uint64_t z = state;
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-    return ((z ^ (z >> 31)) & 1U) != 0;
-  };
+  // The standard fixes mt19937_64's sequence: the same rows give the same signs anywhere.
+  std::mt19937_64 signs(20261124);
+  const auto next_bit = [&signs] { return (signs() & 1U) != 0; };
   for (std::size_t b = 0; b < count; ++b) {
     for (Eigen::Index k = 0; k < n; ++k) {
       const std::size_t i = problem.rows[static_cast<std::size_t>(k)];
@@ -194,7 +189,6 @@ std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
     // A replicate needs its walk to a small part of the scatter it stands
     // for, not the last digit of its SSE.
     const LmResult lm = levenberg_marquardt(resampled, best, max_iterations, kReplicateTolerance);
-    iterations += lm.iterations;
     if (!std::isfinite(lm.sse)) continue;
     try {
       out.push_back(shape_of(lm.p));
@@ -362,8 +356,8 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   result.shape = shape_of(best.p);
   result.constant_m = best.p(0);
   result.rms_m = std::sqrt(best.sse / static_cast<double>(problem.rows.size()));
-  result.shape_replicates = bootstrap_replicates(
-      problem, best.p, options.replicates, options.max_iterations, result.replicate_iterations);
+  result.shape_replicates =
+      bootstrap_replicates(problem, best.p, options.replicates, options.max_iterations);
   result.iterations = iterations;
   result.converged = best.converged;
   return result;

@@ -61,7 +61,6 @@ struct WalkFitResult {
   /// Bootstrap replicates of the shape (WalkFitOptions::replicates; those
   /// whose refit failed are left out).
   std::vector<ranging::WalkShape> shape_replicates;
-  int replicate_iterations = 0;  ///< LM iterations of the replicates' refits
   int iterations = 0;
   bool converged = false;
   [[nodiscard]] std::string summary() const;
