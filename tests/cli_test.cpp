@@ -188,3 +188,29 @@ TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
   EXPECT_EQ(bad.status, 1);
   EXPECT_NE(read("stderr.txt").find("range"), std::string::npos) << read("stderr.txt");
 }
+
+// The plan's powers are optical; whether a plate's echo crosses the
+// comparator is the device's. The paper's device misses the field's weakest
+// target (8 m, rho 0.05: 0 of 1000 shots echo) and nearly misses the faintest
+// plate (0.02 at 5.06 m: 1 of 1000), and the plan says so; with the APD gain
+// 20 x lower, the four faintest plates (about 20 x the power of the first).
+// A field it sees whole gets no such lines.
+TEST_F(CliTest, PlanNamesThePlatesBelowTheThreshold) {
+  const auto paper = run("plan --range-max 8 --reflectance-min 0.05");
+  ASSERT_EQ(paper.status, 0) << paper.err;
+  EXPECT_NE(paper.out.find("the field's weakest target (8 m, reflectance 0.05) stays below"),
+            std::string::npos)
+      << paper.out;
+  EXPECT_NE(paper.out.find("only noise crossings): 0.0200 at 5.0596 m\n"), std::string::npos)
+      << paper.out;
+  const auto low_gain = run("--set receiver.apd_gain=5 plan --range-max 8 --reflectance-min 0.05");
+  ASSERT_EQ(low_gain.status, 0) << low_gain.err;
+  const auto line = low_gain.out.substr(low_gain.out.find("# plates below the threshold"));
+  std::size_t plates = 0;
+  for (std::size_t at = line.find(" m"); at < line.find('\n'); at = line.find(" m", at + 1))
+    ++plates;
+  EXPECT_EQ(plates, 4u) << line;
+  const auto near = run("plan --range-min 0.5 --range-max 3 --reflectance-min 0.3");
+  ASSERT_EQ(near.status, 0) << near.err;
+  EXPECT_EQ(near.out.find("below the threshold"), std::string::npos) << near.out;
+}

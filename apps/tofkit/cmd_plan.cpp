@@ -14,6 +14,7 @@
 
 #include "app.hpp"
 #include "tofkit/calib/calibration_plan.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
 
 namespace tofkit::app {
 namespace {
@@ -39,6 +40,28 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
   fmt::print("# {} plates at log-even powers; calibration distance {} m{}\n", plan.plates.size(),
              number(plan.calibration_distance_m),
              o.plan.single_distance ? " (every plate)" : " where a plate allows");
+  // The powers are optical; whether an echo crosses the comparator's
+  // threshold is the device's (gain, transimpedance, threshold): the
+  // field's weakest target and each plate, noise-free, at 20 C.
+  const device::VirtualRangefinder device(config);
+  const auto detected = [&](double distance_m, double reflectance) {
+    return device.echo(device::Target::plate(distance_m, reflectance), {}).detected;
+  };
+  if (!detected(o.plan.range_max_m, o.plan.reflectance_min)) {
+    fmt::print(
+        "# the field's weakest target ({} m, reflectance {}) stays below the threshold "
+        "(discriminator.threshold_v = {} V): no echo, or only noise crossings\n",
+        number(o.plan.range_max_m), number(o.plan.reflectance_min),
+        number(config.discriminator.threshold_v));
+  }
+  std::string silent;
+  for (const auto& p : plan.plates) {
+    if (!detected(p.distance_m, p.reflectance))
+      silent += fmt::format("{}{:.4f} at {:.4f} m", silent.empty() ? "" : ", ", p.reflectance,
+                            p.distance_m);
+  }
+  if (!silent.empty())
+    fmt::print("# plates below the threshold (no echo, or only noise crossings): {}\n", silent);
   if (o.bench) {
     fmt::print("{:>4} {:>10} {:>12} {:>14} {:>10}\n", "#", "distance_m", "reflectance", "power_W",
                "SNR");
