@@ -768,7 +768,7 @@ TEST(BSplineSurface, CrossValidationChoosesQuantileKnotsWhereTheDataCrowd) {
   uniform.intervals_amplitude = fit.intervals[1];
   uniform.choose_smoothing_by_gcv = true;
   BSplineFitOptions quantile = uniform;
-  quantile.knot_placement = KnotPlacement::quantile;
+  quantile.knot_placement.fill(KnotPlacement::quantile);
   const SurfaceFitResult u = fit_bspline_surface(train.data(), uniform);
   const SurfaceFitResult q = fit_bspline_surface(train.data(), quantile);
   EXPECT_EQ(u.placement[0], KnotPlacement::uniform);
@@ -800,7 +800,7 @@ TEST(BSplineSurface, ARefitWithAResultsChoicesReproducesItsSurface) {
   fixed.intervals_range = fit.intervals[0];
   fixed.intervals_amplitude = fit.intervals[1];
   fixed.smoothing = fit.smoothing;
-  fixed.axis_placement = {fit.placement[0], fit.placement[1], fit.placement[2]};
+  fixed.knot_placement = {fit.placement[0], fit.placement[1], fit.placement[2]};
   for (int k = 0; k < 3; ++k) fixed.axis_weight[k] = fit.axis_weight[k];
   const SurfaceFitResult again = fit_bspline_surface(train.data(), fixed);
   EXPECT_EQ(fit.placement[0], KnotPlacement::quantile) << fit.summary();
@@ -829,7 +829,7 @@ TEST(SurfaceJson, NonUniformKnotsRoundTripAndOldFilesLoadUniform) {
   const Table train = make_table(3000, walk_truth, 0.002, 61);
   const Table probe = make_table(500, walk_truth, 0.0, 62);
   BSplineFitOptions options;
-  options.knot_placement = KnotPlacement::quantile;
+  options.knot_placement.fill(KnotPlacement::quantile);
   options.use_temperature = true;
   const SurfaceFitResult fit = fit_bspline_surface(train.data(), options);
   const auto& spline = dynamic_cast<const BSplineSurface&>(*fit.surface);
@@ -859,7 +859,7 @@ TEST(SurfaceJson, NonUniformKnotsRoundTripAndOldFilesLoadUniform) {
 TEST(SurfaceJson, MalformedKnotsAreRefusedNamingTheKey) {
   const Table train = make_table(1000, walk_truth, 0.002, 63);
   BSplineFitOptions options;
-  options.knot_placement = KnotPlacement::quantile;
+  options.knot_placement.fill(KnotPlacement::quantile);
   const nlohmann::json good =
       io::surface_to_json(*fit_bspline_surface(train.data(), options).surface);
   const auto expect_error = [](const nlohmann::json& j, const std::string& needle) {

@@ -646,7 +646,7 @@ std::vector<double> group_leverages(std::span<const ranging::Record> records,
     b.intervals_amplitude = s.intervals[1];
     if (s.intervals[2] > 0) b.intervals_temperature = s.intervals[2];
     b.smoothing = s.smoothing;
-    b.axis_placement = {s.placement[0], s.placement[1], s.placement[2]};
+    b.knot_placement = {s.placement[0], s.placement[1], s.placement[2]};
     for (int k = 0; k < 3; ++k) b.axis_weight[k] = s.axis_weight[k];
   }
   std::vector<ranging::Record> rows(records.begin(), records.end());

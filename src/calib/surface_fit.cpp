@@ -780,11 +780,9 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   // them; the ladder's counts are capped by them); not needed (nor sorted)
   // for given uniform knots.
   std::vector<double> distinct[3];
-  bool need_distinct =
-      options.choose_intervals_by_gcv || options.knot_placement == KnotPlacement::quantile;
-  if (options.axis_placement) {
-    for (KnotPlacement k : *options.axis_placement) need_distinct |= k == KnotPlacement::quantile;
-  }
+  const bool need_distinct = options.choose_intervals_by_gcv ||
+                             std::ranges::find(options.knot_placement, KnotPlacement::quantile) !=
+                                 options.knot_placement.end();
   for (int k = 0; k < (need_distinct ? dims : 0); ++k) {
     distinct[k].resize(c.rows);
     for (std::size_t row = 0; row < c.rows; ++row) {
@@ -893,13 +891,9 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
     set_axes(chosen);
     best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true);
   } else {
-    const auto placement = [&](int k) {
-      return options.axis_placement ? (*options.axis_placement)[static_cast<std::size_t>(k)]
-                                    : options.knot_placement;
-    };
-    chosen[0] = {options.intervals_range, placement(0)};
-    chosen[1] = {options.intervals_amplitude, placement(1)};
-    chosen[2] = {options.intervals_temperature, placement(2)};
+    chosen[0] = {options.intervals_range, options.knot_placement[0]};
+    chosen[1] = {options.intervals_amplitude, options.knot_placement[1]};
+    chosen[2] = {options.intervals_temperature, options.knot_placement[2]};
     set_axes(chosen);
     best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing,
                        choose_smoothing ? ones : options.axis_weight, choose_smoothing, true);

@@ -4,7 +4,6 @@
 #include <array>
 #include <cstdint>
 #include <memory>
-#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -58,9 +57,11 @@ struct BSplineFitOptions {
   /// instead of using the value above; then each axis's penalty weight
   /// relative to it (decades 1e-3 .. 1e3, one pass per axis) by the same score.
   bool choose_smoothing_by_gcv = false;
-  /// Knot placement on every axis when the intervals are given (below: chosen).
-  /// Quantile knots are capped at the axis's distinct values minus one intervals.
-  KnotPlacement knot_placement = KnotPlacement::uniform;
+  /// Knot placement of each axis (range, amplitude, temperature) when the
+  /// intervals are given (below: chosen). Quantile knots are capped at the
+  /// axis's distinct values minus one intervals.
+  std::array<KnotPlacement, 3> knot_placement = {KnotPlacement::uniform, KnotPlacement::uniform,
+                                                 KnotPlacement::uniform};
   /// Choose the knots of each axis too, by the same generalized
   /// cross-validation: the count from a ladder (3, 5, 8, 12 per axis; 2, 3, 5
   /// for temperature) capped by the data's distinct values on that axis, and
@@ -68,12 +69,10 @@ struct BSplineFitOptions {
   /// knot_placement above are then ignored. Implies choose_smoothing_by_gcv.
   bool choose_intervals_by_gcv = false;
   /// When nothing is chosen by cross-validation: each axis's penalty weight
-  /// relative to `smoothing` (range, amplitude, temperature), and each axis's
-  /// knot placement (unset: knot_placement on every axis). With a result's
-  /// intervals, smoothing, placement and axis_weight they refit its surface
-  /// with the same choices (a refit that is linear in the data).
+  /// relative to `smoothing` (range, amplitude, temperature). With a result's
+  /// intervals, smoothing, placement and axis_weight the options refit its
+  /// surface with the same choices (a refit that is linear in the data).
   double axis_weight[3] = {1, 1, 1};
-  std::optional<std::array<KnotPlacement, 3>> axis_placement;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
