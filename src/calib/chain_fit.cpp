@@ -184,6 +184,21 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
         ((r.raw.flags & ranging::kRawSaturated) != 0 ? kWalkRowClipped : 0) |
         ((r.raw.flags & ranging::kRawPartialEchoes) != 0 ? kWalkRowPartial : 0)));
   }
+  // Partial echoes bias a row's mean only where the echo itself is missed on
+  // some shots (the shots that crossed are those noise lifted): echoes near
+  // the threshold. Detection grows with the echo's strength, and its pulse
+  // width with it, so a row wider than a row that echoed on every shot lost its
+  // shots to something else (false alarms before the echo, gated out by the
+  // firmware, as in sunlight) and is fitted like a complete row.
+  double widest_weak_ns = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < e.size(); ++k) {
+    if ((saturated[k] & kWalkRowPartial) == 0)
+      widest_weak_ns = std::min(widest_weak_ns, pulse_width[k]);
+  }
+  for (std::size_t k = 0; k < e.size(); ++k) {
+    if (pulse_width[k] > widest_weak_ns)
+      saturated[k] &= static_cast<std::uint8_t>(~kWalkRowPartial);
+  }
   const std::size_t n = e.size();
   result.rows = n;
   result.rows_skipped = records.size() - n;

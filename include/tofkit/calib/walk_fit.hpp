@@ -55,7 +55,7 @@ struct WalkFitResult {
   double reference_pulse_width_ns = 0;        ///< walk correction is zero here
   double width_min_ns = 0, width_max_ns = 0;  ///< widths fitted on (the step's domain)
   std::size_t rows = 0;                       ///< rows fitted (partial-echo rows are not)
-  std::size_t partial_rows = 0;               ///< rows left out: not every shot gave an echo
+  std::size_t partial_rows = 0;               ///< rows left out: kWalkRowPartial
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
   double rms_m = 0;                ///< RMS residual of the fit
   /// Bootstrap replicates of the shape (WalkFitOptions::replicates; those
@@ -67,9 +67,11 @@ struct WalkFitResult {
 };
 
 /// `status[i]`: kWalkRowClipped when row i's echo clipped (kRawSaturated),
-/// kWalkRowPartial when not every shot gave an echo (kRawPartialEchoes: the
-/// mean over the shots that crossed is biased by which shots crossed, which a
-/// noise-free crossing does not model; such rows are not fitted); may be
+/// kWalkRowPartial when the echo itself was missed on some shots (the mean
+/// over the shots that crossed is biased by which shots crossed, which a
+/// noise-free crossing does not model; such rows are not fitted. fit_chain
+/// marks the kRawPartialEchoes rows no wider than a row with every shot
+/// echoed: wider ones lost shots to false alarms, not to weakness); may be
 /// empty (all plain). `metres_per_ns`: c_air / 2. Throws std::invalid_argument
 /// for mismatched sizes, fewer than 6 rows (without partial echoes), non-finite values or no spread
 /// in pulse width.
