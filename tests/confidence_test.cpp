@@ -634,5 +634,52 @@ TEST(ModelFit, ACalibrationAtOneDistanceSaysSoInItsReport) {
   EXPECT_EQ(distinct_distances(ranges), 2);
 }
 
+// Fewer truth groups than folds: each group is its own fold (leave one group
+// out). Three plates of 12 rows and an offset fitted by least squares: too
+// few rows for the calibrated kind, so sigma is the RMS of the out-of-fold
+// residuals, each row's against the mean offset of the other two plates
+// (worked out here). Before, cross-fitting was refused and sigma was the
+// in-sample RMS (the plates' own scatter about the common mean).
+TEST(ModelFit, FewerGroupsThanFoldsLeaveOneGroupOut) {
+  std::mt19937_64 rng(77);
+  std::normal_distribution<double> unit;
+  const double metres_per_ns = ranging::metres_per_ns(ranging::TimeToDistance{});
+  const double systematic[3] = {0.6e-3, -0.4e-3, 0.1e-3};
+  std::vector<ranging::Record> rows;
+  for (int g = 0; g < 3; ++g) {
+    for (int k = 0; k < 12; ++k) {
+      ranging::Record r;
+      r.truth.distance_m = 1.0 + g;
+      r.raw.distance_raw_m = r.truth.distance_m + 0.2 + systematic[g] + 0.1e-3 * unit(rng);
+      r.raw.tof_ns = r.raw.distance_raw_m / metres_per_ns;
+      r.raw.shots_valid = 100;
+      r.raw.amplitude = 0.5 * (g + 1);
+      r.raw.pulse_width_ns = 5.0;
+      r.raw.temperature_c = 20.0;
+      rows.push_back(r);
+    }
+  }
+  ModelFitOptions options;
+  options.chain = ChainSteps{true, false, false};
+  options.chain_options.grayvalue.robust.loss = RobustLoss::kNone;
+  options.chain_options.temperature.robust.loss = RobustLoss::kNone;
+  const ModelFitResult fit = fit_model(rows, options);
+  double sum2 = 0;
+  for (int g = 0; g < 3; ++g) {
+    double offset = 0;  // the other plates' mean raw - true
+    for (const auto& r : rows) {
+      if (r.truth.distance_m != 1.0 + g) offset += r.raw.distance_raw_m - r.truth.distance_m;
+    }
+    offset /= 24.0;
+    for (const auto& r : rows) {
+      if (r.truth.distance_m != 1.0 + g) continue;
+      const double e = r.truth.distance_m - (r.raw.distance_raw_m - offset);
+      sum2 += e * e;
+    }
+  }
+  EXPECT_NEAR(fit.pipeline.residual_rms_m(), std::sqrt(sum2 / 36.0), 1e-9) << fit.report;
+  EXPECT_NE(fit.report.find("36 out-of-fold rows"), std::string::npos) << fit.report;
+}
+
 }  // namespace
 }  // namespace tofkit::calib

@@ -275,7 +275,8 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                      "instead of cross-fitting, hold out every round(1/F)-th truth group for the "
                      "confidence fit (the correction is fitted on the rest)");
   sub.add_option("--confidence-folds", o->confidence_folds,
-                 "cross-fitting folds of whole truth groups for the confidence fit")
+                 "cross-fitting folds of whole truth groups for the confidence fit (fewer groups: "
+                 "one per group)")
       ->check(CLI::Range(2, 50))
       ->capture_default_str();
   sub.add_option("--firmware", o->firmware,

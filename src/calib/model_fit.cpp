@@ -926,13 +926,16 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     // the error on targets the correction never saw; the model kept is fitted
     // on all rows.
     const std::vector<std::size_t> group = truth_groups(records, groups);
-    const auto folds = static_cast<std::size_t>(o.confidence_folds);
+    // Fewer groups than folds: each group its own fold (leave one group out),
+    // still the error on targets the correction never saw.
+    const bool one_group_per_fold = groups < static_cast<std::size_t>(o.confidence_folds);
+    const std::size_t folds = one_group_per_fold ? groups : o.confidence_folds;
+    const auto fold = [&](std::size_t g) { return one_group_per_fold ? g : fold_of(g, folds); };
     try {
-      if (groups < folds) {
+      if (groups < 2) {
         throw std::invalid_argument(
-            format("confidence_folds %zu needs at least %zu groups of identical truth "
-                   "(distances / plates / temperatures), the data have %zu",
-                   folds, folds, groups));
+            "cross-fitting needs at least 2 groups of identical truth (distances / plates / "
+            "temperatures), the data have 1");
       }
       // A walk step's nonlinear fit starts each fold from the full fit's
       // shape (its multistart search is what costs; the folds' data are most
@@ -945,7 +948,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          (fold_of(group[i], folds) == k ? test : train).push_back(records[i]);
+          (fold(group[i]) == k ? test : train).push_back(records[i]);
         }
         residuals.add(fit_correction(train, fold_options, nullptr, nullptr), test);
       }
@@ -984,7 +987,9 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     c.kind = o.confidence;
     c.rows = residuals.residual.size();
     c.groups = groups;
-    c.folds = hold_out ? 0 : o.confidence_folds;
+    c.folds =
+        hold_out ? 0
+                 : static_cast<int>(std::min(static_cast<std::size_t>(o.confidence_folds), groups));
     c.every_kth_group = hold_out ? every_kth : 0;
     c.held_out = error_stats(residuals.residual);
     report += format("confidence: %s model fitted on %s; held-out RMS %.3f mm\n",

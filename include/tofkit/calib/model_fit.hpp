@@ -99,7 +99,7 @@ struct ModelFitOptions {
   /// gets no confidence model (sigma = residual RMS) and the report says why;
   /// true: that is an error.
   bool confidence_required = false;
-  int confidence_folds = 5;  ///< cross-fitting folds of whole truth groups
+  int confidence_folds = 5;  ///< cross-fitting folds of whole truth groups (at most one per group)
   /// > 0: instead of cross-fitting, every round(1 / fraction)-th truth group
   /// is held out of the correction fit and used for the confidence fit.
   double confidence_hold_out_fraction = 0;
