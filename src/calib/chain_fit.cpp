@@ -190,13 +190,13 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   // width with it, so a row wider than a row that echoed on every shot lost its
   // shots to something else (false alarms before the echo, gated out by the
   // firmware, as in sunlight) and is fitted like a complete row.
-  double widest_weak_ns = std::numeric_limits<double>::infinity();
+  double narrowest_complete_ns = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < e.size(); ++k) {
     if ((saturated[k] & kWalkRowPartial) == 0)
-      widest_weak_ns = std::min(widest_weak_ns, pulse_width[k]);
+      narrowest_complete_ns = std::min(narrowest_complete_ns, pulse_width[k]);
   }
   for (std::size_t k = 0; k < e.size(); ++k) {
-    if (pulse_width[k] > widest_weak_ns)
+    if (pulse_width[k] > narrowest_complete_ns)
       saturated[k] &= static_cast<std::uint8_t>(~kWalkRowPartial);
   }
   const std::size_t n = e.size();

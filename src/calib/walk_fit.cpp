@@ -376,7 +376,7 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     // The search from the unclipped rows' shapes can miss: a few distinct
     // widths also fit a short-tailed shape whose widths end below the clipped
     // rows', from which no clipped fit leaves (12 rows at 4 reflectances, one
-    // of them clipped: 8 mm of RMS against 0.2 mm for the unclipped rows).
+    // of them clipped: 8 mm of RMS against 0.3 mm for the unclipped rows).
     // When the clipped rows fit that much worse (per row, 2 x the RMS), the
     // shape alone is fitted to every row (the clipped shapes include it: an
     // onset beyond the tabulated widths clips nothing), kept if better, and
