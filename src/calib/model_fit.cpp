@@ -916,6 +916,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   Residuals residuals;
   bool fit_confidence = o.confidence != ConfidenceKind::none;
   std::string note;
+  std::size_t folds = 0;  // cross-fitting folds used
   if (fit_confidence && hold_out) {
     residuals.add(result.pipeline, confidence_part);
     note = format("%zu held-out rows (every %ld-th of %zu truth groups)", residuals.residual.size(),
@@ -929,7 +930,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     // Fewer groups than folds: each group its own fold (leave one group out),
     // still the error on targets the correction never saw.
     const bool one_group_per_fold = groups < static_cast<std::size_t>(o.confidence_folds);
-    const std::size_t folds = one_group_per_fold ? groups : o.confidence_folds;
+    folds = one_group_per_fold ? groups : static_cast<std::size_t>(o.confidence_folds);
     const auto fold = [&](std::size_t g) { return one_group_per_fold ? g : fold_of(g, folds); };
     try {
       if (groups < 2) {
@@ -987,9 +988,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     c.kind = o.confidence;
     c.rows = residuals.residual.size();
     c.groups = groups;
-    c.folds =
-        hold_out ? 0
-                 : static_cast<int>(std::min(static_cast<std::size_t>(o.confidence_folds), groups));
+    c.folds = static_cast<int>(folds);
     c.every_kth_group = hold_out ? every_kth : 0;
     c.held_out = error_stats(residuals.residual);
     report += format("confidence: %s model fitted on %s; held-out RMS %.3f mm\n",

@@ -264,7 +264,9 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
         std::log(options.initial->pole_time_constant_ns);
     starts.push_back(p);
   }
-  if (!options.initial || options.multistart) {
+  // A multistart search, or only a refinement of the given shape.
+  const bool search = !options.initial || options.multistart;
+  if (search) {
     double w_mid = 0;
     for (std::size_t i : problem.rows) w_mid += pulse_width_ns[i];
     w_mid = std::max(w_mid / static_cast<double>(problem.rows.size()), 1e-3);
@@ -322,57 +324,59 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     problem.onset_max_ns = std::max(widest_clear, narrowest_clipped);
     const double onset_mid = 0.5 * (widest_clear + narrowest_clipped);
     problem.rows = fitted;
-    // Clipped fits from the shapes `from` on (each with three recoveries, and
-    // the onset within the shape's tabulated widths, up to kMaxLogOverdrive:
+    // Starts from the unclipped shapes `from` on: three recoveries each, and
+    // the onset within the shape's tabulated widths (up to kMaxLogOverdrive:
     // beyond them nothing clips, and neither the onset nor the recovery moves
-    // the residuals); the best into clipped_best.
-    LmResult clipped_best;
-    const auto fit_clipped = [&](std::size_t from) {
-      std::vector<Eigen::VectorXd> clipped_starts;
-      if (!options.initial || options.multistart) {
-        for (std::size_t k = from; k < shapes.size(); ++k) {
-          const Eigen::VectorXd& q = shapes[k];
-          const double widest_free_ns = ranging::walk_curve(shape_of(q), 600).width_ns.back();
-          const double onset_hi = std::min(problem.onset_max_ns, widest_free_ns);
-          const double onset_start =
-              onset_hi > problem.onset_min_ns ? 0.5 * (problem.onset_min_ns + onset_hi) : onset_mid;
-          for (double recovery_ns : {0.3, 1.0, 3.0}) {
-            Eigen::VectorXd p(5);
-            p << q(0), q(1), q(2), std::log(recovery_ns), onset_start;
-            clipped_starts.push_back(p);
-          }
+    // the residuals).
+    const auto shape_starts = [&](std::size_t from) {
+      std::vector<Eigen::VectorXd> out;
+      for (std::size_t k = from; k < shapes.size(); ++k) {
+        const Eigen::VectorXd& q = shapes[k];
+        const double widest_free_ns = ranging::walk_curve(shape_of(q), 600).width_ns.back();
+        const double onset_hi = std::min(problem.onset_max_ns, widest_free_ns);
+        const double onset_start =
+            onset_hi > problem.onset_min_ns ? 0.5 * (problem.onset_min_ns + onset_hi) : onset_mid;
+        for (double recovery_ns : {0.3, 1.0, 3.0}) {
+          Eigen::VectorXd p(5);
+          p << q(0), q(1), q(2), std::log(recovery_ns), onset_start;
+          out.push_back(p);
         }
       }
-      if (from == 0 && options.initial &&
-          std::isfinite(options.initial->saturation_log_overdrive)) {
-        // (Its onset width from its own unclipped curve.)
-        ranging::WalkShape free = *options.initial;
-        free.saturation_log_overdrive = std::numeric_limits<double>::infinity();
-        const ranging::WalkCurve curve = ranging::walk_curve(free, 600);
-        const auto at = std::lower_bound(curve.log_overdrive.begin(), curve.log_overdrive.end(),
-                                         options.initial->saturation_log_overdrive);
-        const double onset_width =
-            at == curve.log_overdrive.end()
-                ? onset_mid
-                : curve.width_ns[static_cast<std::size_t>(at - curve.log_overdrive.begin())];
-        Eigen::VectorXd p(5);
-        p << best.p(0), std::log(options.initial->pulse_sigma_ns),
-            std::log(options.initial->pole_time_constant_ns),
-            std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3)), onset_width;
-        clipped_starts.push_back(p);
-      }
-      if (from == 0 && clipped_starts.empty()) {
-        Eigen::VectorXd p(5);
-        p << best.p(0), best.p(1), best.p(2), 0.0, onset_mid;
-        clipped_starts.push_back(p);
-      }
-      for (const Eigen::VectorXd& start : clipped_starts) {
+      return out;
+    };
+    LmResult clipped_best;  // the best clipped fit from the `candidates` so far
+    const auto fit_clipped = [&](const std::vector<Eigen::VectorXd>& candidates) {
+      for (const Eigen::VectorXd& start : candidates) {
         LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
         iterations += lm.iterations;
         if (lm.sse < clipped_best.sse) clipped_best = lm;
       }
     };
-    fit_clipped(0);
+    std::vector<Eigen::VectorXd> clipped_starts;
+    if (search) clipped_starts = shape_starts(0);
+    if (options.initial && std::isfinite(options.initial->saturation_log_overdrive)) {
+      // (Its onset width from its own unclipped curve.)
+      ranging::WalkShape free = *options.initial;
+      free.saturation_log_overdrive = std::numeric_limits<double>::infinity();
+      const ranging::WalkCurve curve = ranging::walk_curve(free, 600);
+      const auto at = std::lower_bound(curve.log_overdrive.begin(), curve.log_overdrive.end(),
+                                       options.initial->saturation_log_overdrive);
+      const double onset_width =
+          at == curve.log_overdrive.end()
+              ? onset_mid
+              : curve.width_ns[static_cast<std::size_t>(at - curve.log_overdrive.begin())];
+      Eigen::VectorXd p(5);
+      p << best.p(0), std::log(options.initial->pulse_sigma_ns),
+          std::log(options.initial->pole_time_constant_ns),
+          std::log(std::max(options.initial->recovery_ns_per_neper, 1e-3)), onset_width;
+      clipped_starts.push_back(p);
+    }
+    if (clipped_starts.empty()) {
+      Eigen::VectorXd p(5);
+      p << best.p(0), best.p(1), best.p(2), 0.0, onset_mid;
+      clipped_starts.push_back(p);
+    }
+    fit_clipped(clipped_starts);
     // The search from the unclipped rows' shapes can miss: a few distinct
     // widths also fit a short-tailed shape whose widths end below the clipped
     // rows', from which no clipped fit leaves (12 rows at 4 reflectances, one
@@ -382,14 +386,14 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     // onset beyond the tabulated widths clips nothing), kept if better, and
     // its minima start clipped fits too.
     const double unclipped_ms = best.sse / static_cast<double>(clear.size());
-    if (!(clipped_best.sse / static_cast<double>(fitted.size()) <= 4.0 * unclipped_ms + 1e-18) &&
-        (!options.initial || options.multistart)) {
+    if (search &&
+        !(clipped_best.sse / static_cast<double>(fitted.size()) <= 4.0 * unclipped_ms + 1e-18)) {
       const std::vector<LmResult> all_rows = unclipped_minima();
       if (!all_rows.empty() && all_rows.front().sse < clipped_best.sse)
         clipped_best = all_rows.front();
       const std::size_t from = shapes.size();
       add_distinct(all_rows, kClippingShapeStarts);
-      fit_clipped(from);
+      fit_clipped(shape_starts(from));
     }
     if (!std::isfinite(clipped_best.sse)) {
       throw std::invalid_argument("walk fit: clipping did not fit");

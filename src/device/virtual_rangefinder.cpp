@@ -321,6 +321,7 @@ struct VirtualRangefinder::Impl {
   double volts_per_watt_unity_gain;  // responsivity x transimpedance x bandwidth peak loss
   double c_nominal_m_per_ns;         // the device's assumed speed of light in air
   double pulse_period_ns;            // 1 / f_rep
+  double waveform_dt_ns;             // waveform mode's sampling step (waveform_step_ns)
   std::uint64_t id;                  // tags the per-thread caches of this device
   std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
   bool background_free = false;  // no sun, no sky: no background light on any surface
@@ -336,6 +337,7 @@ struct VirtualRangefinder::Impl {
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
     c_nominal_m_per_ns = nominal_light_speed_m_per_ns(config);
     pulse_period_ns = 1e9 / config.link.laser.repetition_hz;
+    waveform_dt_ns = waveform_step_ns(config);
     // The table serves the pulsed core only: an oscillator-loop device never asks.
     if (mode == SimulationMode::kAnalytic && !config.oscillator.enabled)
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
@@ -847,7 +849,7 @@ struct VirtualRangefinder::Impl {
     if (m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
     const double threshold = config.discriminator.threshold_v;
-    const double dt = waveform_step_ns(config);
+    const double dt = waveform_dt_ns;
     const double tau = pulse.pole_time_constant_ns();
     const double a = std::exp(-dt / tau);
     // Two cascaded one-pole filters of white noise: var = (1-a)^4 (1+a^2) / (1-a^2)^3.
