@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "cli_runner.hpp"
+#include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/raw_csv.hpp"
 
 namespace fs = std::filesystem;
@@ -168,21 +169,49 @@ TEST_F(CliTest, ConfigDumpLoadsBackToTheSameDump) {
 // field's. Oracle (paper Eq. 6 at normal incidence, Pr ~ rho / R^2, the
 // receiver's field covering the footprint): d^4 = rho_p,min rho_p,max R_min^2
 // R_max^2 / (rho_min rho_max).
+// --single-distance centres the plates' log-power span (reflectance
+// 0.02-0.95) on the field's (paper Eq. 6: Pr ~ rho / R^2, a closed form for the
+// distance) when the field's echoes do not clip, as with the APD gain 20 x
+// lower. With the paper's device the field's strongest echo (0.7 m, rho 0.85)
+// overdrives the amplifier, so the plates move nearer until the brightest
+// (0.95) is overdriven by one neper: its noise-free linear peak at the planned
+// distance, asked of the device, is e x receiver.saturation_v.
 TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
-  const auto r =
-      run("plan --range-min 0.7 --range-max 7.4 --reflectance-min 0.06 --reflectance-max 0.85 "
-          "--single-distance");
-  ASSERT_EQ(r.status, 0) << r.err;
-  std::vector<double> distances;
-  std::size_t pos = 0;
-  while ((pos = r.out.find("--distance ", pos)) != std::string::npos) {
-    pos += 11;
-    distances.push_back(std::stod(r.out.substr(pos, r.out.find(' ', pos) - pos)));
-  }
-  ASSERT_GE(distances.size(), 2u) << r.out;  // the plates and the temperature run
-  for (double d : distances) EXPECT_EQ(d, distances.front()) << r.out;
+  const std::string field =
+      "plan --range-min 0.7 --range-max 7.4 --reflectance-min 0.06 --reflectance-max 0.85 "
+      "--single-distance";
+  const auto distances_of = [](const std::string& out) {
+    std::vector<double> distances;
+    std::size_t pos = 0;
+    while ((pos = out.find("--distance ", pos)) != std::string::npos) {
+      pos += 11;
+      distances.push_back(std::stod(out.substr(pos, out.find(' ', pos) - pos)));
+    }
+    return distances;
+  };
+  const auto low_gain = run("--set receiver.apd_gain=5 " + field);
+  ASSERT_EQ(low_gain.status, 0) << low_gain.err;
+  const std::vector<double> centred = distances_of(low_gain.out);
+  ASSERT_GE(centred.size(), 2u) << low_gain.out;  // the plates and the temperature run
+  for (double d : centred) EXPECT_EQ(d, centred.front()) << low_gain.out;
   const double expected = std::pow(0.02 * 0.95 * 0.7 * 0.7 * 7.4 * 7.4 / (0.06 * 0.85), 0.25);
-  EXPECT_NEAR(distances.front(), expected, 0.01 * expected) << r.out;
+  EXPECT_NEAR(centred.front(), expected, 0.01 * expected) << low_gain.out;
+
+  const auto r = run(field);
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::vector<double> distances = distances_of(r.out);
+  ASSERT_GE(distances.size(), 2u) << r.out;
+  for (double d : distances) EXPECT_EQ(d, distances.front()) << r.out;
+  const tofkit::device::DeviceConfig config = tofkit::device::preset("paper");
+  const tofkit::device::VirtualRangefinder paper(config);
+  const double saturation_v = config.link.receiver.saturation_v;
+  EXPECT_GT(paper.echo(tofkit::device::Target::plate(0.7, 0.85), {}).peak_v,
+            std::exp(1.0) * saturation_v);
+  EXPECT_LT(distances.front(), expected);
+  EXPECT_NEAR(
+      paper.echo(tofkit::device::Target::plate(distances.front(), 0.95), {}).peak_v / saturation_v,
+      std::exp(1.0), 0.01 * std::exp(1.0))
+      << r.out;
   // An empty field (range_min > range_max) is refused, naming the range.
   const auto bad = run("plan --range-min 5 --range-max 2 --reflectance-min 0.06 --single-distance");
   EXPECT_EQ(bad.status, 1);

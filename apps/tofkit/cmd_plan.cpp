@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -15,6 +16,7 @@
 #include "app.hpp"
 #include "tofkit/calib/calibration_plan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/device_plan.hpp"
 
 namespace tofkit::app {
 namespace {
@@ -31,7 +33,8 @@ std::string number(double v) {
 
 void run_plan(const PlanOptions& o, const AppContext& ctx) {
   const device::DeviceConfig config = ctx.load_config();
-  const calib::CalibrationPlan plan = calib::plan_calibration(config.link, o.plan);
+  const device::VirtualRangefinder device(config);
+  const calib::CalibrationPlan plan = experiments::plan_for_device(device, o.plan);
   fmt::print(
       "# field {}-{} m x reflectance {}-{}: received peak power {:.3g} .. {:.3g} W (x{:.0f})\n",
       number(o.plan.range_min_m), number(o.plan.range_max_m), number(o.plan.reflectance_min),
@@ -40,10 +43,19 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
   fmt::print("# {} plates at log-even powers; calibration distance {} m{}\n", plan.plates.size(),
              number(plan.calibration_distance_m),
              o.plan.single_distance ? " (every plate)" : " where a plate allows");
+  // Clipping: the walk model learns the onset and the recovery from clipped plates.
+  const double clip_w = experiments::clip_power_w(device);
+  if (plan.field_power_max_w > clip_w) {
+    fmt::print(
+        "# the field's strongest echo ({} m, reflectance {}) overdrives the amplifier "
+        "(receiver.saturation_v = {} V) by {:.2f} neper(s); the brightest plate by {:.2f}\n",
+        number(o.plan.range_min_m), number(o.plan.reflectance_max),
+        number(config.link.receiver.saturation_v), std::log(plan.field_power_max_w / clip_w),
+        std::log(plan.plates.back().received_power_w / clip_w));
+  }
   // The powers are optical; whether an echo crosses the comparator's
   // threshold is the device's (gain, transimpedance, threshold): the
   // field's weakest target and each plate, noise-free, at 20 C.
-  const device::VirtualRangefinder device(config);
   const auto detected = [&](double distance_m, double reflectance) {
     return device.echo(device::Target::plate(distance_m, reflectance), {}).detected;
   };

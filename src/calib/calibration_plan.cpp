@@ -63,6 +63,10 @@ void CalibrationPlanOptions::validate() const {
               (std::isfinite(calibration_distance_m) && calibration_distance_m > 0),
           "calibration_distance_m", "must be > 0");
   require(plates >= 2 && plates <= 100, "plates", "must be in [2, 100]");
+  require(std::isnan(clip_power_w) || (std::isfinite(clip_power_w) && clip_power_w > 0),
+          "clip_power_w", "must be > 0 (or NaN: unknown)");
+  require(std::isfinite(clip_depth_nepers) && clip_depth_nepers >= 0 && clip_depth_nepers <= 10,
+          "clip_depth_nepers", "must be in [0, 10]");
   require(std::isfinite(plate_reflectance_min) && plate_reflectance_min > 0 &&
               plate_reflectance_max > plate_reflectance_min && plate_reflectance_max <= 1,
           "plate_reflectance_min/max", "must satisfy 0 < min < max <= 1");
@@ -81,11 +85,19 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
   plan.field_power_min_w = power_w(link, options.range_max_m, options.reflectance_min);
   plan.field_power_max_w = power_w(link, options.range_min_m, options.reflectance_max);
   const bool centred = options.single_distance && std::isnan(options.calibration_distance_m);
-  const double at =
-      centred ? centred_distance(link, options, plan.field_power_min_w, plan.field_power_max_w)
-      : std::isnan(options.calibration_distance_m)
-          ? std::round(10.0 * std::sqrt(options.range_min_m * options.range_max_m)) / 10.0
-          : options.calibration_distance_m;
+  double at = centred
+                  ? centred_distance(link, options, plan.field_power_min_w, plan.field_power_max_w)
+              : std::isnan(options.calibration_distance_m)
+                  ? std::round(10.0 * std::sqrt(options.range_min_m * options.range_max_m)) / 10.0
+                  : options.calibration_distance_m;
+  if (centred && plan.field_power_max_w > options.clip_power_w) {
+    // The field clips: the brightest plate must too (by the depth asked, or
+    // as far as the field's strongest echo), never less than centred.
+    const double top_w = std::min(plan.field_power_max_w,
+                                  options.clip_power_w * std::exp(options.clip_depth_nepers));
+    if (power_w(link, at, options.plate_reflectance_max) < top_w)
+      at = distance_for_power(link, options.plate_reflectance_max, top_w);
+  }
   plan.calibration_distance_m = at;
   const double unit_power = power_w(link, at, 1.0);  // a perfect reflector at `at`
   double log_lo = std::log(plan.field_power_min_w);

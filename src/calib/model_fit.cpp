@@ -5,7 +5,9 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <limits>
 #include <numbers>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -47,6 +49,38 @@ std::vector<std::size_t> truth_groups(std::span<const ranging::Record> records,
   }
   groups = group_of.size();
   return group;
+}
+
+/// Folds of whole truth groups, stratified along the echo's intensity: the
+/// groups ranked by their mean pulse width (the walk's axis; groups without an
+/// echo last), group of rank r in fold r mod K. A held-out group then has
+/// training groups on both sides of its width (but at the ends), so its
+/// residual is the error of interpolating the correction, as a new target's
+/// is; random folds held out neighbouring plates together, and a fold with
+/// two of the three plates that clip fitted the clipping onset and recovery
+/// from one width (held-out RMS 2.6 mm against 0.4 mm of error).
+std::vector<std::size_t> intensity_stratified_folds(std::span<const ranging::Record> records,
+                                                    std::span<const std::size_t> group,
+                                                    std::size_t groups, std::size_t folds) {
+  std::vector<double> sum(groups, 0.0);
+  std::vector<std::size_t> count(groups, 0);
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const double w = records[i].raw.pulse_width_ns;
+    if (!std::isfinite(w)) continue;
+    sum[group[i]] += w;
+    ++count[group[i]];
+  }
+  std::vector<std::size_t> rank(groups);
+  std::iota(rank.begin(), rank.end(), std::size_t{0});
+  const auto mean = [&](std::size_t g) {
+    return count[g] > 0 ? sum[g] / static_cast<double>(count[g])
+                        : std::numeric_limits<double>::infinity();
+  };
+  std::stable_sort(rank.begin(), rank.end(),
+                   [&](std::size_t a, std::size_t b) { return mean(a) < mean(b); });
+  std::vector<std::size_t> fold(groups);
+  for (std::size_t r = 0; r < groups; ++r) fold[rank[r]] = r % folds;
+  return fold;
 }
 
 std::string format(const char* fmt, auto... args) {
@@ -931,7 +965,9 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     // still the error on targets the correction never saw.
     const bool one_group_per_fold = groups < static_cast<std::size_t>(o.confidence_folds);
     folds = one_group_per_fold ? groups : static_cast<std::size_t>(o.confidence_folds);
-    const auto fold = [&](std::size_t g) { return one_group_per_fold ? g : fold_of(g, folds); };
+    const std::vector<std::size_t> group_fold =
+        intensity_stratified_folds(records, group, groups, folds);
+    const auto fold = [&](std::size_t g) { return group_fold[g]; };
     try {
       if (groups < 2) {
         throw std::invalid_argument(

@@ -21,6 +21,16 @@
 /// strongest echoes lie equally far (in log power) beyond the plates' when the
 /// plates cannot span the field (minimax extrapolation); the plates then take
 /// log-even reflectances over the part of the field's powers they reach.
+///
+/// Clipping: the walk model (calib/walk_fit.hpp) learns where the amplifier
+/// starts to clip and how its recovery lengthens the echo only from clipped
+/// plates. When the receiver's clip power is known (`clip_power_w`) and the
+/// field's strongest echo exceeds it, the single distance is moved nearer
+/// if needed so that the brightest plate is overdriven by `clip_depth_nepers`
+/// (or returns the field's strongest echo, if that is weaker): with 10 plates
+/// (0.43 neper apart over 0.02-0.95) three clip, which pins the onset and the
+/// recovery per neper. Centred plates of a low-gain receiver clip none while
+/// the field's strong echoes clip by 1-2 nepers, whose walk is then a guess.
 
 #include <limits>
 #include <string>
@@ -44,7 +54,12 @@ struct CalibrationPlanOptions {
   int plates = 10;                      ///< target powers (plate positions)
   double plate_reflectance_min = 0.02;  ///< darkest plate available
   double plate_reflectance_max = 0.95;  ///< brightest plate available
-  double temperature_min_c = 0;         ///< temperature run
+  /// Received peak power (W, paper Eq. 6 at normal incidence) above which
+  /// the receiver's echo clips (receiver.saturation_v over the chain's volts
+  /// per watt; experiments::plan_for_device asks the device); NaN: unknown.
+  double clip_power_w = std::numeric_limits<double>::quiet_NaN();
+  double clip_depth_nepers = 1.0;  ///< overdrive of the brightest plate, when the field clips
+  double temperature_min_c = 0;    ///< temperature run
   double temperature_max_c = 40;
   double temperature_step_c = 5;
   /// Throws std::invalid_argument naming the bad field.
