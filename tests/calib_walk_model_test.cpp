@@ -893,7 +893,8 @@ class WalkCli : public test::CliFixture {
   WalkCli() : CliFixture("tofkit_walk_cli_") {}
 };
 
-/// Records from a known shape (and a temperature line), echo strengths ln a in [lo, hi].
+/// Records from a known shape (and a temperature line), echo strengths ln a in
+/// [lo, hi]: plates at 3 m whose reflectance sets the echo (0.9 at ln a = 7).
 std::vector<ranging::Record> shape_records(double log_lo, double log_hi, unsigned seed) {
   const ranging::WalkCurve curve = ranging::walk_curve({0.6, 1.1});
   const double k = ranging::metres_per_ns(ranging::TimeToDistance{});
@@ -903,7 +904,7 @@ std::vector<ranging::Record> shape_records(double log_lo, double log_hi, unsigne
   for (double log_a = log_lo; log_a <= log_hi + 1e-9; log_a += 0.1) {
     for (double t = 0; t <= 40; t += 10) {
       ranging::Record r;
-      r.truth = {3.0, 0.5, 0.0, t};
+      r.truth = {3.0, 0.9 * std::exp(log_a - 7.0), 0.0, t};
       r.raw.pulse_width_ns = interpolate(curve.log_overdrive, curve.width_ns, log_a);
       r.raw.temperature_c = t;
       r.raw.amplitude = 0.05 * std::exp(log_a);

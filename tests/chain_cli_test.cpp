@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "cli_runner.hpp"
@@ -246,6 +247,57 @@ TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {
   const test::CliResult e = run("evaluate --in " + path("raw.csv") + " --by colour");
   EXPECT_NE(e.status, 0);
   EXPECT_NE(e.err.find("--by colour: no such column"), std::string::npos) << e.err;
+}
+
+// Bad-input check: 12 repeats of one plate (one distance, reflectance and
+// ambient) on the virtual device. Their pulse widths (5.86-5.88 ns) and
+// temperature readings (25.94-26.06 C) spread by noise only; fitted, they gave
+// a walk at its pulse-sigma bound and a 1 mm/C temperature hinge. Each step
+// that models such a column is refused, naming it, and nothing is written;
+// plates of three reflectances at that one distance, and a temperature run of
+// one plate at that distance, still fit.
+TEST_F(ChainCli, OneTargetIsRefusedButOneDistanceCalibrationsFit) {
+  const auto measure = [&](const std::string& grid, const std::string& file) {
+    ASSERT_EQ(run("measure " + grid + " --shots 200 --out " + path(file)).status, 0) << grid;
+  };
+  const auto fit = [&](const std::string& file, const std::string& chain) {
+    fs::remove(path("model.json"));
+    return run("fit --in " + path(file) + " --out " + path("model.json") + " --chain " + chain);
+  };
+  measure("--distance 2 --reflectance 0.3 --temperature 20 --count 12", "one.csv");
+  for (const auto& [chain, why] : std::vector<std::pair<std::string, std::string>>{
+           {"offset,walk",
+            "no spread in pulse_width_ns between targets (every usable row is one target, "
+            "distance_true_m 2 m, reflectance 0.3, angle_deg 0 deg: "},
+           {"offset,grayvalue", "no spread in pulse_width_ns between targets"},
+           {"offset,temperature",
+            "no spread in temperature_c between conditions (every usable row is at one "
+            "ambient_c, 20 C: "}}) {
+    const test::CliResult r = fit("one.csv", chain);
+    EXPECT_EQ(r.status, 1) << chain << "\n" << r.out;
+    EXPECT_NE(r.err.find("one.csv: " + why), std::string::npos) << chain << "\n" << r.err;
+    EXPECT_NE(r.err.find(" is noise): the "), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(path("model.json"))) << chain;
+  }
+
+  measure("--distance 2 --reflectance 0.05,0.2,0.9 --temperature 20 --count 4", "plates.csv");
+  for (const std::string chain : {"offset,walk", "offset,grayvalue"}) {
+    const test::CliResult r = fit("plates.csv", chain);
+    ASSERT_EQ(r.status, 0) << chain << "\n" << r.err;
+    const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+    ASSERT_EQ(model.steps().size(), 2u) << chain;
+    EXPECT_EQ(model.steps()[1].kind,
+              chain == "offset,walk" ? ranging::StepKind::kWalk : ranging::StepKind::kGrayvalue);
+  }
+  // The plates share one ambient: a temperature step on them is refused.
+  EXPECT_EQ(fit("plates.csv", "offset,walk,temperature").status, 1);
+
+  measure("--distance 2 --reflectance 0.3 --temperature 0,10,20,30,40 --count 3", "run.csv");
+  const test::CliResult r = fit("run.csv", "offset,temperature");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const ranging::Pipeline model = io::load_pipeline(path("model.json"));
+  ASSERT_EQ(model.steps().size(), 2u);
+  EXPECT_EQ(model.steps()[1].kind, ranging::StepKind::kTemperature);
 }
 
 // A walk curve that bends everywhere (a sine in pulse width): the hinge's

@@ -327,6 +327,83 @@ std::string fit_error(const std::vector<ranging::Record>& records, const std::st
   return "";
 }
 
+/// The step a fit refuses (ChainStepRefused) and its message; "" when it fits.
+std::string refused_step(const std::vector<ranging::Record>& records, const std::string& steps,
+                         std::string* message = nullptr) {
+  ChainFitOptions options;
+  options.steps = parse_chain_steps(steps);
+  options.walk_replicates = 0;
+  try {
+    (void)fit_chain(records, options);
+  } catch (const ChainStepRefused& e) {
+    if (message) *message = e.what();
+    return to_string(e.step()) + " " + e.column();
+  }
+  return "";
+}
+
+TEST(ChainFit, RefusesAStepWhoseColumnSpreadsWithinOneTarget) {
+  // Every row one target and one ambient: whatever the pulse widths and
+  // temperature readings do, the truth says they can only be noise.
+  auto records = chain_records(60, 0.001, 18);
+  for (auto& r : records) r.truth = {2.0, 0.3, 0.0, 20.0};
+  std::string message;
+  EXPECT_EQ(refused_step(records, "offset,grayvalue", &message), "grayvalue pulse_width_ns");
+  EXPECT_NE(message.find("no spread in pulse_width_ns between targets (every usable row is one "
+                         "target, distance_true_m 2 m, reflectance 0.3, angle_deg 0 deg: "),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find(" ns is noise): the grayvalue step needs plates"), std::string::npos)
+      << message;
+  EXPECT_EQ(refused_step(records, "offset,walk"), "walk pulse_width_ns");
+  EXPECT_EQ(refused_step(records, "offset,temperature", &message), "temperature temperature_c");
+  EXPECT_NE(message.find("no spread in temperature_c between conditions (every usable row is at "
+                         "one ambient_c, 20 C: "),
+            std::string::npos)
+      << message;
+  // A refusal is an invalid_argument (the CLI's exit 1 with the message).
+  EXPECT_NE(fit_error(records, "temperature").find("temperature_c"), std::string::npos);
+
+  // Half the rows on a second plate: the widths change between targets.
+  auto two_plates = records;
+  for (std::size_t i = 0; i < two_plates.size(); i += 2) two_plates[i].truth.reflectance = 0.6;
+  EXPECT_EQ(refused_step(two_plates, "offset,grayvalue"), "");
+  EXPECT_EQ(refused_step(two_plates, "offset,temperature"), "temperature temperature_c");
+  // Half at a second ambient: the readings change between conditions.
+  auto two_ambients = records;
+  for (std::size_t i = 0; i < two_ambients.size(); i += 2) two_ambients[i].truth.ambient_c = 30;
+  EXPECT_EQ(refused_step(two_ambients, "offset,temperature"), "");
+  // Warming up at one ambient, the electronics' self-heating moves the reading.
+  auto warming = records;
+  for (auto& r : warming) r.raw.flags |= ranging::kRawWarmingUp;
+  EXPECT_EQ(refused_step(warming, "offset,temperature"), "");
+  // Rows without an echo do not count: a second plate seen only there does not help.
+  auto unseen = records;
+  for (std::size_t i = 0; i < 5; ++i) {
+    unseen[i].truth.reflectance = 0.6;
+    unseen[i].raw.shots_valid = 0;
+  }
+  EXPECT_EQ(refused_step(unseen, "offset,grayvalue"), "grayvalue pulse_width_ns");
+
+  // Field data, truth columns empty: the targets are the distances (the
+  // truth the rows carry), and the message asks for the missing columns.
+  auto field = records;
+  for (auto& r : field) r.truth = {2.0, ranging::kNaN, ranging::kNaN, ranging::kNaN};
+  EXPECT_EQ(refused_step(field, "offset,grayvalue", &message), "grayvalue pulse_width_ns");
+  EXPECT_NE(message.find("one target as far as the truth tells (distance_true_m 2 m; reflectance "
+                         "and angle_deg empty): "),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find("cannot be told from noise"), std::string::npos) << message;
+  EXPECT_NE(message.find("fill in reflectance"), std::string::npos) << message;
+  EXPECT_EQ(refused_step(field, "offset,temperature", &message), "temperature temperature_c");
+  EXPECT_NE(message.find("ambient_c is empty"), std::string::npos) << message;
+  EXPECT_NE(message.find("fill in ambient_c"), std::string::npos) << message;
+  for (std::size_t i = 0; i < field.size(); i += 2) field[i].truth.distance_m = 3.0;
+  EXPECT_EQ(refused_step(field, "offset,grayvalue"), "");
+  EXPECT_EQ(refused_step(field, "offset,temperature"), "");
+}
+
 TEST(ChainFit, ClearErrorsForDegenerateData) {
   auto records = chain_records(9, 0.001, 14);
   EXPECT_NE(fit_error(records, "offset").find("too few rows: 9 usable"), std::string::npos);

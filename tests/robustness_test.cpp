@@ -294,13 +294,22 @@ TEST_F(Robustness, DemoVerdictIsNoWhenNoEchoIsMeasured) {
   const std::string out_command = "cd '" + dir_.string() +
                                   "' && '" TOFKIT_BINARY
                                   "' --set discriminator.threshold_v=100 demo --out d2 "
-                                  "--no-plots 2>/dev/null | grep 'within +-11 mm' > verdict.txt";
+                                  "--no-plots 2>/dev/null > demo.txt";
   ASSERT_EQ(std::system(out_command.c_str()), 0);
-  std::ifstream v(dir_ / "verdict.txt");
-  std::string line;
-  std::getline(v, line);
-  EXPECT_EQ(line.find("within +-11 mm: yes"), std::string::npos) << line;
-  EXPECT_NE(line.find("without a measurement"), std::string::npos) << line;
+  std::ifstream v(dir_ / "demo.txt");
+  std::string line, verdict, not_fitted;
+  while (std::getline(v, line)) {
+    if (line.find("within +-11 mm") != std::string::npos) verdict = line;
+    if (line.rfind("chain step not fitted", 0) == 0) not_fitted = line;
+  }
+  EXPECT_EQ(verdict.find("within +-11 mm: yes"), std::string::npos) << verdict;
+  EXPECT_NE(verdict.find("without a measurement"), std::string::npos) << verdict;
+  // The few reliable rows (near plates) share one ambient: the fit refuses
+  // the temperature step, and the demo reports it rather than failing.
+  EXPECT_NE(not_fitted.find("temperature: no spread in temperature_c between conditions"),
+            std::string::npos)
+      << not_fitted;
+  EXPECT_NE(verdict.find("1 chain step(s) not fitted"), std::string::npos) << verdict;
 }
 
 }  // namespace

@@ -49,10 +49,17 @@ class Progress {
   bool tty_;
 };
 
-// "yes" only when every row has a finite deviation within the limit: a row
-// without a measurement (NaN) fails the verdict instead of being skipped.
-std::string verdict(double worst, std::size_t missing, std::size_t rows, double limit_mm) {
-  if (missing > 0) return fmt::format("NO ({} of {} rows without a measurement)", missing, rows);
+// "yes" only when every row has a finite deviation within the limit and the
+// chain has every step: a row without a measurement (NaN) fails the verdict
+// instead of being skipped, and so does a step the calibration could not fit.
+std::string verdict(double worst, std::size_t missing, std::size_t rows, double limit_mm,
+                    std::size_t steps_not_fitted) {
+  std::string why;
+  if (missing > 0) why = fmt::format("{} of {} rows without a measurement", missing, rows);
+  if (steps_not_fitted > 0) {
+    why += fmt::format("{}{} chain step(s) not fitted", why.empty() ? "" : "; ", steps_not_fitted);
+  }
+  if (!why.empty()) return "NO (" + why + ")";
   return worst <= limit_mm ? "yes" : "NO";
 }
 
@@ -113,9 +120,13 @@ void print_table(const experiments::PaperStudyResult& r) {
   print_split_table(r);
   fmt::print("fixed point vs floating point: max difference {:.3f} mm\n",
              r.fixed_vs_float_max_diff_mm);
+  for (const std::string& step : r.steps_not_fitted)
+    fmt::print("chain step not fitted (left out of the correction): {}\n", step);
   const std::size_t rows = r.verification_rows.size();
+  const std::size_t not_fitted = r.steps_not_fitted.size();
   fmt::print("every verification row within +-11 mm: {}; within +-3 mm: {}\n",
-             verdict(worst, missing, rows, 11.0), verdict(worst, missing, rows, 3.0));
+             verdict(worst, missing, rows, 11.0, not_fitted),
+             verdict(worst, missing, rows, 3.0, not_fitted));
 }
 
 nlohmann::json split_json(const calib::RepeatabilitySplit& s) {
@@ -167,6 +178,7 @@ nlohmann::json summary_json(const experiments::PaperStudyResult& r) {
               {"knots", knots},
               {"rows", r.fit.rows},
               {"residual_rms_mm", 1e3 * r.fit.after.rms_m}};
+  if (!r.steps_not_fitted.empty()) j["fit"]["steps_not_fitted"] = r.steps_not_fitted;
   return j;
 }
 

@@ -146,6 +146,26 @@ def test_load_errors_carry_the_cli_message(cli, tmp_path, calibration):
     assert str(error.value) == expected
 
 
+def test_one_target_is_refused_as_by_tofkit_fit(cli, tmp_path):
+    """12 repeats of one plate (one distance, reflectance and ambient): the
+    pulse width and the temperature reading spread by noise only, so each step
+    that would model them is refused with the CLI's message, naming the column."""
+    path = tmp_path / "one.csv"
+    cli("measure", "--distance", "2", "--reflectance", "0.3", "--temperature", "20", "--count",
+        "12", "--shots", "200", "--out", path)
+    records = tofkit.read_raw(path)
+    out = tmp_path / "model.json"
+    for steps, column in [("offset,walk", "pulse_width_ns"), ("offset,grayvalue", "pulse_width_ns"),
+                          ("offset,temperature", "temperature_c")]:
+        expected = cli_error(cli("fit", "--confidence", "none", "--in", path, "--chain", steps,
+                                 "--out", out, check=False))
+        with pytest.raises(ValueError, match=f"no spread in {column} between") as error:
+            tofkit.fit_chain(records, steps=steps)
+        assert expected == f"{path}: {error.value}"
+        assert "is noise" in str(error.value)
+        assert not out.exists()
+
+
 def test_bad_inputs_raise(calibration):
     _, records = calibration
     model = tofkit.fit_chain(records)

@@ -162,7 +162,21 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   // A robust scale taken from the MAD would come from the plates' single
   // temperature and call the whole sweep an outlier: plain least squares here.
   fit_options.temperature.robust.loss = calib::RobustLoss::kNone;
-  result.fit = calib::fit_chain(usable, fit_options);
+  // A step the usable rows cannot carry (e.g. with a threshold that leaves
+  // only near plates, every reliable row at one ambient) is refused by the fit:
+  // the chain is fitted without it, and the step is reported as not fitted.
+  for (;;) {
+    try {
+      result.fit = calib::fit_chain(usable, fit_options);
+      break;
+    } catch (const calib::ChainStepRefused& e) {
+      result.steps_not_fitted.push_back(calib::to_string(e.step()) + ": " + e.what());
+      calib::ChainSteps& steps = fit_options.steps;
+      steps.grayvalue = steps.grayvalue && !e.step().grayvalue;
+      steps.walk = steps.walk && !e.step().walk;
+      steps.temperature = steps.temperature && !e.step().temperature;
+    }
+  }
   const auto& pipeline = result.fit.pipeline;
   result.calibration_corrected = correct(pipeline, result.calibration);
 
@@ -304,6 +318,7 @@ std::string PaperStudyResult::summary() const {
     << " mm, RMS " << 1e3 * holdout_stats.rms_m << " mm (uncorrected RMS "
     << 1e3 * holdout_raw_stats.rms_m << " mm)\n";
   s << "fixed point vs float: max " << fixed_vs_float_max_diff_mm << " mm\n";
+  for (const std::string& step : steps_not_fitted) s << "chain step not fitted: " << step << "\n";
   return s.str();
 }
 

@@ -23,8 +23,10 @@
 #include <cstddef>
 #include <optional>
 #include <span>
+#include <stdexcept>
 #include <string>
 #include <string_view>
+#include <utility>
 
 #include "tofkit/calib/hinge_fit.hpp"
 #include "tofkit/calib/statistics.hpp"
@@ -91,6 +93,26 @@ struct ChainFitResult {
   [[nodiscard]] std::string summary() const;
 };
 
+/// Thrown by fit_chain when a step that models a column has rows from one
+/// truth target only, so the column spreads by its noise alone and the step
+/// would model noise: grayvalue or walk (pulse_width_ns) when every usable row
+/// is one (distance_true_m, reflectance, angle_deg) target; temperature
+/// (temperature_c) when every usable row is at one ambient_c. A caller that
+/// can do without the step refits without it (the demo does).
+class ChainStepRefused : public std::invalid_argument {
+ public:
+  ChainStepRefused(const std::string& message, const ChainSteps& step, std::string column)
+      : std::invalid_argument(message), step_(step), column_(std::move(column)) {}
+  /// The refused step alone (one flag set).
+  [[nodiscard]] const ChainSteps& step() const noexcept { return step_; }
+  /// The column the step models: pulse_width_ns or temperature_c.
+  [[nodiscard]] const std::string& column() const noexcept { return column_; }
+
+ private:
+  ChainSteps step_;
+  std::string column_;
+};
+
 /// With a walk step, backfitting alternates the walk's nonlinear fit on e - h
 /// with the joint linear solve of [1, h basis] on e - walk.
 ///
@@ -98,7 +120,15 @@ struct ChainFitResult {
 /// the steps fitted) a finite pulse width / temperature. Throws
 /// std::invalid_argument naming the problem and the column: fewer than 10
 /// usable rows (or fewer than parameters), no spread in pulse_width_ns for a
-/// grayvalue step, no spread in temperature_c for a temperature step.
+/// grayvalue step, no spread in temperature_c for a temperature step. Throws
+/// ChainStepRefused (an std::invalid_argument) when the column spreads but
+/// only within one truth target: a grayvalue or walk step whose usable rows
+/// are all one (distance_true_m, reflectance, angle_deg) target, a temperature
+/// step whose usable rows are all at one ambient_c. Empty truth columns (field
+/// data) count as one value, so without reflectance the targets are the
+/// distances, and without ambient_c the temperature step's conditions are the
+/// targets. Rows flagged warming-up exempt the temperature step: self-heating
+/// moves the reading at one ambient.
 [[nodiscard]] ChainFitResult fit_chain(std::span<const ranging::Record> records,
                                        const ChainFitOptions& options = {});
 

@@ -108,6 +108,9 @@ struct PaperStudyResult {
 
   // The fitted chain and its fixed-point form.
   calib::ChainFitResult fit;
+  /// Chain steps the calibration's usable rows could not carry ("temperature:
+  /// <why>", from calib::ChainStepRefused), left out of `fit`; empty normally.
+  std::vector<std::string> steps_not_fitted;
   ranging::FixedPointCoefficients fixed_point;
   double fixed_vs_float_max_diff_mm = 0;  ///< over every corrected row of the study
 
