@@ -385,22 +385,13 @@ TEST(ChainFit, RefusesAStepWhoseColumnSpreadsWithinOneTarget) {
   }
   EXPECT_EQ(refused_step(unseen, "offset,grayvalue"), "grayvalue pulse_width_ns");
 
-  // Field data, truth columns empty: the targets are the distances (the
-  // truth the rows carry), and the message asks for the missing columns.
+  // Field data, truth columns empty: rows at one distance may be plates of
+  // different reflectance, taken at different ambients; nothing says they are
+  // one target, so nothing is refused (a legitimate calibration must fit).
   auto field = records;
   for (auto& r : field) r.truth = {2.0, ranging::kNaN, ranging::kNaN, ranging::kNaN};
-  EXPECT_EQ(refused_step(field, "offset,grayvalue", &message), "grayvalue pulse_width_ns");
-  EXPECT_NE(message.find("one target as far as the truth tells (distance_true_m 2 m; reflectance "
-                         "and angle_deg empty): "),
-            std::string::npos)
-      << message;
-  EXPECT_NE(message.find("cannot be told from noise"), std::string::npos) << message;
-  EXPECT_NE(message.find("fill in reflectance"), std::string::npos) << message;
-  EXPECT_EQ(refused_step(field, "offset,temperature", &message), "temperature temperature_c");
-  EXPECT_NE(message.find("ambient_c is empty"), std::string::npos) << message;
-  EXPECT_NE(message.find("fill in ambient_c"), std::string::npos) << message;
-  for (std::size_t i = 0; i < field.size(); i += 2) field[i].truth.distance_m = 3.0;
   EXPECT_EQ(refused_step(field, "offset,grayvalue"), "");
+  EXPECT_EQ(refused_step(field, "offset,walk"), "");
   EXPECT_EQ(refused_step(field, "offset,temperature"), "");
 }
 

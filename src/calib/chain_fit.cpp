@@ -60,33 +60,17 @@ void require_spread(const std::vector<double>& x, const std::string& column,
   }
 }
 
-/// Truth values equal, an empty (NaN) cell equal to another empty one.
-bool same_truth(double a, double b) {
-  return a == b || (std::isnan(a) && std::isnan(b));
-}
-
 bool same_target(const ranging::GroundTruth& a, const ranging::GroundTruth& b) {
-  return same_truth(a.distance_m, b.distance_m) && same_truth(a.reflectance, b.reflectance) &&
-         same_truth(a.angle_deg, b.angle_deg);
+  return a.distance_m == b.distance_m && a.reflectance == b.reflectance &&
+         a.angle_deg == b.angle_deg;
 }
 
-/// The target's truth as "distance_true_m 2 m, reflectance 0.3, angle_deg 0
-/// deg"; `empty` gets the names of the target columns left empty.
-std::string describe_target(const ranging::GroundTruth& t, std::string& empty) {
-  std::string known;
-  const auto cell = [&](const char* column, double v, const char* unit) {
-    std::string& to = std::isnan(v) ? empty : known;
-    if (!to.empty()) to += std::isnan(v) ? " and " : ", ";
-    to += column;
-    if (std::isnan(v)) return;
-    char buffer[64];
-    std::snprintf(buffer, sizeof buffer, " %g%s", v, unit);
-    to += buffer;
-  };
-  cell("distance_true_m", t.distance_m, " m");
-  cell("reflectance", t.reflectance, "");
-  cell("angle_deg", t.angle_deg, " deg");
-  return known;
+/// The target's truth, "distance_true_m 2 m, reflectance 0.3, angle_deg 0 deg".
+std::string describe_target(const ranging::GroundTruth& t) {
+  char buffer[160];
+  std::snprintf(buffer, sizeof buffer, "distance_true_m %g m, reflectance %g, angle_deg %g deg",
+                t.distance_m, t.reflectance, t.angle_deg);
+  return buffer;
 }
 
 std::string span_of(const std::vector<double>& x, const char* unit) {
@@ -94,49 +78,38 @@ std::string span_of(const std::vector<double>& x, const char* unit) {
   return fixed2(*lo) + "-" + fixed2(*hi) + " " + unit;
 }
 
-/// "one target, <truth>: <span> is noise"; with empty target columns (or an
-/// unknown ambient) "one target as far as the truth tells (<truth>; <columns>
-/// empty): <span> cannot be told from noise".
-std::string one_target(const ranging::GroundTruth& t, const std::string& span,
-                       bool ambient_unknown) {
-  std::string empty;
-  const std::string known = describe_target(t, empty);
-  const std::string target =
-      empty.empty() ? "one target, " + known
-                    : "one target as far as the truth tells (" + known + "; " + empty + " empty)";
-  const bool certain = empty.empty() && !ambient_unknown;
-  return target + ": " + span + (certain ? " is noise" : " cannot be told from noise");
-}
-
 /// A grayvalue or walk step models the pulse width's change between targets
 /// (the echo's strength: reflectance, distance, angle). When every usable row
 /// is one target, the widths spread by their noise only and the step would
 /// fit noise (12 repeats of one plate gave a walk at its lower bound): refused.
-/// An empty truth column is one value, so field data without reflectance fall
-/// back to the distances, the truth they do carry.
+/// Only when the truth says so: with reflectance or angle_deg empty, rows at
+/// one distance may be plates of different reflectance (a legitimate
+/// calibration), so they are fitted.
 void require_targets(std::span<const ranging::Record> records, const std::vector<std::size_t>& used,
                      const std::vector<double>& pulse_width, const ChainSteps& steps) {
   const ranging::GroundTruth& first = records[used.front()].truth;
   for (std::size_t i : used) {
+    const ranging::GroundTruth& t = records[i].truth;
+    if (std::isnan(t.distance_m) || std::isnan(t.reflectance) || std::isnan(t.angle_deg)) return;
+  }
+  for (std::size_t i : used) {
     if (!same_target(records[i].truth, first)) return;
   }
   const char* step = steps.walk ? "walk" : "grayvalue";
-  std::string message = "no spread in pulse_width_ns between targets (every usable row is " +
-                        one_target(first, span_of(pulse_width, "ns"), false) + "): the " + step +
-                        " step needs plates of different reflectance";
-  if (std::isnan(first.reflectance) || std::isnan(first.angle_deg)) {
-    message += "; fill in reflectance / angle_deg where the rows come from different plates";
-  }
+  const std::string message =
+      "no spread in pulse_width_ns between targets (every usable row is one target, " +
+      describe_target(first) + ": " + span_of(pulse_width, "ns") + " is noise): the " + step +
+      " step needs plates of different reflectance";
   throw ChainStepRefused(message, ChainSteps{false, !steps.walk, false, steps.walk},
                          "pulse_width_ns");
 }
 
 /// A temperature step models the reading's change between conditions (the
 /// ambient). When every usable row is at one ambient_c, the readings spread
-/// by the sensor's noise (and quantization) only: refused. Without ambient_c
-/// (empty on every row) the conditions are told apart by the targets, the
-/// truth the rows carry. Rows taken while warming up exempt the step: the
-/// electronics' self-heating moves the reading for a cause at one ambient.
+/// by the sensor's noise (and quantization) only: refused. Rows without
+/// ambient_c may be at different ones: fitted. Rows taken while warming up
+/// exempt the step: the electronics' self-heating moves the reading for a
+/// cause at one ambient.
 void require_conditions(std::span<const ranging::Record> records,
                         const std::vector<std::size_t>& used,
                         const std::vector<double>& temperature) {
@@ -144,25 +117,16 @@ void require_conditions(std::span<const ranging::Record> records,
   for (std::size_t i : used) {
     const ranging::Record& r = records[i];
     if ((r.raw.flags & ranging::kRawWarmingUp) != 0) return;
-    if (!same_truth(r.truth.ambient_c, first.ambient_c)) return;
-    if (std::isnan(first.ambient_c) && !same_target(r.truth, first)) return;
+    if (std::isnan(r.truth.ambient_c)) return;  // unknown conditions: may differ
+    if (r.truth.ambient_c != first.ambient_c) return;
   }
-  const std::string span = span_of(temperature, "C");
-  std::string where;
-  if (std::isnan(first.ambient_c)) {
-    where = "ambient_c is empty and every usable row is " + one_target(first, span, true);
-  } else {
-    char buffer[64];
-    std::snprintf(buffer, sizeof buffer,
-                  "every usable row is at one ambient_c, %g C: ", first.ambient_c);
-    where = buffer + span + " is noise";
-  }
-  std::string message = "no spread in temperature_c between conditions (" + where +
-                        "): the temperature step needs measurements at different ambient "
-                        "temperatures";
-  if (std::isnan(first.ambient_c)) {
-    message += "; fill in ambient_c where the rows were taken at different ones";
-  }
+  char buffer[64];
+  std::snprintf(buffer, sizeof buffer,
+                "every usable row is at one ambient_c, %g C: ", first.ambient_c);
+  const std::string message = "no spread in temperature_c between conditions (" +
+                              std::string(buffer) + span_of(temperature, "C") +
+                              " is noise): the temperature step needs measurements at different "
+                              "ambient temperatures";
   throw ChainStepRefused(message, ChainSteps{false, false, true, false}, "temperature_c");
 }
 
