@@ -124,11 +124,11 @@ class ChainStepRefused : public std::invalid_argument {
 /// ChainStepRefused (an std::invalid_argument) when the column spreads but
 /// only within one truth target: a grayvalue or walk step whose usable rows
 /// are all one (distance_true_m, reflectance, angle_deg) target, a temperature
-/// step whose usable rows are all at one ambient_c. Empty truth columns (field
-/// data) count as one value, so without reflectance the targets are the
-/// distances, and without ambient_c the temperature step's conditions are the
-/// targets. Rows flagged warming-up exempt the temperature step: self-heating
-/// moves the reading at one ambient.
+/// step whose usable rows are all at one ambient_c. Only filled-in truth
+/// refuses: rows with reflectance, angle_deg or ambient_c empty (field data)
+/// may be different plates or conditions and are fitted. Rows flagged
+/// warming-up exempt the temperature step: self-heating moves the reading at
+/// one ambient.
 [[nodiscard]] ChainFitResult fit_chain(std::span<const ranging::Record> records,
                                        const ChainFitOptions& options = {});
 
