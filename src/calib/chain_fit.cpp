@@ -232,7 +232,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   result.pipeline = ranging::Pipeline(options.time_to_distance);
 
   // Usable rows and the error to model, e = true - c_air tof / 2.
-  std::vector<double> e, pulse_width, temperature;
+  std::vector<double> e, pulse_width, temperature, amplitude;
   std::vector<std::uint8_t> saturated;
   std::vector<std::size_t> used;
   for (std::size_t i = 0; i < records.size(); ++i) {
@@ -251,6 +251,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     e.push_back(r.truth.distance_m - start);
     pulse_width.push_back(r.raw.pulse_width_ns);
     temperature.push_back(r.raw.temperature_c);
+    amplitude.push_back(r.raw.amplitude);
     saturated.push_back(static_cast<std::uint8_t>(
         ((r.raw.flags & ranging::kRawSaturated) != 0 ? kWalkRowClipped : 0) |
         ((r.raw.flags & ranging::kRawPartialEchoes) != 0 ? kWalkRowPartial : 0)));
@@ -321,12 +322,13 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   for (std::size_t i = 0; i < n; i += stride) search.push_back(i);
   const std::size_t ns = search.size();
   result.knot_search_rows = ns;
-  std::vector<double> se(ns), spw(ns), st(ns);
+  std::vector<double> se(ns), spw(ns), st(ns), samp(ns);
   std::vector<std::uint8_t> ssat(ns);
   for (std::size_t j = 0; j < ns; ++j) {
     se[j] = e[search[j]];
     spw[j] = pulse_width[search[j]];
     st[j] = temperature[search[j]];
+    samp[j] = amplitude[search[j]];
     ssat[j] = saturated[search[j]];
   }
   const double metres_per_ns = ranging::metres_per_ns(options.time_to_distance);
@@ -395,7 +397,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
         if (!result.walk) walk_options.initial = options.walk_initial;
         walk_options.multistart = false;
       }
-      const WalkFitResult walk = fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options);
+      const WalkFitResult walk =
+          fit_walk(spw, partial, ssat, samp, ref_g, metres_per_ns, walk_options);
       walk_model.emplace(walk.shape, ref_g);
       const Eigen::VectorXd values = walk_values(spw);
       walk_change = (values - walk_part).cwiseAbs().maxCoeff();
@@ -453,7 +456,7 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     walk_options.multistart = false;
     walk_options.replicates = options.walk_replicates;
     result.walk->shape_replicates =
-        fit_walk(spw, partial, ssat, ref_g, metres_per_ns, walk_options).shape_replicates;
+        fit_walk(spw, partial, ssat, samp, ref_g, metres_per_ns, walk_options).shape_replicates;
   }
   if (ns < n) {
     // All rows, the knots found: one joint robust solve.

@@ -7,6 +7,7 @@
 #include <limits>
 #include <random>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 namespace tofkit::calib {
@@ -57,11 +58,31 @@ void clamp_parameters(Eigen::VectorXd& p, double onset_min_ns, double onset_max_
   }
 }
 
+/// ln a at a width on the curve (its last segment continued beyond it).
+double log_overdrive_at_width(const ranging::WalkCurve& c, double width_ns) {
+  const std::vector<double>& w = c.width_ns;
+  if (w.size() < 2) return c.log_overdrive.front();
+  const auto it = std::upper_bound(w.begin(), w.end(), width_ns);
+  const auto k = static_cast<std::size_t>(
+      std::clamp<std::ptrdiff_t>(it - w.begin(), 1, static_cast<std::ptrdiff_t>(w.size()) - 1));
+  const double f = (width_ns - w[k - 1]) / (w[k] - w[k - 1]);
+  return c.log_overdrive[k - 1] + f * (c.log_overdrive[k] - c.log_overdrive[k - 1]);
+}
+
 struct Problem {
   std::span<const double> w, e;
   std::vector<std::size_t> rows;  ///< rows in this stage
   double reference = 0, metres_per_ns = 0;
   double onset_min_ns = 0, onset_max_ns = 0;  ///< bounds of w_sat (with clipping)
+  /// Amplitude readings (the peak detector, linear in the echo below the
+  /// clip level, so ln A = ln a + ln V_th): on the unclipped rows
+  /// `amplitude_rows` the shape's ln a at each row's width must follow ln A up
+  /// to one constant (profiled out: the block's mean is removed). These
+  /// residuals, in nepers, enter times `amplitude_weight` (metres per neper;
+  /// 0: the block is not used).
+  std::span<const double> amplitude;
+  std::vector<std::size_t> amplitude_rows;
+  double amplitude_weight = 0;
 
   /// residual_i = constant - (c_air / 2) (t_rise(w_i) - t_rise(w_ref)) - e_i for
   /// `shape`; false when the shape cannot be tabulated.
@@ -73,14 +94,33 @@ struct Problem {
       return false;
     }
     const double rise_ref = ranging::rise_at_width(curve, reference);
-    r.resize(static_cast<Eigen::Index>(rows.size()));
+    const std::size_t m = amplitude_weight > 0 ? amplitude_rows.size() : 0;
+    r.resize(static_cast<Eigen::Index>(rows.size() + m));
     for (std::size_t k = 0; k < rows.size(); ++k) {
       const std::size_t i = rows[k];
       const double model =
           constant - metres_per_ns * (ranging::rise_at_width(curve, w[i]) - rise_ref);
       r(static_cast<Eigen::Index>(k)) = model - e[i];
     }
+    if (m > 0) {
+      auto tail = r.tail(static_cast<Eigen::Index>(m));
+      for (std::size_t k = 0; k < m; ++k) {
+        const std::size_t i = amplitude_rows[k];
+        tail(static_cast<Eigen::Index>(k)) =
+            log_overdrive_at_width(curve, w[i]) - std::log(amplitude[i]);
+      }
+      tail.array() -= tail.mean();
+      tail *= amplitude_weight;
+    }
     return r.allFinite();
+  }
+  /// The walk rows' and the amplitude rows' sums of squares (unweighted: m^2
+  /// and nepers^2) of a residual vector.
+  [[nodiscard]] std::pair<double, double> block_sse(const Eigen::VectorXd& r) const {
+    const auto n = static_cast<Eigen::Index>(rows.size());
+    const double walk = r.head(n).squaredNorm();
+    if (!(amplitude_weight > 0) || r.size() == n) return {walk, 0.0};
+    return {walk, r.tail(r.size() - n).squaredNorm() / (amplitude_weight * amplitude_weight)};
   }
   /// The same for the fit's parameter vector p (p(0): the constant).
   bool residuals(const Eigen::VectorXd& p, Eigen::VectorXd& r) const {
@@ -96,7 +136,12 @@ struct Problem {
 
 struct LmResult {
   Eigen::VectorXd p;
-  double sse = std::numeric_limits<double>::infinity();
+  double sse = std::numeric_limits<double>::infinity();       ///< of the (weighted) residuals
+  double walk_sse = std::numeric_limits<double>::infinity();  ///< of the walk rows alone
+  /// What minima are ranked by: sse, or with amplitude rows the profile
+  /// likelihood of the two blocks (each with its own variance; fit_from).
+  double score = std::numeric_limits<double>::infinity();
+  double amplitude_weight = 0;  ///< the weight the fit ended with
   int iterations = 0;
   bool converged = false;
 };
@@ -158,8 +203,60 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
   }
   out.p = p;
   out.sse = sse;
+  out.walk_sse = problem.block_sse(r).first;
+  out.score = sse;
+  out.amplitude_weight = problem.amplitude_weight;
   out.iterations = it + 1;
   return out;
+}
+
+/// Amplitude rows a shape is fitted to (fewer: the block is left out).
+constexpr std::size_t kMinAmplitudeRows = 3;
+/// Smallest RMS of the amplitude rows' ln a residuals a weight is worked out
+/// from (nepers; the peak detector's own scatter is about 1 %).
+constexpr double kMinAmplitudeRms = 1e-3;
+
+/// levenberg_marquardt, and with amplitude rows a fit of both blocks by their
+/// profile likelihood, n_walk ln(SSE_walk / n_walk) + n_amp ln(SSE_amp / n_amp):
+/// each block weighted by its own variance, re-estimated from the fit until
+/// the weight settles (iteratively reweighted), so neither unit (metres,
+/// nepers) nor a noise level is assumed.
+LmResult fit_from(const Problem& problem, const Eigen::VectorXd& start, int max_iterations,
+                  double tolerance = 1e-10) {
+  if (problem.amplitude_rows.size() < kMinAmplitudeRows)
+    return levenberg_marquardt(problem, start, max_iterations, tolerance);
+  Problem weighted = problem;
+  const double n_walk = static_cast<double>(problem.rows.size());
+  const double n_amp = static_cast<double>(problem.amplitude_rows.size());
+  const auto weight_of = [&](double walk_sse, double amp_sse) {
+    const double amp_ms = std::max(amp_sse / n_amp, kMinAmplitudeRms * kMinAmplitudeRms);
+    return std::sqrt(std::max(walk_sse / n_walk, 1e-18) / amp_ms);
+  };
+  Eigen::VectorXd p = start;
+  clamp_parameters(p, problem.onset_min_ns, problem.onset_max_ns);
+  Eigen::VectorXd r;
+  weighted.amplitude_weight = 1.0;
+  if (!weighted.residuals(p, r)) return {};
+  {
+    const auto [walk, amp] = weighted.block_sse(r);
+    weighted.amplitude_weight = weight_of(walk, amp);
+  }
+  LmResult lm;
+  int iterations = 0;
+  for (int round = 0; round < 6; ++round) {
+    lm = levenberg_marquardt(weighted, p, max_iterations, tolerance);
+    iterations += lm.iterations;
+    if (!std::isfinite(lm.sse) || !weighted.residuals(lm.p, r)) break;
+    const auto [walk, amp] = weighted.block_sse(r);
+    lm.score = n_walk * std::log(std::max(walk / n_walk, 1e-30)) +
+               n_amp * std::log(std::max(amp / n_amp, kMinAmplitudeRms * kMinAmplitudeRms));
+    const double next = weight_of(walk, amp);
+    p = lm.p;
+    if (std::fabs(std::log(next / weighted.amplitude_weight)) < 0.05) break;
+    weighted.amplitude_weight = next;
+  }
+  lm.iterations = iterations;
+  return lm;
 }
 
 /// Wild-bootstrap replicates of the fit at `best` (WalkFitOptions::replicates):
@@ -167,16 +264,28 @@ LmResult levenberg_marquardt(const Problem& problem, Eigen::VectorXd p, int max_
 /// s = sqrt(n / (n - m)) (the residuals of a fit of m parameters are that much
 /// smaller than the errors), each refitted from `best`.
 std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
-                                                     const Eigen::VectorXd& best, std::size_t count,
-                                                     int max_iterations) {
+                                                     const Eigen::VectorXd& best,
+                                                     double best_amplitude_weight,
+                                                     std::size_t count, int max_iterations) {
   std::vector<ranging::WalkShape> out;
   Eigen::VectorXd r;
   const auto n = static_cast<Eigen::Index>(problem.rows.size());
-  if (count == 0 || n <= best.size() || !problem.residuals(best, r)) return out;
+  // With amplitude rows, at the weight the fit ended with, and the readings
+  // resampled the same way (their residuals, in nepers, about the fitted ln a
+  // less the profiled constant): the readings hold the shape too, and kept
+  // fixed they would leave the replicates only the walk rows' scatter.
+  Problem resampled = problem;
+  resampled.amplitude_weight = best_amplitude_weight;
+  if (count == 0 || n <= best.size() || !resampled.residuals(best, r)) return out;
   const double inflation = std::sqrt(static_cast<double>(n) / static_cast<double>(n - best.size()));
   std::vector<double> e(problem.e.begin(), problem.e.end());
-  Problem resampled = problem;
   resampled.e = e;
+  const Eigen::Index m = r.size() - n;  // amplitude rows in the residuals
+  std::vector<double> amplitude(problem.amplitude.begin(), problem.amplitude.end());
+  resampled.amplitude = amplitude;
+  // One constant profiled out of the m readings.
+  const double amplitude_inflation =
+      m > 1 ? std::sqrt(static_cast<double>(m) / static_cast<double>(m - 1)) : 0.0;
   // The standard fixes mt19937_64's sequence: the same rows give the same signs anywhere.
   std::mt19937_64 signs(20261124);
   const auto next_bit = [&signs] { return (signs() & 1U) != 0; };
@@ -185,6 +294,13 @@ std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
       const std::size_t i = problem.rows[static_cast<std::size_t>(k)];
       const double model = problem.e[i] + r(k);
       e[i] = model - (next_bit() ? inflation : -inflation) * r(k);
+    }
+    for (Eigen::Index k = 0; k < m; ++k) {
+      // residual = ln a - ln A - constant: ln A* = ln A + residual -+ s residual.
+      const std::size_t i = problem.amplitude_rows[static_cast<std::size_t>(k)];
+      const double residual = r(n + k) / best_amplitude_weight;
+      const double step = (next_bit() ? amplitude_inflation : -amplitude_inflation) * residual;
+      amplitude[i] = problem.amplitude[i] * std::exp(residual - step);
     }
     // A replicate needs its walk to a small part of the scatter it stands
     // for, not the last digit of its SSE.
@@ -201,19 +317,25 @@ std::vector<ranging::WalkShape> bootstrap_replicates(const Problem& problem,
 }  // namespace
 
 WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const double> error_m,
-                       std::span<const std::uint8_t> status, double reference_pulse_width_ns,
-                       double metres_per_ns, const WalkFitOptions& options) {
+                       std::span<const std::uint8_t> status, std::span<const double> amplitude,
+                       double reference_pulse_width_ns, double metres_per_ns,
+                       const WalkFitOptions& options) {
   const std::size_t n = pulse_width_ns.size();
-  if (error_m.size() != n || (!status.empty() && status.size() != n)) {
+  if (error_m.size() != n || (!status.empty() && status.size() != n) ||
+      (!amplitude.empty() && amplitude.size() != n)) {
     throw std::invalid_argument(
-        "walk fit: pulse widths, errors and saturation flags differ in size");
+        "walk fit: pulse widths, errors, saturation flags and amplitudes differ in size");
   }
   if (!(std::isfinite(reference_pulse_width_ns) && metres_per_ns > 0)) {
     throw std::invalid_argument("walk fit: reference width and c_air / 2 must be finite");
   }
   WalkFitResult result;
   result.reference_pulse_width_ns = reference_pulse_width_ns;
-  Problem problem{pulse_width_ns, error_m, {}, reference_pulse_width_ns, metres_per_ns};
+  Problem problem;
+  problem.w = pulse_width_ns;
+  problem.e = error_m;
+  problem.reference = reference_pulse_width_ns;
+  problem.metres_per_ns = metres_per_ns;
   std::vector<std::size_t> clear, clipped;
   for (std::size_t i = 0; i < n; ++i) {
     if (!std::isfinite(pulse_width_ns[i]) || !std::isfinite(error_m[i])) {
@@ -227,6 +349,15 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     }
     ((row & kWalkRowClipped) != 0 ? clipped : clear).push_back(i);
   }
+  // The amplitude block: unclipped rows with a usable reading (a clipped
+  // reading is the clip level, not the echo).
+  problem.amplitude = amplitude;
+  if (!amplitude.empty()) {
+    for (std::size_t i : clear) {
+      if (std::isfinite(amplitude[i]) && amplitude[i] > 0) problem.amplitude_rows.push_back(i);
+    }
+  }
+  if (problem.amplitude_rows.size() < kMinAmplitudeRows) problem.amplitude_rows.clear();
   std::vector<std::size_t> fitted = clear;
   fitted.insert(fitted.end(), clipped.begin(), clipped.end());
   std::sort(fitted.begin(), fitted.end());
@@ -283,12 +414,12 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   const auto unclipped_minima = [&] {
     std::vector<LmResult> minima;
     for (const Eigen::VectorXd& start : starts) {
-      LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
+      LmResult lm = fit_from(problem, start, options.max_iterations);
       iterations += lm.iterations;
       if (std::isfinite(lm.sse)) minima.push_back(std::move(lm));
     }
     std::sort(minima.begin(), minima.end(),
-              [](const LmResult& a, const LmResult& b) { return a.sse < b.sse; });
+              [](const LmResult& a, const LmResult& b) { return a.score < b.score; });
     return minima;
   };
   // Distinct local minima, best first: unclipped echoes over a narrow range of
@@ -347,9 +478,9 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     LmResult clipped_best;  // the best clipped fit from the `candidates` so far
     const auto fit_clipped = [&](const std::vector<Eigen::VectorXd>& candidates) {
       for (const Eigen::VectorXd& start : candidates) {
-        LmResult lm = levenberg_marquardt(problem, start, options.max_iterations);
+        LmResult lm = fit_from(problem, start, options.max_iterations);
         iterations += lm.iterations;
-        if (lm.sse < clipped_best.sse) clipped_best = lm;
+        if (lm.score < clipped_best.score) clipped_best = lm;
       }
     };
     std::vector<Eigen::VectorXd> clipped_starts;
@@ -385,11 +516,11 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
     // shape alone is fitted to every row (the clipped shapes include it: an
     // onset beyond the tabulated widths clips nothing), kept if better, and
     // its minima start clipped fits too.
-    const double unclipped_ms = best.sse / static_cast<double>(clear.size());
-    if (search &&
-        !(clipped_best.sse / static_cast<double>(fitted.size()) <= 4.0 * unclipped_ms + 1e-18)) {
+    const double unclipped_ms = best.walk_sse / static_cast<double>(clear.size());
+    if (search && !(clipped_best.walk_sse / static_cast<double>(fitted.size()) <=
+                    4.0 * unclipped_ms + 1e-18)) {
       const std::vector<LmResult> all_rows = unclipped_minima();
-      if (!all_rows.empty() && all_rows.front().sse < clipped_best.sse)
+      if (!all_rows.empty() && all_rows.front().score < clipped_best.score)
         clipped_best = all_rows.front();
       const std::size_t from = shapes.size();
       add_distinct(all_rows, kClippingShapeStarts);
@@ -402,27 +533,28 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   }
   result.shape = shape_of(best.p);
   result.constant_m = best.p(0);
-  result.rms_m = std::sqrt(best.sse / static_cast<double>(problem.rows.size()));
-  result.shape_replicates =
-      bootstrap_replicates(problem, best.p, options.replicates, options.max_iterations);
+  result.rms_m = std::sqrt(best.walk_sse / static_cast<double>(problem.rows.size()));
+  result.amplitude_rows = problem.amplitude_rows.size();
+  result.shape_replicates = bootstrap_replicates(problem, best.p, best.amplitude_weight,
+                                                 options.replicates, options.max_iterations);
   result.iterations = iterations;
   result.converged = best.converged;
   return result;
 }
 
 std::string WalkFitResult::summary() const {
-  char buffer[320];
+  char buffer[400];
   std::snprintf(
       buffer, sizeof buffer,
       "walk shape: pulse sigma %.4f ns, pole time constant %.4f ns, clipping %s, "
       "recovery %.3f ns/neper; %zu rows (%zu clipped), widths [%.3f, %.3f] ns, "
-      "RMS %.3f mm, %d LM iterations%s%s",
+      "RMS %.3f mm, %zu amplitude rows, %d LM iterations%s%s",
       shape.pulse_sigma_ns, shape.pole_time_constant_ns,
       std::isfinite(shape.saturation_log_overdrive)
           ? ("at ln(A/V) " + std::to_string(shape.saturation_log_overdrive)).c_str()
           : "not observed",
       shape.recovery_ns_per_neper, rows, saturated_rows, width_min_ns, width_max_ns, rms_m * 1e3,
-      iterations, converged ? "" : " (not converged)",
+      amplitude_rows, iterations, converged ? "" : " (not converged)",
       partial_rows > 0
           ? ("; " + std::to_string(partial_rows) + " partial-echo rows not fitted").c_str()
           : "");

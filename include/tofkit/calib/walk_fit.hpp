@@ -14,6 +14,15 @@
 /// clipped rows neither is observable: the shape then has no recovery term. Only the data are used
 /// (no device configuration): the shape is what makes the walk of weaker and stronger echoes than
 /// the calibration's predictable.
+///
+/// Widths alone leave sigma and tau trading off (shapes of 2x the device's
+/// sigma fit the plates' widths as well, and read echoes much weaker than the
+/// plates mm off). With the rows' amplitude readings (the peak detector, linear
+/// in the echo below the clip, so ln A = ln a + const on unclipped rows) a
+/// second block of residuals asks the shape's ln a at each unclipped row's
+/// width to follow ln A up to one profiled-out constant; the two blocks are
+/// weighted by their own variances (profile likelihood, iteratively
+/// reweighted). The clipping onset stays free between the widths either way.
 
 #include <cstddef>
 #include <cstdint>
@@ -57,7 +66,10 @@ struct WalkFitResult {
   std::size_t rows = 0;                       ///< rows fitted (partial-echo rows are not)
   std::size_t partial_rows = 0;               ///< rows left out: kWalkRowPartial
   std::size_t saturated_rows = 0;  ///< rows flagged clipped (clipping fitted when enough)
-  double rms_m = 0;                ///< RMS residual of the fit
+  /// Unclipped rows whose amplitude reading the shape's ln a was fitted to (0:
+  /// no amplitude block).
+  std::size_t amplitude_rows = 0;
+  double rms_m = 0;  ///< RMS residual of the fit
   /// Bootstrap replicates of the shape (WalkFitOptions::replicates; those
   /// whose refit failed are left out).
   std::vector<ranging::WalkShape> shape_replicates;
@@ -72,12 +84,16 @@ struct WalkFitResult {
 /// noise-free crossing does not model; such rows are not fitted. fit_chain
 /// marks the kRawPartialEchoes rows no wider than a row with every shot
 /// echoed: wider ones lost shots to false alarms, not to weakness); may be
-/// empty (all plain). `metres_per_ns`: c_air / 2. Throws std::invalid_argument
+/// empty (all plain). `amplitude`: each row's amplitude reading (volts; may be
+/// empty: widths alone, as without readings); rows with a non-finite or
+/// non-positive reading are left out of the amplitude block, which is used
+/// with at least 3 such unclipped rows. `metres_per_ns`: c_air / 2. Throws std::invalid_argument
 /// for mismatched sizes, fewer than 6 rows (without partial echoes), non-finite values or no spread
 /// in pulse width.
 [[nodiscard]] WalkFitResult fit_walk(std::span<const double> pulse_width_ns,
                                      std::span<const double> error_m,
                                      std::span<const std::uint8_t> status,
+                                     std::span<const double> amplitude,
                                      double reference_pulse_width_ns, double metres_per_ns,
                                      const WalkFitOptions& options = {});
 
