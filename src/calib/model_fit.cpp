@@ -929,8 +929,22 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
   result.pipeline = fit_correction(fit_rows, o, &summary, &report);
   {
     std::vector<double> truth;
-    for (const auto& r : records)
-      if (r.raw.has_echo()) truth.push_back(r.truth.distance_m);
+    std::size_t partial = 0;
+    for (const auto& r : records) {
+      if (!r.raw.has_echo()) continue;
+      truth.push_back(r.truth.distance_m);
+      if ((r.raw.flags & ranging::kRawPartialEchoes) != 0) ++partial;
+    }
+    // Rows that lost shots are either echoes at the threshold or shots stopped
+    // by noise (false alarms: sunlight, a high APD gain); a calibration made
+    // mostly of them times noise as much as echoes, and says so.
+    if (!truth.empty() && 4 * partial > truth.size()) {
+      report += format(
+          "note: %zu of %zu rows with an echo lost shots (partial echoes: weak echoes or false "
+          "alarms from background light and gain); their means are biased, and a walk step "
+          "leaves weak ones out: a calibration made mostly of them may not represent the device\n",
+          partial, truth.size());
+    }
     summary.distances = distinct_distances(truth);
     if (summary.distances == 1) {
       report += format(
