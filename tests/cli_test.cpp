@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -216,6 +217,39 @@ TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
   const auto bad = run("plan --range-min 5 --range-max 2 --reflectance-min 0.06 --single-distance");
   EXPECT_EQ(bad.status, 1);
   EXPECT_NE(read("stderr.txt").find("range"), std::string::npos) << read("stderr.txt");
+}
+
+// The bench table marks the plates whose echo overdrives the amplifier
+// (clip_Np: ln of the plate's power over the clip power): the device's own
+// noise-free echo of each plate agrees (saturated exactly where marked), and
+// with the field clipping the brightest plate is overdriven by one neper.
+TEST_F(CliTest, PlanBenchTableMarksThePlatesThatClip) {
+  const auto r =
+      run("plan --range-min 0.7 --range-max 7.4 --reflectance-min 0.06 --reflectance-max 0.85 "
+          "--single-distance --bench");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const tofkit::device::VirtualRangefinder paper(tofkit::device::preset("paper"));
+  std::istringstream lines(r.out);
+  std::string line;
+  int plates = 0, clipped = 0;
+  std::string last_clip;
+  while (std::getline(lines, line)) {
+    if (line.empty() || line[0] == '#' || line.find("distance_m") != std::string::npos) continue;
+    std::istringstream row(line);
+    int k = 0;
+    double distance = 0, reflectance = 0, power = 0, snr = 0;
+    std::string clip;
+    ASSERT_TRUE(row >> k >> distance >> reflectance >> power >> snr >> clip) << line;
+    ++plates;
+    const bool saturated =
+        paper.echo(tofkit::device::Target::plate(distance, reflectance), {}).saturated;
+    EXPECT_EQ(saturated, clip != "-") << line;
+    clipped += clip != "-";
+    last_clip = clip;
+  }
+  EXPECT_EQ(plates, 10);
+  EXPECT_EQ(clipped, 3);
+  EXPECT_EQ(last_clip, "1.00");
 }
 
 // The plan's powers are optical; whether a plate's echo crosses the

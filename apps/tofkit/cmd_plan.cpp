@@ -75,12 +75,16 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
   if (!silent.empty())
     fmt::print("# plates below the threshold (no echo, or only noise crossings): {}\n", silent);
   if (o.bench) {
-    fmt::print("{:>4} {:>10} {:>12} {:>14} {:>10}\n", "#", "distance_m", "reflectance", "power_W",
-               "SNR");
+    // clip_Np: how far the plate's echo overdrives the amplifier (ln of its
+    // power over the clip power; "-" below the clip).
+    fmt::print("{:>4} {:>10} {:>12} {:>14} {:>10} {:>8}\n", "#", "distance_m", "reflectance",
+               "power_W", "SNR", "clip_Np");
     int k = 0;
     for (const auto& p : plan.plates) {
-      fmt::print("{:>4} {:>10.3f} {:>12.3f} {:>14.4g} {:>10.1f}\n", ++k, p.distance_m,
-                 p.reflectance, p.received_power_w, p.snr);
+      const double clip_np = std::log(p.received_power_w / clip_w);
+      fmt::print("{:>4} {:>10.3f} {:>12.3f} {:>14.4g} {:>10.1f} {:>8}\n", ++k, p.distance_m,
+                 p.reflectance, p.received_power_w, p.snr,
+                 clip_np > 0 ? fmt::format("{:.2f}", clip_np) : "-");
     }
     fmt::print("# temperature run: plate {:.3f} at {:.3f} m, temperatures",
                plan.temperature_plate.reflectance, plan.temperature_plate.distance_m);
