@@ -44,7 +44,7 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
              number(plan.calibration_distance_m),
              o.plan.single_distance ? " (every plate)" : " where a plate allows");
   // Clipping: the walk model learns the onset and the recovery from clipped plates.
-  const double clip_w = experiments::clip_power_w(device);
+  const double clip_w = plan.clip_power_w;
   if (plan.field_power_max_w > clip_w) {
     fmt::print(
         "# the field's strongest echo ({} m, reflectance {}) overdrives the amplifier "

@@ -84,6 +84,7 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
   CalibrationPlan plan;
   plan.field_power_min_w = power_w(link, options.range_max_m, options.reflectance_min);
   plan.field_power_max_w = power_w(link, options.range_min_m, options.reflectance_max);
+  plan.clip_power_w = options.clip_power_w;
   const bool centred = options.single_distance && std::isnan(options.calibration_distance_m);
   double at = centred
                   ? centred_distance(link, options, plan.field_power_min_w, plan.field_power_max_w)

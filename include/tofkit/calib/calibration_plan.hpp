@@ -74,7 +74,8 @@ struct PlannedPlate {
 };
 
 struct CalibrationPlan {
-  double field_power_min_w = 0, field_power_max_w = 0;  ///< the span to cover
+  double field_power_min_w = 0, field_power_max_w = 0;             ///< the span to cover
+  double clip_power_w = std::numeric_limits<double>::quiet_NaN();  ///< the options' (NaN: unknown)
   double calibration_distance_m = 0;
   std::vector<PlannedPlate> plates;  ///< ascending power
   PlannedPlate temperature_plate;    ///< the plate of the temperature run
