@@ -53,6 +53,15 @@ device::DeviceConfig other_parts_with(double bandwidth_mhz, double pulse_width_n
   return config;
 }
 
+/// Parts as the random-device sweeps drew them: the other parts' TDC with
+/// another receiver bandwidth, pulse width, APD gain and threshold.
+device::DeviceConfig swept_parts(double bandwidth_mhz, double pulse_width_ns, double apd_gain,
+                                 double threshold_v) {
+  device::DeviceConfig config = other_parts_with(bandwidth_mhz, pulse_width_ns, threshold_v);
+  set_key(config, "receiver.apd_gain", apd_gain);
+  return config;
+}
+
 /// A third set of parts: slower receiver, wider pulse, lower threshold.
 device::DeviceConfig slow_wide_parts() {
   return other_parts_with(60.0, 3.0, 0.03);
@@ -294,13 +303,7 @@ TEST(WalkModel, PlannedOneDistanceProtocolEveryRowIsWithinFiveMillimetres) {
 // unclipped, 0.9 mm clipped, 1.0 mm in domain; from the widths alone, without
 // the amplitude readings, 3.1 / 1.8 / 1.0 mm).
 TEST(WalkModel, PlatesClipWhereTheFieldDoes) {
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "receiver.bandwidth_mhz", 159.0);
-  set_key(config, "laser.pulse_width_ns", 2.15);
-  set_key(config, "receiver.apd_gain", 22.0);
-  set_key(config, "discriminator.threshold_v", 0.027);
-  set_key(config, "tdc.lsb_ps", 40.0);
-  set_key(config, "tdc.code_density_hits", 1 << 20);
+  const device::DeviceConfig config = swept_parts(159.0, 2.15, 22.0, 0.027);
   const Figures centred = run_protocol(config, Protocol::kCentredOneDistance);
   EXPECT_EQ(centred.fit.walk->saturated_rows, 0u);
   EXPECT_GT(centred.deepest_clip_nepers, 1.0);
@@ -321,13 +324,7 @@ TEST(WalkModel, PlatesClipWhereTheFieldDoes) {
 // walk fit on such rows takes about a minute). The other parts indoors get no
 // such note.
 TEST(WalkModel, ACalibrationOfPartialEchoesSaysSo) {
-  device::DeviceConfig sunlit = device::preset("paper");
-  set_key(sunlit, "receiver.bandwidth_mhz", 252.0);
-  set_key(sunlit, "laser.pulse_width_ns", 2.44);
-  set_key(sunlit, "receiver.apd_gain", 170.0);
-  set_key(sunlit, "discriminator.threshold_v", 0.034);
-  set_key(sunlit, "tdc.lsb_ps", 40.0);
-  set_key(sunlit, "tdc.code_density_hits", 1 << 20);
+  device::DeviceConfig sunlit = swept_parts(252.0, 2.44, 170.0, 0.034);
   sunlit.link.environment.solar_irradiance_w_per_m2_um =
       1.84 * physics::kTable1SolarIrradiance_w_per_m2_um;
   calib::ModelFitOptions options;
@@ -372,13 +369,7 @@ TEST(WalkModel, HoldsOnOtherDevices) {
 // 23, where the widths alone gave 0.44-27 x; 19 meet the acceptance, 17
 // before.)
 TEST(WalkModel, AmplitudeReadingsPinThePulseShape) {
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "receiver.bandwidth_mhz", 69.0);
-  set_key(config, "laser.pulse_width_ns", 5.26);
-  set_key(config, "receiver.apd_gain", 89.0);
-  set_key(config, "discriminator.threshold_v", 0.059);
-  set_key(config, "tdc.lsb_ps", 40.0);
-  set_key(config, "tdc.code_density_hits", 1 << 20);
+  const device::DeviceConfig config = swept_parts(69.0, 5.26, 89.0, 0.059);
   ASSERT_TRUE(device::validate(config).empty());
   const double sigma = config.link.laser.pulse_width_ns / (2.0 * std::sqrt(2.0 * std::log(2.0)));
   const double tau = physics::two_pole_time_constant_ns(config.link.receiver.bandwidth_mhz);

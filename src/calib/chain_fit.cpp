@@ -90,10 +90,9 @@ void require_targets(std::span<const ranging::Record> records, const std::vector
   const ranging::GroundTruth& first = records[used.front()].truth;
   for (std::size_t i : used) {
     const ranging::GroundTruth& t = records[i].truth;
-    if (std::isnan(t.distance_m) || std::isnan(t.reflectance) || std::isnan(t.angle_deg)) return;
-  }
-  for (std::size_t i : used) {
-    if (!same_target(records[i].truth, first)) return;
+    if (std::isnan(t.distance_m) || std::isnan(t.reflectance) || std::isnan(t.angle_deg) ||
+        !same_target(t, first))
+      return;
   }
   const char* step = steps.walk ? "walk" : "grayvalue";
   const std::string message =

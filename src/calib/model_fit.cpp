@@ -977,11 +977,9 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     const std::vector<std::size_t> group = truth_groups(records, groups);
     // Fewer groups than folds: each group its own fold (leave one group out),
     // still the error on targets the correction never saw.
-    const bool one_group_per_fold = groups < static_cast<std::size_t>(o.confidence_folds);
-    folds = one_group_per_fold ? groups : static_cast<std::size_t>(o.confidence_folds);
-    const std::vector<std::size_t> group_fold =
+    folds = std::min(groups, static_cast<std::size_t>(o.confidence_folds));
+    const std::vector<std::size_t> fold_of_group =
         intensity_stratified_folds(records, group, groups, folds);
-    const auto fold = [&](std::size_t g) { return group_fold[g]; };
     try {
       if (groups < 2) {
         throw std::invalid_argument(
@@ -999,7 +997,7 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          (fold(group[i]) == k ? test : train).push_back(records[i]);
+          (fold_of_group[group[i]] == k ? test : train).push_back(records[i]);
         }
         residuals.add(fit_correction(train, fold_options, nullptr, nullptr), test);
       }
