@@ -20,6 +20,11 @@ constexpr std::size_t kMinChainRows = 10;
 /// Jacobian and tabulated shape): backfitting with a walk step stops when no
 /// walk value changes by more than this either (10 um, far below any figure).
 constexpr double kWalkTolerance_m = 1e-5;
+/// Backfitting passes whose walk fit searches its starts afresh (while the
+/// walk still moves by more than 0.1 mm); later passes refine the previous
+/// pass's shape. Rows dominated by false stops keep the walk moving pass after
+/// pass, and a search on each took minutes.
+constexpr int kWalkSearchPasses = 2;
 /// Largest |value| a fit accepts: squares and sums of squares over any
 /// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
 /// value is a corrupt cell, not a measurement.
@@ -391,7 +396,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
       // Searched afresh while the walk still moves by more than 0.1 mm (the
       // first passes see e with a rough h, and may start in a poor valley);
       // then only refined from the previous pass. Given a start, only refined.
-      walk_options.multistart = !result.walk || last_walk_change > 1e-4;
+      walk_options.multistart =
+          !result.walk || (it <= kWalkSearchPasses && last_walk_change > 1e-4);
       if (options.walk_initial) {
         if (!result.walk) walk_options.initial = options.walk_initial;
         walk_options.multistart = false;
