@@ -58,17 +58,6 @@ void clamp_parameters(Eigen::VectorXd& p, double onset_min_ns, double onset_max_
   }
 }
 
-/// ln a at a width on the curve (its last segment continued beyond it).
-double log_overdrive_at_width(const ranging::WalkCurve& c, double width_ns) {
-  const std::vector<double>& w = c.width_ns;
-  if (w.size() < 2) return c.log_overdrive.front();
-  const auto it = std::upper_bound(w.begin(), w.end(), width_ns);
-  const auto k = static_cast<std::size_t>(
-      std::clamp<std::ptrdiff_t>(it - w.begin(), 1, static_cast<std::ptrdiff_t>(w.size()) - 1));
-  const double f = (width_ns - w[k - 1]) / (w[k] - w[k - 1]);
-  return c.log_overdrive[k - 1] + f * (c.log_overdrive[k] - c.log_overdrive[k - 1]);
-}
-
 struct Problem {
   std::span<const double> w, e;
   std::vector<std::size_t> rows;  ///< rows in this stage
@@ -107,7 +96,7 @@ struct Problem {
       for (std::size_t k = 0; k < m; ++k) {
         const std::size_t i = amplitude_rows[k];
         tail(static_cast<Eigen::Index>(k)) =
-            log_overdrive_at_width(curve, w[i]) - std::log(amplitude[i]);
+            ranging::curve_at_width(curve, curve.log_overdrive, w[i]) - std::log(amplitude[i]);
       }
       tail.array() -= tail.mean();
       tail *= amplitude_weight;

@@ -104,15 +104,13 @@ WalkCurve walk_curve(const WalkShape& shape, std::size_t levels) {
   return c;
 }
 
-double rise_at_width(const WalkCurve& c, double width_ns) {
+double curve_at_width(const WalkCurve& c, const std::vector<double>& column, double width_ns) {
   const std::vector<double>& w = c.width_ns;
-  if (std::isnan(width_ns)) return width_ns;
-  if (width_ns <= w.front()) return c.rise_ns.front();
-  std::size_t k =
-      static_cast<std::size_t>(std::upper_bound(w.begin(), w.end(), width_ns) - w.begin());
-  k = std::min(k, w.size() - 1);  // beyond the last width: the last segment continued
+  const auto k = static_cast<std::size_t>(
+      std::clamp<std::ptrdiff_t>(std::upper_bound(w.begin(), w.end(), width_ns) - w.begin(), 1,
+                                 static_cast<std::ptrdiff_t>(w.size()) - 1));
   const double f = (width_ns - w[k - 1]) / (w[k] - w[k - 1]);
-  return c.rise_ns[k - 1] + f * (c.rise_ns[k] - c.rise_ns[k - 1]);
+  return column[k - 1] + f * (column[k] - column[k - 1]);
 }
 
 std::vector<double> walk_parameters(const WalkShape& shape) {

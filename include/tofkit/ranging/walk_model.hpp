@@ -58,10 +58,18 @@ inline constexpr double kMaxLogOverdrive = 12.0;
 /// std::invalid_argument for an invalid shape.
 [[nodiscard]] WalkCurve walk_curve(const WalkShape& shape, std::size_t levels = 1500);
 
-/// Rising-crossing time at a measured width, by linear interpolation of the
-/// curve (below its first width: its first rise; above its last: continued with
-/// the last segment's slope).
-[[nodiscard]] double rise_at_width(const WalkCurve& curve, double width_ns);
+/// A column of the curve (rise_ns, log_overdrive) at a measured width, by
+/// linear interpolation (beyond its first and last widths: the end segments
+/// continued).
+[[nodiscard]] double curve_at_width(const WalkCurve& curve, const std::vector<double>& column,
+                                    double width_ns);
+
+/// Rising-crossing time at a measured width: curve_at_width of rise_ns, but
+/// below the first width its first rise.
+[[nodiscard]] inline double rise_at_width(const WalkCurve& curve, double width_ns) {
+  return width_ns <= curve.width_ns.front() ? curve.rise_ns.front()
+                                            : curve_at_width(curve, curve.rise_ns, width_ns);
+}
 
 /// The shape's parameters as the fit estimates them (all free of sign
 /// constraints): ln pulse_sigma_ns, ln pole_time_constant_ns and, with clipping,
