@@ -432,6 +432,13 @@ TEST(ChainFit, RefusesOverflowingCellsNamingColumnAndRow) {
     EXPECT_NE(tof.find("tof_ns = 1e+155 in data row 42"), std::string::npos) << tof;
     EXPECT_NE(tof.find("too large"), std::string::npos) << tof;
   }
+  // The walk step fits the amplitude readings too: a corrupt one is refused
+  // like any fitted cell; a chain without a walk step does not read them.
+  auto records = chain_records(200, 0.001, 18);
+  records[17].raw.amplitude = 1e150;
+  const std::string amplitude = fit_error(records, "offset,walk");
+  EXPECT_NE(amplitude.find("amplitude = 1e+150 in data row 18"), std::string::npos) << amplitude;
+  EXPECT_EQ(fit_error(records, "offset,grayvalue"), "");
 }
 
 TEST(HingeFit, RefusesValuesWhoseSquaresOverflow) {

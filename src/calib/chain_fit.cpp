@@ -247,6 +247,8 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
     require_fit_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
     if (width_step) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
     if (steps.temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
+    if (steps.walk)
+      require_fit_magnitude(r.raw.amplitude, "amplitude", i);  // its readings pin the shape
     const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
                     (!width_step || std::isfinite(r.raw.pulse_width_ns)) &&
                     (!steps.temperature || std::isfinite(r.raw.temperature_c));
