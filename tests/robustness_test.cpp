@@ -127,6 +127,35 @@ TEST_F(Robustness, HugeCellsInAChainFitAreAnErrorNotACrash) {
   }
 }
 
+// The same for the columns a surface or a confidence model reads: a corrupt
+// amplitude, pulse width or truth is refused naming the column and data row,
+// not taken into a fit (a 1e300 amplitude stretched the log-amplitude axis of
+// a confidence model to 690 nepers and the fit exited 0). Columns a model
+// does not read are not judged: a grayvalue chain without a confidence fits.
+TEST_F(Robustness, HugeCellsInASurfaceOrConfidenceFitAreNamed) {
+  make_calibration();
+  // Columns: distance_true_m 0, pulse_width_ns 6, amplitude 7.
+  write_with_cell("huge_truth.csv", 5, 0, "1e300");
+  write_with_cell("huge_width.csv", 5, 6, "1e300");
+  write_with_cell("huge_amplitude.csv", 5, 7, "1e300");
+  for (const char* model : {"--surface bspline", "--surface poly:2"}) {
+    for (const auto& [file, needle] :
+         {std::pair{"huge_truth.csv", "distance_true_m = 1e+300 in data row 5"},
+          std::pair{"huge_amplitude.csv", "amplitude = 1e+300 in data row 5"}}) {
+      expect_refused(std::string("fit --in ") + file + " " + model + " --out out.json",
+                     {file, needle, "too large to fit"});
+    }
+  }
+  expect_refused("fit --in huge_width.csv --surface bspline --out out.json",
+                 {"pulse_width_ns = 1e+300 in data row 5"});
+  expect_refused("fit --in huge_amplitude.csv --chain offset,grayvalue --out out.json",
+                 {"amplitude = 1e+300 in data row 5"});
+  EXPECT_EQ(run("fit --in huge_amplitude.csv --chain offset,grayvalue --confidence none --out "
+                "out.json")
+                .status,
+            0);
+}
+
 // Item 2: deeply nested configs are refused before the TOML parser sees them.
 TEST_F(Robustness, DeeplyNestedConfigsAreRefused) {
   std::string header = "[a";

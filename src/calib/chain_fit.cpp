@@ -25,23 +25,6 @@ constexpr double kWalkTolerance_m = 1e-5;
 /// pass's shape. Rows dominated by false stops keep the walk moving pass after
 /// pass, and a search on each took minutes.
 constexpr int kWalkSearchPasses = 2;
-/// Largest |value| a fit accepts: squares and sums of squares over any
-/// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
-/// value is a corrupt cell, not a measurement.
-constexpr double kMaxFitMagnitude = 1e100;
-
-/// Throws std::invalid_argument naming the column and the data row (1-based)
-/// when a finite value is too large to fit.
-void require_fit_magnitude(double v, const char* column, std::size_t index) {
-  if (std::isfinite(v) && std::fabs(v) > kMaxFitMagnitude) {
-    char buffer[160];
-    std::snprintf(buffer, sizeof buffer,
-                  "%s = %.6g in data row %zu is too large to fit (|value| must be below %.0e)",
-                  column, v, index + 1, kMaxFitMagnitude);
-    throw std::invalid_argument(buffer);
-  }
-}
-
 double median_of(std::vector<double> v) {
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
   std::nth_element(v.begin(), mid, v.end());

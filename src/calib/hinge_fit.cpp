@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "tofkit/calib/statistics.hpp"
+
 namespace tofkit::calib {
 namespace {
 
@@ -17,8 +19,6 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 /// are inserted greedily into the best (k-1)-knot solution.
 constexpr double kMaxExhaustiveCombinations = 2000;
 constexpr double kMadToSigma = 1.4826;  // MAD -> sigma for Gaussian residuals
-/// Largest |x| or |y| accepted: squares and sums of squares stay finite.
-constexpr double kMaxMagnitude = 1e100;
 
 double median_of(std::vector<double> v) {
   if (v.empty()) return ranging::kNaN;
@@ -446,12 +446,12 @@ Prepared prepare(std::span<const double> x, std::span<const double> y,
   Prepared p;
   for (std::size_t i = 0; i < x.size(); ++i) {
     if (std::isfinite(x[i]) && std::isfinite(y[i])) {
-      if (std::fabs(x[i]) > kMaxMagnitude || std::fabs(y[i]) > kMaxMagnitude) {
+      if (std::fabs(x[i]) > kMaxFitMagnitude || std::fabs(y[i]) > kMaxFitMagnitude) {
         char buffer[200];
         std::snprintf(buffer, sizeof buffer,
                       "hinge fit of %s: row %zu holds x = %.6g, y = %.6g, too large to fit "
                       "(|value| must be below %.0e)",
-                      options.column.c_str(), i + 1, x[i], y[i], kMaxMagnitude);
+                      options.column.c_str(), i + 1, x[i], y[i], kMaxFitMagnitude);
         throw std::invalid_argument(buffer);
       }
       order.push_back(i);

@@ -891,8 +891,39 @@ void ModelFitOptions::validate() const {
   if (surface.kind == SurfaceKind::bspline) bspline.validate();
 }
 
+namespace {
+
+/// Refuses a corrupt cell in a column the surface or the confidence reads
+/// (fit_chain checks its own columns): |value| > kMaxFitMagnitude names the
+/// column and the data row. Rows without an echo are not fitted.
+void require_fit_magnitudes(std::span<const ranging::Record> records, const ModelFitOptions& o) {
+  const bool surface = o.surface.kind != SurfaceKind::none;
+  const bool amplitude = (surface && o.surface_intensity != SurfaceIntensity::pulse_width) ||
+                         o.confidence != ConfidenceKind::none;
+  const bool pulse_width = surface && o.surface_intensity != SurfaceIntensity::amplitude;
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const ranging::Record& r = records[i];
+    if (!r.raw.has_echo()) continue;
+    require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
+    if (!surface) continue;
+    // The surface reads the time of flight, or the raw distance without one.
+    require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
+    if (!std::isfinite(r.raw.tof_ns))
+      require_fit_magnitude(r.raw.distance_raw_m, "distance_raw_m", i);
+    if (pulse_width) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (o.surface_temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
+  }
+  // Last, so that a corrupt fitted column is named first.
+  for (std::size_t i = 0; amplitude && i < records.size(); ++i) {
+    if (records[i].raw.has_echo()) require_fit_magnitude(records[i].raw.amplitude, "amplitude", i);
+  }
+}
+
+}  // namespace
+
 ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFitOptions& o) {
   o.validate();
+  require_fit_magnitudes(records, o);
   ModelFitResult result;
   ModelFitSummary& summary = result.summary;
   std::string& report = result.report;

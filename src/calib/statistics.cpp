@@ -57,6 +57,16 @@ std::string pct(double value) {
 
 }  // namespace
 
+void require_fit_magnitude(double v, const char* column, std::size_t index) {
+  if (std::isfinite(v) && std::fabs(v) > kMaxFitMagnitude) {
+    char buffer[160];
+    std::snprintf(buffer, sizeof buffer,
+                  "%s = %.6g in data row %zu is too large to fit (|value| must be below %.0e)",
+                  column, v, index + 1, kMaxFitMagnitude);
+    throw std::invalid_argument(buffer);
+  }
+}
+
 ErrorStats error_stats(std::span<const double> error_m) {
   ErrorStats s;
   double sum = 0, max_abs = 0;
