@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 #include "tofkit/device/device_config.hpp"
 
@@ -91,6 +92,47 @@ TEST(CalibrationPlan, RejectsAnEmptyField) {
   o = {};
   o.reflectance_min = 0;
   EXPECT_THROW((void)plan_calibration(device::DeviceConfig{}.link, o), std::invalid_argument);
+}
+
+/// The message plan_calibration throws for `o`, "" when it plans.
+std::string refusal(const CalibrationPlanOptions& o) {
+  try {
+    (void)plan_calibration(device::DeviceConfig{}.link, o);
+  } catch (const std::invalid_argument& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A field whose echoes no plate can return within 1 mm .. 10 km is refused
+// naming the option to change, instead of a plan of plates clamped at 10 km
+// (reflectance_min 1e-30: seven plates "at 10000 m", exit 0) or of a
+// calibration distance rounded to 0 m (range_min_m 1e-7).
+TEST(CalibrationPlan, FieldsBeyondThePlatesReachAreRefusedNamingTheOption) {
+  CalibrationPlanOptions o;
+  o.range_max_m = 1e308;
+  EXPECT_NE(refusal(o).find("range_max_m must be <= 10000 m"), std::string::npos) << refusal(o);
+  o = {};
+  o.range_max_m = 8;
+  o.reflectance_min = 1e-30;
+  EXPECT_NE(refusal(o).find("plan: reflectance_min: a plate of reflectance 0.02"),
+            std::string::npos)
+      << refusal(o);
+  o.single_distance = true;
+  EXPECT_NE(refusal(o).find("reflectance_min"), std::string::npos) << refusal(o);
+  o = {};
+  o.range_min_m = 1e-7;
+  o.range_max_m = 8;
+  EXPECT_NE(refusal(o).find("plan: range_min_m: a plate of reflectance 0.95"), std::string::npos)
+      << refusal(o);
+  // A small field within reach plans, at a distance that is not rounded to 0.
+  o = {};
+  o.range_min_m = 0.01;
+  o.range_max_m = 0.05;
+  ASSERT_EQ(refusal(o), "");
+  const CalibrationPlan plan = plan_calibration(device::DeviceConfig{}.link, o);
+  EXPECT_NEAR(plan.calibration_distance_m, std::sqrt(0.01 * 0.05), 1e-12);
+  for (const PlannedPlate& p : plan.plates) EXPECT_GT(p.distance_m, 1e-3);
 }
 
 }  // namespace

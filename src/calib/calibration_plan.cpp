@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -17,10 +18,25 @@ double power_w(const physics::LinkConfig& link, double distance_m, double reflec
   return physics::received_power_extended_w(link, distance_m, reflectance, 0.0);
 }
 
+/// The plan's reach: plates stand between 1 mm and 10 km.
+constexpr double kNearestPlateM = 1e-3, kFarthestPlateM = 1e4;
+
 /// Distance at which a plate of `reflectance` returns `power` (Pr is
-/// monotone in R: bisection on log R over 1 mm .. 10 km).
-double distance_for_power(const physics::LinkConfig& link, double reflectance, double power) {
-  double lo = std::log(1e-3), hi = std::log(1e4);
+/// monotone in R: bisection on log R over the plan's reach). A power no plate
+/// returns within the reach is refused: the field's weakest or strongest echo
+/// lies beyond what a bench can set up (`option` names what to change).
+double distance_for_power(const physics::LinkConfig& link, double reflectance, double power,
+                          const char* option) {
+  if (!(power_w(link, kFarthestPlateM, reflectance) <= power &&
+        power_w(link, kNearestPlateM, reflectance) >= power)) {
+    char buffer[240];
+    std::snprintf(buffer, sizeof buffer,
+                  "plan: %s: a plate of reflectance %.3g returns %.3g W nowhere between %g m and "
+                  "%g m (the field's echoes span more than plates can)",
+                  option, reflectance, power, kNearestPlateM, kFarthestPlateM);
+    throw std::invalid_argument(buffer);
+  }
+  double lo = std::log(kNearestPlateM), hi = std::log(kFarthestPlateM);
   for (int it = 0; it < 200; ++it) {
     const double mid = 0.5 * (lo + hi);
     (power_w(link, std::exp(mid), reflectance) > power ? lo : hi) = mid;
@@ -34,7 +50,12 @@ double distance_for_power(const physics::LinkConfig& link, double reflectance, d
 double centred_distance(const physics::LinkConfig& link, const CalibrationPlanOptions& o,
                         double field_min_w, double field_max_w) {
   return distance_for_power(link, std::sqrt(o.plate_reflectance_min * o.plate_reflectance_max),
-                            std::sqrt(field_min_w * field_max_w));
+                            std::sqrt(field_min_w * field_max_w), "range_max_m / reflectance_min");
+}
+
+/// A distance rounded to 0.1 m for the bench (as it is, below 0.1 m: never 0).
+double bench_distance(double d) {
+  return d >= 0.1 ? std::round(10.0 * d) / 10.0 : d;
 }
 
 PlannedPlate plate(const physics::LinkConfig& link, double distance_m, double reflectance) {
@@ -54,6 +75,7 @@ void CalibrationPlanOptions::validate() const {
   require(std::isfinite(range_min_m) && range_min_m > 0, "range_min_m", "must be > 0");
   require(std::isfinite(range_max_m) && range_max_m > range_min_m, "range_max_m",
           "must be > range_min_m");
+  require(range_max_m <= kFarthestPlateM, "range_max_m", "must be <= 10000 m (the plan's reach)");
   require(std::isfinite(reflectance_min) && reflectance_min > 0 && reflectance_min <= 1,
           "reflectance_min", "must be in (0, 1]");
   require(
@@ -89,7 +111,7 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
   double at = centred
                   ? centred_distance(link, options, plan.field_power_min_w, plan.field_power_max_w)
               : std::isnan(options.calibration_distance_m)
-                  ? std::round(10.0 * std::sqrt(options.range_min_m * options.range_max_m)) / 10.0
+                  ? bench_distance(std::sqrt(options.range_min_m * options.range_max_m))
                   : options.calibration_distance_m;
   if (centred && plan.field_power_max_w > options.clip_power_w) {
     // The field clips: the brightest plate must too (by the depth asked, or
@@ -97,7 +119,7 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
     const double top_w = std::min(plan.field_power_max_w,
                                   options.clip_power_w * std::exp(options.clip_depth_nepers));
     if (power_w(link, at, options.plate_reflectance_max) < top_w)
-      at = distance_for_power(link, options.plate_reflectance_max, top_w);
+      at = distance_for_power(link, options.plate_reflectance_max, top_w, "range_min_m");
   }
   plan.calibration_distance_m = at;
   const double unit_power = power_w(link, at, 1.0);  // a perfect reflector at `at`
@@ -127,7 +149,11 @@ CalibrationPlan plan_calibration(const physics::LinkConfig& link,
     // Too bright for any plate at `at`: the brightest plate, nearer; too dim: the darkest, farther.
     const double r = rho > options.plate_reflectance_max ? options.plate_reflectance_max
                                                          : options.plate_reflectance_min;
-    plan.plates.push_back(plate(link, distance_for_power(link, r, power), r));
+    plan.plates.push_back(plate(
+        link,
+        distance_for_power(link, r, power,
+                           r == options.plate_reflectance_max ? "range_min_m" : "reflectance_min"),
+        r));
   }
   // Temperature run: the middle plate (mid power) over the temperatures.
   plan.temperature_plate = plan.plates[plan.plates.size() / 2];
