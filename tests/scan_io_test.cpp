@@ -83,7 +83,26 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
   } cases[] = {
       {plane + "reflectance = 0.5\ncolour = 3\n", "scene.toml:7: unknown key surface[0].colour"},
       {"[[surface]]\nkind = \"sphere\"\ncenter_m = [1, 0, 0]\nradius_m = 0\nreflectance = 0.5\n",
-       "scene.toml:1: surface[0]: radius_m must be positive"},
+       "scene.toml:1: surface[0]: radius_m must be in [1e-06, 2e+05] m"},
+      // Magnitudes Embree's float bounds or a pattern's int64 cell index
+      // cannot hold (a 1e-300 sphere had been hit, a 1e-300 cell overflowed
+      // the index) are refused like other degenerate primitives.
+      {"[[surface]]\nkind = \"sphere\"\ncenter_m = [1, 0, 0]\nradius_m = 1e-300\nreflectance = "
+       "0.5\n",
+       "scene.toml:1: surface[0]: radius_m must be in [1e-06, 2e+05] m"},
+      {"[[surface]]\nkind = \"sphere\"\ncenter_m = [1e300, 0, 0]\nradius_m = 1\nreflectance = "
+       "0.5\n",
+       "surface[0]: center_m must be finite, within 1e+05 m"},
+      {"[[surface]]\nkind = \"cylinder\"\nbase_m = [2, 0, -1]\naxis = [0, 0, 1]\nradius_m = "
+       "0.5\nheight_m = 1e30\nreflectance = 0.5\n",
+       "surface[0]: height_m must be in [1e-06, 2e+05] m"},
+      {"[[surface]]\nkind = \"box\"\nmin_m = [1, 0, 0]\nmax_m = [1.0000000001, 1, 1]\nreflectance "
+       "= 0.5\n",
+       "surface[0]: max_m must exceed min_m by at least 1e-06 m on every axis"},
+      {plane + "pattern = \"checker\"\nvalues = [0.1, 0.5]\ncell_m = 1e-300\n",
+       "surface[0]: cell_m must be in [1e-06, 2e+05] m"},
+      {"[sensor]\npose_m = [0, 0, -1e200]\n" + plane + "reflectance = 0.5\n",
+       "sensor: pose_m must be finite, within 1e+05 m"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},

@@ -366,7 +366,9 @@ scan::Scene load_scene(const fs::path& file) {
   Reader r(file.string(), problems);
   scan::Scene scene;
   r.unknown_keys(root, "", {"sensor", "surface"});
+  std::string sensor_where = r.where(root);  // the [sensor] table, else the file's start
   if (const toml::node* s = root.get("sensor")) {
+    sensor_where = r.where(*s);
     if (const auto* t = s->as_table()) {
       r.unknown_keys(*t, "sensor.", {"pose_m", "rpy_deg"});
       r.vec3(*t, "sensor.", "pose_m", scene.sensor.position_m);
@@ -454,8 +456,13 @@ scan::Scene load_scene(const fs::path& file) {
   }
   problems.throw_if_any();
   // Geometry checks (degenerate primitives), located at their [[surface]].
+  const std::string surface = "surface[";
   for (const auto& message : scene.validate()) {
-    const auto index = static_cast<std::size_t>(std::stoul(message.substr(message.find('[') + 1)));
+    if (message.rfind(surface, 0) != 0) {  // the sensor's
+      problems.add(sensor_where, message);
+      continue;
+    }
+    const auto index = static_cast<std::size_t>(std::stoul(message.substr(surface.size())));
     problems.add(surface_where[index], message);
   }
   problems.throw_if_any();

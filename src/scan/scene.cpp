@@ -27,6 +27,20 @@ double cell_uniform(std::uint64_t seed, std::int64_t i, std::int64_t j) {
 bool finite(const Vec3& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
 }
+/// A scene lies within 100 km of the origin (the farthest distance a device
+/// measures) and has no feature under 1 um (far below any beam's footprint):
+/// beyond either, Embree's single-precision bounds and a pattern's cell
+/// index (an int64 of coordinate / cell) would overflow or collapse.
+constexpr double kSceneExtentM = 1e5, kSmallestFeatureM = 1e-6;
+/// Finite and within the scene's extent.
+bool in_extent(const Vec3& v) {
+  return finite(v) && std::abs(v[0]) <= kSceneExtentM && std::abs(v[1]) <= kSceneExtentM &&
+         std::abs(v[2]) <= kSceneExtentM;
+}
+/// A length the scene can hold: at least a micrometre, at most its extent.
+bool feature_size(double v) {
+  return v >= kSmallestFeatureM && v <= 2 * kSceneExtentM;
+}
 double norm(const Vec3& v) {
   return std::sqrt(dot(v, v));
 }
@@ -86,6 +100,8 @@ std::vector<std::string> Scene::validate() const {
   auto bad = [&](const Primitive& p, const std::string& what) {
     messages.push_back(p.name + ": " + what);
   };
+  if (!in_extent(sensor.position_m))
+    messages.push_back("sensor: pose_m must be finite, within 1e+05 m");
   for (const auto& p : primitives) {
     const auto& r = p.reflectance;
     auto check_rho = [&](double rho, const char* key) {
@@ -94,7 +110,7 @@ std::vector<std::string> Scene::validate() const {
     if (r.kind == Reflectance::Kind::kUniform) check_rho(r.value, "reflectance");
     for (const double rho : r.values) check_rho(rho, "values");
     if (r.kind != Reflectance::Kind::kUniform) {
-      if (!(r.cell_m > 0.0 && std::isfinite(r.cell_m))) bad(p, "cell_m must be positive");
+      if (!feature_size(r.cell_m)) bad(p, "cell_m must be in [1e-06, 2e+05] m");
       if (!r.random && r.values.empty()) bad(p, "values must list at least one reflectance");
       if (r.random) {
         check_rho(r.random_min, "random_min");
@@ -104,31 +120,30 @@ std::vector<std::string> Scene::validate() const {
     }
     switch (p.kind) {
       case PrimitiveKind::kPlane:
-        if (!finite(p.center_m)) bad(p, "center_m must be finite");
+        if (!in_extent(p.center_m)) bad(p, "center_m must be finite, within 1e+05 m");
         if (!finite(p.normal) || norm(p.normal) < 1e-12) bad(p, "normal must be a nonzero vector");
-        if (!(p.size_m[0] > 0 && p.size_m[1] > 0 && std::isfinite(p.size_m[0]) &&
-              std::isfinite(p.size_m[1]))) {
-          bad(p, "size_m must be two positive sizes");
-        }
+        if (!feature_size(p.size_m[0]) || !feature_size(p.size_m[1]))
+          bad(p, "size_m must be two sizes in [1e-06, 2e+05] m");
         break;
       case PrimitiveKind::kBox:
-        if (!finite(p.min_m) || !finite(p.max_m)) bad(p, "min_m and max_m must be finite");
+        if (!in_extent(p.min_m) || !in_extent(p.max_m))
+          bad(p, "min_m and max_m must be finite, within 1e+05 m");
         for (int k = 0; k < 3; ++k) {
-          if (!(p.max_m[k] > p.min_m[k])) {
-            bad(p, "max_m must exceed min_m on every axis (degenerate box)");
+          if (!(p.max_m[k] - p.min_m[k] >= kSmallestFeatureM)) {
+            bad(p, "max_m must exceed min_m by at least 1e-06 m on every axis (degenerate box)");
             break;
           }
         }
         break;
       case PrimitiveKind::kSphere:
-        if (!finite(p.center_m)) bad(p, "center_m must be finite");
-        if (!(p.radius_m > 0 && std::isfinite(p.radius_m))) bad(p, "radius_m must be positive");
+        if (!in_extent(p.center_m)) bad(p, "center_m must be finite, within 1e+05 m");
+        if (!feature_size(p.radius_m)) bad(p, "radius_m must be in [1e-06, 2e+05] m");
         break;
       case PrimitiveKind::kCylinder:
-        if (!finite(p.base_m)) bad(p, "base_m must be finite");
+        if (!in_extent(p.base_m)) bad(p, "base_m must be finite, within 1e+05 m");
         if (!finite(p.axis) || norm(p.axis) < 1e-12) bad(p, "axis must be a nonzero vector");
-        if (!(p.radius_m > 0 && std::isfinite(p.radius_m))) bad(p, "radius_m must be positive");
-        if (!(p.height_m > 0 && std::isfinite(p.height_m))) bad(p, "height_m must be positive");
+        if (!feature_size(p.radius_m)) bad(p, "radius_m must be in [1e-06, 2e+05] m");
+        if (!feature_size(p.height_m)) bad(p, "height_m must be in [1e-06, 2e+05] m");
         break;
       case PrimitiveKind::kMesh: {
         if (p.triangles.empty()) bad(p, "mesh has no triangles");
@@ -137,8 +152,8 @@ std::vector<std::string> Scene::validate() const {
           for (const auto i : t) ok = ok && i < p.vertices.size();
         }
         if (!ok) bad(p, "mesh triangle refers to a missing vertex");
-        for (const auto& v : p.vertices) ok = ok && finite(v);
-        if (!ok) bad(p, "mesh vertices must be finite");
+        for (const auto& v : p.vertices) ok = ok && in_extent(v);
+        if (!ok) bad(p, "mesh vertices must be finite, within 1e+05 m");
         break;
       }
     }
