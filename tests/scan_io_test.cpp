@@ -103,11 +103,15 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
        "surface[0]: cell_m must be in [1e-06, 2e+05] m"},
       {"[sensor]\npose_m = [0, 0, -1e200]\n" + plane + "reflectance = 0.5\n",
        "sensor: pose_m must be finite, within 1e+05 m"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"point.obj\"\nreflectance = 0.5\n",
+       "scene.toml:1: surface[0]: mesh has no triangle of nonzero area"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
       {plane + "pattern = \"stripes\"\ncell_m = 0.01\n", "surface[0].values is missing"},
   };
+  // Three vertices on one point: a mesh with no surface.
+  std::ofstream(dir / "point.obj") << "v 1 0 0\nv 1 0 0\nv 1 0 0\nf 1 2 3\n";
   for (const auto& c : cases) {
     const fs::path scene = write_scene(dir, c.text);
     const std::string message = load_error(scene);

@@ -151,9 +151,24 @@ std::vector<std::string> Scene::validate() const {
         for (const auto& t : p.triangles) {
           for (const auto i : t) ok = ok && i < p.vertices.size();
         }
-        if (!ok) bad(p, "mesh triangle refers to a missing vertex");
+        if (!ok) {
+          bad(p, "mesh triangle refers to a missing vertex");
+          break;
+        }
         for (const auto& v : p.vertices) ok = ok && in_extent(v);
-        if (!ok) bad(p, "mesh vertices must be finite, within 1e+05 m");
+        if (!ok) {
+          bad(p, "mesh vertices must be finite, within 1e+05 m");
+          break;
+        }
+        // A mesh of zero-area triangles only (points or lines) has no surface
+        // to hit: degenerate, like a zero radius.
+        bool area = false;
+        for (const auto& t : p.triangles) {
+          const Vec3 n =
+              cross(p.vertices[t[1]] - p.vertices[t[0]], p.vertices[t[2]] - p.vertices[t[0]]);
+          area = area || norm(n) > 0;
+        }
+        if (!p.triangles.empty() && !area) bad(p, "mesh has no triangle of nonzero area");
         break;
       }
     }
