@@ -523,6 +523,50 @@ TEST(ModelJson, ErrorsNameTheFileAndField) {
   fs::remove_all(dir);
 }
 
+// Values a model file may not hold, each of which would turn every corrected
+// row into a wrong number or inf with exit 0: a speed of light that disagrees
+// with the air it is derived from (it was ignored), an input other than the
+// step's (it was ignored), slopes that overflow, a log-variance of 1e300.
+TEST(ModelJson, ValuesThatWouldCorruptEveryRowAreRefused) {
+  nlohmann::json j = io::pipeline_to_json(paper_pipeline());
+  j["time_to_distance"]["metres_per_ns"] = 0;
+  EXPECT_NE(load_error(j.dump()).find("model.json.time_to_distance.metres_per_ns: 0 disagrees"),
+            std::string::npos)
+      << load_error(j.dump());
+  j = io::pipeline_to_json(paper_pipeline());
+  j["steps"][1]["input"] = "colour";
+  EXPECT_NE(load_error(j.dump()).find("model.json.steps[1].input: a grayvalue step's input is"),
+            std::string::npos)
+      << load_error(j.dump());
+  j = io::pipeline_to_json(paper_pipeline());
+  j["steps"][2]["function"]["slope0"] = 1e308;
+  EXPECT_NE(load_error(j.dump()).find("temperature step: the function is not finite"),
+            std::string::npos)
+      << load_error(j.dump());
+  EXPECT_EQ(load_error(io::pipeline_to_json(paper_pipeline()).dump()), "");
+
+  CalibratedConfidenceParams p;
+  p.exponents = {{0, 0}, {1, 0}};
+  p.coefficients = {-12.0, 1.0};
+  p.amplitude_scaling = AxisScaling::over(std::log(0.01), std::log(4.0));
+  p.range_scaling = AxisScaling::over(0.5, 9.0);
+  p.domain.range_min_m = 0.5;
+  p.domain.range_max_m = 9.0;
+  p.domain.amplitude_min = 0.01;
+  p.domain.amplitude_max = 4.0;
+  p.band_coordinate = {0.0};
+  p.band_scale = {1.0};
+  EXPECT_NO_THROW(CalibratedConfidence{p});
+  p.coefficients[1] = 1e300;
+  try {
+    CalibratedConfidence{p};
+    FAIL() << "a sigma of exp(1e300) was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("is not finite and positive"), std::string::npos)
+        << e.what();
+  }
+}
+
 TEST(FirmwareExport, JsonReadsBackBitExactly) {
   const FixedPointChain chain =
       FixedPointChain::from_pipeline(paper_pipeline(), FixedPointFormat{});

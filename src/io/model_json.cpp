@@ -1,5 +1,7 @@
 #include "tofkit/io/model_json.hpp"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <fstream>
 #include <initializer_list>
@@ -174,6 +176,12 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
       break;
     case ranging::StepKind::kGrayvalue:
     case ranging::StepKind::kTemperature: {
+      const char* input =
+          kind == ranging::StepKind::kGrayvalue ? "pulse_width_ns" : "temperature_c";
+      if (j.contains("input") && text(j, "input", where) != input) {
+        fail(where + ".input",
+             fmt::format("a {} step's input is \"{}\"", ranging::step_kind_name(kind), input));
+      }
       const std::string fw = where + ".function";
       const json& f = field(j, "function", where);
       step.function.x0 = number(f, "x0", fw);
@@ -292,6 +300,18 @@ ranging::Pipeline pipeline_from_json(const json& j, const std::string& context) 
     pipeline = ranging::Pipeline(t);
   } catch (const std::invalid_argument& e) {
     fail(tw, e.what());
+  }
+  // metres_per_ns is written for people: it follows from the wavelength and
+  // the air, and a file whose value disagrees has been edited or corrupted.
+  if (tj.contains("metres_per_ns")) {
+    const double given = number(tj, "metres_per_ns", tw);
+    const double derived = ranging::metres_per_ns(t);
+    if (!(std::abs(given - derived) <= 1e-12 * derived)) {
+      fail(tw + ".metres_per_ns",
+           fmt::format("{} disagrees with {} from the wavelength and the air (it is derived "
+                       "from them, not read)",
+                       given, derived));
+    }
   }
   const json& steps = field(j, "steps", context);
   if (!steps.is_array()) fail(context + ".steps", "expected an array");

@@ -24,6 +24,34 @@ double clamp_to(double x, double lo, double hi) {
   return std::min(std::max(x, lo), hi);
 }
 
+/// A model's sigma must be finite wherever it is evaluated (its inputs are
+/// clamped to the domain): checked on a grid over the domain, log-spaced in
+/// amplitude when the model reads it on a log scale. Coefficients too large
+/// (a corrupt model file: 1e300 in a log-variance gave sigma = inf) are refused.
+void require_finite_sigma(const ConfidenceModel& model, double amplitude_min, double amplitude_max,
+                          double range_min, double range_max, bool log_amplitude, const char* who) {
+  constexpr int kGrid = 17;
+  std::vector<double> range, amplitude;
+  for (int i = 0; i < kGrid; ++i) {
+    const double w = static_cast<double>(i) / (kGrid - 1);
+    const double a = log_amplitude ? amplitude_min * std::pow(amplitude_max / amplitude_min, w)
+                                   : amplitude_min + w * (amplitude_max - amplitude_min);
+    for (int j = 0; j < kGrid; ++j) {
+      amplitude.push_back(std::clamp(a, amplitude_min, amplitude_max));
+      range.push_back(range_min + (range_max - range_min) * j / (kGrid - 1));
+    }
+  }
+  std::vector<double> sigma(amplitude.size());
+  model.sigma(range, amplitude, sigma);
+  for (std::size_t k = 0; k < sigma.size(); ++k) {
+    if (!(std::isfinite(sigma[k]) && sigma[k] > 0)) {
+      throw std::invalid_argument(
+          std::string(who) + ": sigma at amplitude " + std::to_string(amplitude[k]) + ", range " +
+          std::to_string(range[k]) + " m is not finite and positive (coefficients too large)");
+    }
+  }
+}
+
 }  // namespace
 
 double polynomial_2d(const std::vector<std::array<int, 2>>& exps, const std::vector<double>& c,
@@ -72,6 +100,8 @@ ThesisConfidence::ThesisConfidence(ThesisConfidenceParams params) : params_(std:
   if (!(p.floor_m2 > 0) || !std::isfinite(p.floor_m2)) {
     throw std::invalid_argument("ThesisConfidence: floor_m2 must be positive");
   }
+  require_finite_sigma(*this, p.amplitude_min, p.amplitude_max, 1.0, 1.0, false,
+                       "ThesisConfidence");
 }
 
 void ThesisConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,
@@ -154,6 +184,8 @@ CalibratedConfidence::CalibratedConfidence(CalibratedConfidenceParams params)
           " needs a positive scale and a coordinate above the previous band's");
     }
   }
+  require_finite_sigma(*this, d.amplitude_min, d.amplitude_max, d.range_min_m, d.range_max_m,
+                       p.log_amplitude, "CalibratedConfidence");
 }
 
 void CalibratedConfidence::sigma(std::span<const double> range_m, std::span<const double> amplitude,

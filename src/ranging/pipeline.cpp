@@ -248,6 +248,22 @@ void Step::validate() const {
         throw std::invalid_argument(name + " step: domain [" + format_number(domain.min) + ", " +
                                     format_number(domain.max) + "] is empty or NaN");
       }
+      {
+        // Linear between its knots: finite at the knots and the domain's
+        // (finite) ends, finite everywhere it is evaluated. Slopes too large
+        // (a corrupt model file) would turn every corrected row into inf.
+        std::vector<double> at = function.knots;
+        at.push_back(function.x0);
+        for (double end : {domain.min, domain.max}) {
+          if (std::isfinite(end)) at.push_back(end);
+        }
+        for (double x : at) {
+          if (!std::isfinite(function(x))) {
+            throw std::invalid_argument(name + " step: the function is not finite at " +
+                                        format_number(x) + " (slopes too large)");
+          }
+        }
+      }
       break;
     case StepKind::kSurface:
       if (!surface) throw std::invalid_argument("surface step: no surface");
