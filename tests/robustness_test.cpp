@@ -182,6 +182,12 @@ TEST_F(Robustness, SettingsThatWouldHangAreRefusedNamingTheKey) {
       "--set measurement.sample_period_ps=0.01 measure --distance 1 --reflectance 0.5 "
       "--mode waveform --out a.csv",
       {"measurement.sample_period_ps"});
+  // A TDC table of 1e15 bins had ended in a bare "out of memory".
+  for (const char* tdc : {"tdc.lsb_ps=1e-9", "tdc.coarse_clock_mhz=1e-9"}) {
+    expect_refused(
+        std::string("--set ") + tdc + " measure --distance 1 --reflectance 0.5 --out a.csv",
+        {"tdc.lsb_ps", "tdc.coarse_clock_mhz", "interpolator bins"});
+  }
   expect_refused("measure --distance 1 --reflectance 0.5 --count 1e8 --out a.csv",
                  {"--count", "--max-rows"});
   expect_refused("measure --distance 0:10000000:1 --reflectance 0.5 --out a.csv",

@@ -297,6 +297,14 @@ std::vector<std::string> validate(const DeviceConfig& config) {
     messages.push_back("measurement.sample_period_ps = " + number_text(m.sample_period_ps) +
                        " gives more than 1e7 samples per measurement.window_ns");
   }
+  // The interpolator's INL table holds one entry per fine bin of a coarse period.
+  const auto& tdc = config.tdc;
+  if (tdc.lsb_ps > 0 && tdc.coarse_clock_mhz > 0 &&
+      1e6 / (tdc.coarse_clock_mhz * tdc.lsb_ps) > 1e7) {
+    messages.push_back("tdc.lsb_ps = " + number_text(tdc.lsb_ps) +
+                       " with tdc.coarse_clock_mhz = " + number_text(tdc.coarse_clock_mhz) +
+                       " gives more than 1e7 interpolator bins per coarse period");
+  }
   const auto& osc = config.oscillator;
   if (osc.enabled) {
     // The loop oscillates only if the AC-coupled swing can cross the threshold:
