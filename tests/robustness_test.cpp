@@ -90,10 +90,10 @@ class Robustness : public tofkit::test::CliFixture {
     ASSERT_EQ(run("fit --in cal.csv --chain offset --out model.json").status, 0);
   }
 
-  // cal.csv with one cell replaced (row 1-based after the header, column by name).
+  // `source` (cal.csv) with one cell replaced (row 1-based after the header, column by index).
   void write_with_cell(const std::string& name, std::size_t row, std::size_t column,
-                       const std::string& value) const {
-    std::ifstream in(dir_ / "cal.csv");
+                       const std::string& value, const std::string& source = "cal.csv") const {
+    std::ifstream in(dir_ / source);
     std::ostringstream out;
     std::string line;
     for (std::size_t i = 0; std::getline(in, line); ++i) {
@@ -143,7 +143,7 @@ TEST_F(Robustness, HugeCellsInASurfaceOrConfidenceFitAreNamed) {
          {std::pair{"huge_truth.csv", "distance_true_m = 1e+300 in data row 5"},
           std::pair{"huge_amplitude.csv", "amplitude = 1e+300 in data row 5"}}) {
       expect_refused(std::string("fit --in ") + file + " " + model + " --out out.json",
-                     {file, needle, "too large to fit"});
+                     {file, needle, "is too large"});
     }
   }
   expect_refused("fit --in huge_width.csv --surface bspline --out out.json",
@@ -154,6 +154,20 @@ TEST_F(Robustness, HugeCellsInASurfaceOrConfidenceFitAreNamed) {
                 "out.json")
                 .status,
             0);
+}
+
+// evaluate squares the errors: a corrupt 1e308 cell had turned the bias, RMS
+// and improvement into -inf, inf and nan with exit 0.
+TEST_F(Robustness, HugeCellsInAnEvaluationAreNamed) {
+  make_calibration();
+  ASSERT_EQ(run("correct --model model.json --in cal.csv --out cor.csv").status, 0);
+  // Columns: distance_true_m 0, distance_raw_m 5, then distance_m 11, sigma_m 12.
+  write_with_cell("cor_distance.csv", 4, 11, "1e308", "cor.csv");
+  write_with_cell("cor_truth.csv", 4, 0, "-1e308", "cor.csv");
+  expect_refused("evaluate --in cor_distance.csv",
+                 {"cor_distance.csv", "distance_m = 1e+308 in data row 4", "is too large"});
+  expect_refused("evaluate --in cor_truth.csv", {"distance_true_m = -1e+308 in data row 4"});
+  EXPECT_EQ(run("evaluate --in cor.csv").status, 0);
 }
 
 // Item 2: deeply nested configs are refused before the TOML parser sees them.

@@ -91,7 +91,17 @@ void run_evaluate(const EvaluateOptions& o) {
   if (!o.by.empty()) (void)column_value(io::CorrectedRow{}, o.by);  // unknown column: fail early
   const std::vector<io::CorrectedRow> rows = io::read_corrected_csv(o.in);
   std::vector<double> truth, distance, raw, sigma, amplitude, key;
-  for (const auto& r : rows) {
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    const io::CorrectedRow& r = rows[i];
+    // Squared errors of a corrupt cell would overflow every statistic to inf.
+    try {
+      calib::require_magnitude(r.record.truth.distance_m, "distance_true_m", i);
+      calib::require_magnitude(r.range.distance_m, "distance_m", i);
+      calib::require_magnitude(r.record.raw.distance_raw_m, "distance_raw_m", i);
+      calib::require_magnitude(r.range.sigma_m, "sigma_m", i);
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(o.in + ": " + e.what());
+    }
     truth.push_back(r.record.truth.distance_m);
     distance.push_back(r.range.distance_m);
     raw.push_back(r.record.raw.distance_raw_m);

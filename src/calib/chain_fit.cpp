@@ -225,13 +225,13 @@ ChainFitResult fit_chain(std::span<const ranging::Record> records, const ChainFi
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
     const double start = result.pipeline.start_distance_m(r.raw);
-    require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
-    require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
-    require_fit_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
-    if (width_step) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
-    if (steps.temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
+    require_magnitude(r.truth.distance_m, "distance_true_m", i);
+    require_magnitude(r.raw.tof_ns, "tof_ns", i);
+    require_magnitude(start, std::isfinite(r.raw.tof_ns) ? "tof_ns" : "distance_raw_m", i);
+    if (width_step) require_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (steps.temperature) require_magnitude(r.raw.temperature_c, "temperature_c", i);
     if (steps.walk)
-      require_fit_magnitude(r.raw.amplitude, "amplitude", i);  // its readings pin the shape
+      require_magnitude(r.raw.amplitude, "amplitude", i);  // its readings pin the shape
     const bool ok = r.raw.has_echo() && std::isfinite(r.truth.distance_m) && std::isfinite(start) &&
                     (!width_step || std::isfinite(r.raw.pulse_width_ns)) &&
                     (!steps.temperature || std::isfinite(r.raw.temperature_c));

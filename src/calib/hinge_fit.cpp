@@ -446,12 +446,12 @@ Prepared prepare(std::span<const double> x, std::span<const double> y,
   Prepared p;
   for (std::size_t i = 0; i < x.size(); ++i) {
     if (std::isfinite(x[i]) && std::isfinite(y[i])) {
-      if (std::fabs(x[i]) > kMaxFitMagnitude || std::fabs(y[i]) > kMaxFitMagnitude) {
+      if (std::fabs(x[i]) > kMaxMagnitude || std::fabs(y[i]) > kMaxMagnitude) {
         char buffer[200];
         std::snprintf(buffer, sizeof buffer,
                       "hinge fit of %s: row %zu holds x = %.6g, y = %.6g, too large to fit "
                       "(|value| must be below %.0e)",
-                      options.column.c_str(), i + 1, x[i], y[i], kMaxFitMagnitude);
+                      options.column.c_str(), i + 1, x[i], y[i], kMaxMagnitude);
         throw std::invalid_argument(buffer);
       }
       order.push_back(i);

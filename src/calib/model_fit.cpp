@@ -894,9 +894,9 @@ void ModelFitOptions::validate() const {
 namespace {
 
 /// Refuses a corrupt cell in a column the surface or the confidence reads
-/// (fit_chain checks its own columns): |value| > kMaxFitMagnitude names the
+/// (fit_chain checks its own columns): |value| > kMaxMagnitude names the
 /// column and the data row. Rows without an echo are not fitted.
-void require_fit_magnitudes(std::span<const ranging::Record> records, const ModelFitOptions& o) {
+void require_model_magnitudes(std::span<const ranging::Record> records, const ModelFitOptions& o) {
   const bool surface = o.surface.kind != SurfaceKind::none;
   const bool amplitude = (surface && o.surface_intensity != SurfaceIntensity::pulse_width) ||
                          o.confidence != ConfidenceKind::none;
@@ -904,18 +904,18 @@ void require_fit_magnitudes(std::span<const ranging::Record> records, const Mode
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
     if (!r.raw.has_echo()) continue;
-    require_fit_magnitude(r.truth.distance_m, "distance_true_m", i);
+    require_magnitude(r.truth.distance_m, "distance_true_m", i);
     if (!surface) continue;
     // The surface reads the time of flight, or the raw distance without one.
-    require_fit_magnitude(r.raw.tof_ns, "tof_ns", i);
+    require_magnitude(r.raw.tof_ns, "tof_ns", i);
     if (!std::isfinite(r.raw.tof_ns))
-      require_fit_magnitude(r.raw.distance_raw_m, "distance_raw_m", i);
-    if (pulse_width) require_fit_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
-    if (o.surface_temperature) require_fit_magnitude(r.raw.temperature_c, "temperature_c", i);
+      require_magnitude(r.raw.distance_raw_m, "distance_raw_m", i);
+    if (pulse_width) require_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
+    if (o.surface_temperature) require_magnitude(r.raw.temperature_c, "temperature_c", i);
   }
   // Last, so that a corrupt fitted column is named first.
   for (std::size_t i = 0; amplitude && i < records.size(); ++i) {
-    if (records[i].raw.has_echo()) require_fit_magnitude(records[i].raw.amplitude, "amplitude", i);
+    if (records[i].raw.has_echo()) require_magnitude(records[i].raw.amplitude, "amplitude", i);
   }
 }
 
@@ -923,7 +923,7 @@ void require_fit_magnitudes(std::span<const ranging::Record> records, const Mode
 
 ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFitOptions& o) {
   o.validate();
-  require_fit_magnitudes(records, o);
+  require_model_magnitudes(records, o);
   ModelFitResult result;
   ModelFitSummary& summary = result.summary;
   std::string& report = result.report;

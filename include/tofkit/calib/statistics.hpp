@@ -22,11 +22,11 @@ namespace tofkit::calib {
 /// Largest |value| a fit accepts: squares and sums of squares over any
 /// realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX). A larger
 /// value is a corrupt cell, not a measurement.
-inline constexpr double kMaxFitMagnitude = 1e100;
+inline constexpr double kMaxMagnitude = 1e100;
 
 /// Throws std::invalid_argument naming the column and the data row (`index`
 /// 0-based, printed 1-based) when a finite value is too large to fit.
-void require_fit_magnitude(double v, const char* column, std::size_t index);
+void require_magnitude(double v, const char* column, std::size_t index);
 
 struct ErrorStats {
   std::size_t rows = 0;                ///< finite errors counted
