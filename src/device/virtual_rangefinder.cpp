@@ -7,12 +7,14 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "random_draws.hpp"
@@ -272,7 +274,19 @@ struct MeasurementSetup : MeasurementValues {
   std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
   /// Back to a fresh setup, keeping the vectors' storage.
   void reset() {
-    static_cast<MeasurementValues&>(*this) = MeasurementValues{};
+    // Copied 32 bytes at a time: a whole-struct copy becomes `rep stos`, whose
+    // start-up cost dominated the fast path's setup (a lane's reset took ~12 ns).
+    static constexpr MeasurementValues kFresh{};
+    static_assert(std::is_trivially_copyable_v<MeasurementValues>);
+    constexpr std::size_t kChunk = 32, kSize = sizeof(MeasurementValues);
+    auto* to = reinterpret_cast<unsigned char*>(static_cast<MeasurementValues*>(this));
+    const auto* from = reinterpret_cast<const unsigned char*>(&kFresh);
+    for (std::size_t i = 0; i + kChunk <= kSize; i += kChunk) {
+      unsigned char chunk[kChunk];
+      std::memcpy(chunk, from + i, kChunk);
+      std::memcpy(to + i, chunk, kChunk);
+    }
+    std::memcpy(to + kSize / kChunk * kChunk, from + kSize / kChunk * kChunk, kSize % kChunk);
     composite.clear();
     noise_sigma.clear();
     rise_ns.clear();
