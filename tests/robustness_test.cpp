@@ -209,6 +209,23 @@ TEST_F(Robustness, SettingsThatWouldHangAreRefusedNamingTheKey) {
   expect_refused(
       "measure --distance 1e5 --reflectance 0.5 --angle 89.9 --mode waveform --out a.csv",
       {"--distance/--angle"});
+  // A scan's beams are rows of scan.csv: a 0.01 x 0.1 degree sphere (65 M
+  // beams, some 20 GB) had run until memory ran out.
+  write("plate.toml",
+        "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
+        "size_m = [1, 1]\nreflectance = 0.5\n");
+  expect_refused(
+      "scan --scene plate.toml --pattern spherical --azimuth -180:180:0.01 --elevation -90:90:0.1 "
+      "--out .",
+      {"spherical: the pattern has 6.484e+07 beams", "--max-rows"});
+  EXPECT_EQ(run("--max-rows 5 scan --scene plate.toml --pattern spherical --azimuth 0:2:1 "
+                "--elevation 0,1 --write csv --out .")
+                .status,
+            1);
+  EXPECT_EQ(run("--max-rows 6 scan --scene plate.toml --pattern spherical --azimuth 0:2:1 "
+                "--elevation 0,1 --write csv --out .")
+                .status,
+            0);
   // The limit is a limit, not a ban: raised, a bigger grid runs.
   EXPECT_EQ(run("--max-rows 5 measure --distance 1:6:1 --reflectance 0.5 --out a.csv").status, 1);
   EXPECT_EQ(run("--max-rows 6 measure --distance 1:6:1 --reflectance 0.5 --out a.csv").status, 0);

@@ -467,6 +467,31 @@ TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
   EXPECT_GT(misses, 0);
 }
 
+// A pattern's size is checked before its beams are made: a spinning step of
+// 1e-30 degrees is refused (its firings per revolution had overflowed a
+// long), and every pattern over its beam limit throws std::length_error
+// naming the count, without allocating.
+TEST(ScanPatterns, OversizedPatternsAreRefusedBeforeTheyAreBuilt) {
+  std::vector<double> many(2000);
+  for (std::size_t i = 0; i < many.size(); ++i) many[i] = 0.01 * static_cast<double>(i);
+  EXPECT_THROW((void)spinning_pattern({{0.0}, 1e-30, 10, 1}), std::invalid_argument);
+  EXPECT_THROW((void)spherical_pattern({many, many, 10}, 1000), std::length_error);
+  EXPECT_THROW((void)raster_pattern({many, many, 1, 0.05}, 1e-3, 1000), std::length_error);
+  EXPECT_THROW((void)line_pattern({{-1, 1}, many, 0.05, 0.5}, 1e-3, 1000), std::length_error);
+  EXPECT_THROW((void)mirror_pattern({many, 2, 10, 0}, 1000), std::length_error);
+  EXPECT_THROW((void)spinning_pattern({many, 0.2, 10, 1}, 1000), std::length_error);
+  try {
+    (void)spherical_pattern({many, many, 10}, 1000);
+  } catch (const std::length_error& e) {
+    EXPECT_NE(std::string(e.what()).find("spherical: the pattern has 4e+06 beams, more than the "
+                                         "limit of 1000"),
+              std::string::npos)
+        << e.what();
+  }
+  // At the limit, built.
+  EXPECT_EQ(spherical_pattern({{0, 1}, {0, 1, 2}, 10}, 6).beams.size(), 6u);
+}
+
 TEST(ScanPatterns, RasterSerpentineMirrorAndSpinningGeometry) {
   // Raster: serpentine rows, every point once, time includes moves and dwell.
   const auto r = raster_pattern({{0.0, 0.01, 0.02}, {0.0, 0.01}, 4, 0.01}, 1e-3);

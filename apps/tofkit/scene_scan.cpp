@@ -3,9 +3,11 @@
 #include <fmt/format.h>
 
 #include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
+#include "tofkit/io/input_file.hpp"
 #include "tofkit/io/value_list.hpp"
 
 namespace tofkit::app {
@@ -63,27 +65,31 @@ scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::Dev
                                     int shots) {
   const double period_s = shots / config.link.laser.repetition_hz;
   const auto& p = o.pattern;
-  scan::BeamPattern pattern;
-  if (p == "raster")
-    pattern = scan::raster_pattern(
-        {list(o.y, "--y", p), list(o.z, "--z", p), o.samples, o.speed_m_per_s}, period_s);
-  else if (p == "line")
-    pattern = scan::line_pattern(
-        {list(o.y, "--y", p), list(o.z, "--z", p), o.speed_m_per_s, o.turnaround_s}, period_s);
-  else if (p == "mirror")
-    pattern = scan::mirror_pattern(
-        {list(o.elevation, "--elevation", p), o.revolutions, o.rate_hz, o.speed_m_per_s});
-  else if (p == "spherical")
-    pattern = scan::spherical_pattern(
-        {list(o.azimuth, "--azimuth", p), list(o.elevation, "--elevation", p), o.rate_hz});
-  else
-    pattern = scan::spinning_pattern(
-        {list(o.elevation, "--elevation", p), o.azimuth_step_deg, o.rate_hz, o.revolutions});
-  if (static_cast<double>(pattern.beams.size()) > kMaxScanBeams) {
-    throw std::invalid_argument(fmt::format("the pattern has {} beams, more than {:g}",
-                                            pattern.beams.size(), kMaxScanBeams));
+  const std::size_t max_beams = io::resource_limits().max_rows;
+  try {
+    if (p == "raster")
+      return scan::raster_pattern(
+          {list(o.y, "--y", p), list(o.z, "--z", p), o.samples, o.speed_m_per_s}, period_s,
+          max_beams);
+    if (p == "line")
+      return scan::line_pattern(
+          {list(o.y, "--y", p), list(o.z, "--z", p), o.speed_m_per_s, o.turnaround_s}, period_s,
+          max_beams);
+    if (p == "mirror")
+      return scan::mirror_pattern(
+          {list(o.elevation, "--elevation", p), o.revolutions, o.rate_hz, o.speed_m_per_s},
+          max_beams);
+    if (p == "spherical")
+      return scan::spherical_pattern(
+          {list(o.azimuth, "--azimuth", p), list(o.elevation, "--elevation", p), o.rate_hz},
+          max_beams);
+    return scan::spinning_pattern(
+        {list(o.elevation, "--elevation", p), o.azimuth_step_deg, o.rate_hz, o.revolutions},
+        max_beams);
+  } catch (const std::length_error& e) {
+    // A beam is a row of scan.csv: the rows' limit applies.
+    throw std::invalid_argument(std::string(e.what()) + " (raise it with --max-rows)");
   }
-  return pattern;
 }
 
 int scan_shots(const device::DeviceConfig& config, int shots) {

@@ -45,13 +45,10 @@ struct SceneScanOptionHandles {
 SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o,
                                               const std::string& rate_option = "--rate");
 
-/// Largest number of beams a pattern may have.
-inline constexpr double kMaxScanBeams = 1e8;
-
 /// The pattern the options describe for a device averaging `shots` shots per
 /// measurement (its output period: shots / laser repetition rate). Throws
 /// std::invalid_argument naming the option a pattern lacks, and when the
-/// pattern has more than kMaxScanBeams beams.
+/// pattern has more beams than --max-rows allows (a beam is a row of scan.csv).
 [[nodiscard]] scan::BeamPattern make_scan_pattern(const SceneScanOptions& o,
                                                   const device::DeviceConfig& config, int shots);
 

@@ -213,12 +213,7 @@ py::dict run(const device::DeviceConfig& config, const fs::path& scene_path, con
   }
   const int shots = args.shots > 0 ? args.shots : config.measurement.shots;
   const double period_s = shots / config.link.laser.repetition_hz;
-  const scan::BeamPattern pattern = make_pattern(args, period_s);
-  constexpr double kMaxBeams = 1e8;  // as `tofkit scan`
-  if (static_cast<double>(pattern.beams.size()) > kMaxBeams) {
-    throw std::invalid_argument("the pattern has " + std::to_string(pattern.beams.size()) +
-                                " beams, more than 1e+08");
-  }
+  const scan::BeamPattern pattern = make_pattern(args, period_s);  // at most kMaxPatternBeams
 
   scan::ScanResult result;
   scan::ScanImages images;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <functional>
 #include <numbers>
 #include <stdexcept>
@@ -23,6 +24,16 @@ std::vector<double> descending(std::vector<double> v, const char* what) {
   return v;
 }
 
+/// Throws std::length_error when `beams` (counted before any is made) exceed max_beams.
+void require_beams(double beams, std::size_t max_beams, const char* pattern) {
+  if (beams > static_cast<double>(max_beams)) {
+    char text[160];
+    std::snprintf(text, sizeof text, "%s: the pattern has %.4g beams, more than the limit of %zu",
+                  pattern, beams, max_beams);
+    throw std::length_error(text);
+  }
+}
+
 void require_positive(double v, const char* what) {
   if (!(v > 0 && std::isfinite(v)))
     throw std::invalid_argument(std::string(what) + " must be positive");
@@ -35,10 +46,12 @@ Vec3 direction_from_angles(double azimuth_deg, double elevation_deg) {
   return {std::cos(e) * std::cos(a), std::cos(e) * std::sin(a), std::sin(e)};
 }
 
-BeamPattern raster_pattern(const RasterOptions& o, double period_s) {
+BeamPattern raster_pattern(const RasterOptions& o, double period_s, std::size_t max_beams) {
   const auto ys = descending(o.y_m, "raster y"), zs = descending(o.z_m, "raster z");
   require_positive(o.stage_speed_m_per_s, "raster stage speed");
   if (o.samples < 1) throw std::invalid_argument("raster samples must be at least 1");
+  require_beams(static_cast<double>(ys.size()) * static_cast<double>(zs.size()), max_beams,
+                "raster");
   BeamPattern p{
       "raster", static_cast<int>(zs.size()), static_cast<int>(ys.size()), o.samples, {}, {}, 0};
   double t = 0;
@@ -57,7 +70,7 @@ BeamPattern raster_pattern(const RasterOptions& o, double period_s) {
   return p;
 }
 
-BeamPattern line_pattern(const LineOptions& o, double period_s) {
+BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_beams) {
   const auto ys = descending(o.y_m, "line y"), zs = descending(o.z_m, "line z");
   require_positive(o.stage_speed_m_per_s, "line stage speed");
   if (ys.size() < 2) throw std::invalid_argument("line y needs at least two columns");
@@ -70,6 +83,8 @@ BeamPattern line_pattern(const LineOptions& o, double period_s) {
   const double length = start - stop;
   const double v = o.stage_speed_m_per_s;
   p.sample_extent_m = v * period_s;
+  // At most one sample per output period of a line's sweep, and one more.
+  require_beams(static_cast<double>(zs.size()) * (length / v / period_s + 1.0), max_beams, "line");
   double t_line = 0;
   for (std::size_t r = 0; r < zs.size(); ++r) {
     // The device samples at its own clock: the first sample of a line comes at
@@ -88,10 +103,12 @@ BeamPattern line_pattern(const LineOptions& o, double period_s) {
   return p;
 }
 
-BeamPattern mirror_pattern(const MirrorOptions& o) {
+BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
   const auto es = descending(o.elevation_deg, "mirror elevation");
   require_positive(o.revolutions_per_s, "mirror revolutions per second");
   if (o.revolutions < 1) throw std::invalid_argument("mirror revolutions must be at least 1");
+  require_beams(static_cast<double>(o.revolutions) * static_cast<double>(es.size()), max_beams,
+                "mirror");
   // Rows: revolutions (profiles); columns: elevation, top first. The mirror
   // turns upwards (increasing elevation) in time.
   BeamPattern p{"mirror", o.revolutions, static_cast<int>(es.size()), 1, {}, {}, 0};
@@ -106,10 +123,12 @@ BeamPattern mirror_pattern(const MirrorOptions& o) {
   return p;
 }
 
-BeamPattern spherical_pattern(const SphericalOptions& o) {
+BeamPattern spherical_pattern(const SphericalOptions& o, std::size_t max_beams) {
   const auto as = descending(o.azimuth_deg, "spherical azimuth");
   const auto es = descending(o.elevation_deg, "spherical elevation");
   require_positive(o.revolutions_per_s, "spherical revolutions per second");
+  require_beams(static_cast<double>(as.size()) * static_cast<double>(es.size()), max_beams,
+                "spherical");
   BeamPattern p{
       "spherical", static_cast<int>(es.size()), static_cast<int>(as.size()), 1, {}, {}, 0};
   p.beams.reserve(as.size() * es.size());
@@ -131,14 +150,17 @@ BeamPattern spherical_pattern(const SphericalOptions& o) {
   return p;
 }
 
-BeamPattern spinning_pattern(const SpinningOptions& o) {
+BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
   const auto es = descending(o.elevation_deg, "spinning elevation");
   require_positive(o.azimuth_step_deg, "spinning azimuth step");
   require_positive(o.rotation_hz, "spinning rotation rate");
   if (o.revolutions < 1) throw std::invalid_argument("spinning revolutions must be at least 1");
-  const int per_rev = static_cast<int>(std::lround(360.0 / o.azimuth_step_deg));
-  if (per_rev < 1 || per_rev > 10'000'000)
+  const double firings = std::round(360.0 / o.azimuth_step_deg);  // per revolution
+  if (!(firings >= 1 && firings <= 10'000'000))
     throw std::invalid_argument("spinning azimuth step out of range");
+  const int per_rev = static_cast<int>(firings);
+  require_beams(static_cast<double>(o.revolutions) * per_rev * static_cast<double>(es.size()),
+                max_beams, "spinning");
   BeamPattern p{"spinning", static_cast<int>(es.size()) * o.revolutions, per_rev, 1, {}, {}, 0};
   const double firing_period = 1.0 / (o.rotation_hz * per_rev);
   // The head turns clockwise seen from above (azimuth decreasing), starting

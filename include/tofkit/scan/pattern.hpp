@@ -5,6 +5,7 @@
 /// z or elevation), column 0 the left (largest y or azimuth). Time stamps
 /// follow from the stage speed, the device's output period and mirror rates.
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,11 @@ struct BeamPattern {
   double sample_extent_m = 0;
 };
 
+/// Every builder refuses a pattern of more than `max_beams` beams before it
+/// allocates them (std::length_error naming the count): a typed step of
+/// 0.0001 degrees asks for tens of gigabytes.
+inline constexpr std::size_t kMaxPatternBeams = 100'000'000;
+
 /// XY stage, point by point: the sensor at every (y, z) looks along +x;
 /// serpentine rows; `samples` measurements averaged per point. The stage
 /// moves between points at `stage_speed_m_per_s`.
@@ -41,7 +47,8 @@ struct RasterOptions {
   int samples = 1;
   double stage_speed_m_per_s = 0.05;
 };
-[[nodiscard]] BeamPattern raster_pattern(const RasterOptions& o, double measurement_period_s);
+[[nodiscard]] BeamPattern raster_pattern(const RasterOptions& o, double measurement_period_s,
+                                         std::size_t max_beams = kMaxPatternBeams);
 
 /// XY stage moving along y at constant speed while the device measures at its
 /// own rate (thesis Section 4.7): the number of samples per line varies with
@@ -52,7 +59,8 @@ struct LineOptions {
   double stage_speed_m_per_s = 0.05;
   double turnaround_s = 0.5;
 };
-[[nodiscard]] BeamPattern line_pattern(const LineOptions& o, double measurement_period_s);
+[[nodiscard]] BeamPattern line_pattern(const LineOptions& o, double measurement_period_s,
+                                       std::size_t max_beams = kMaxPatternBeams);
 
 /// A rotating 45-degree mirror: one vertical profile (x-z plane, the listed
 /// elevations) per revolution; the mirror may ride a stage along y.
@@ -62,7 +70,8 @@ struct MirrorOptions {
   double revolutions_per_s = 10;
   double stage_speed_m_per_s = 0;
 };
-[[nodiscard]] BeamPattern mirror_pattern(const MirrorOptions& o);
+[[nodiscard]] BeamPattern mirror_pattern(const MirrorOptions& o,
+                                         std::size_t max_beams = kMaxPatternBeams);
 
 /// The mirror on a rotary table: one elevation profile per revolution, the
 /// table stepping through the azimuths (rows: elevation, columns: azimuth).
@@ -70,7 +79,8 @@ struct SphericalOptions {
   std::vector<double> azimuth_deg, elevation_deg;
   double revolutions_per_s = 10;
 };
-[[nodiscard]] BeamPattern spherical_pattern(const SphericalOptions& o);
+[[nodiscard]] BeamPattern spherical_pattern(const SphericalOptions& o,
+                                            std::size_t max_beams = kMaxPatternBeams);
 
 /// A multi-beam spinning lidar (Velodyne/Ouster-like): the listed elevations
 /// fire together every `azimuth_step_deg` while the head spins at `rotation_hz`.
@@ -80,7 +90,8 @@ struct SpinningOptions {
   double rotation_hz = 10;
   int revolutions = 1;
 };
-[[nodiscard]] BeamPattern spinning_pattern(const SpinningOptions& o);
+[[nodiscard]] BeamPattern spinning_pattern(const SpinningOptions& o,
+                                           std::size_t max_beams = kMaxPatternBeams);
 
 /// Direction of azimuth a (about z, from +x towards +y) and elevation e.
 [[nodiscard]] Vec3 direction_from_angles(double azimuth_deg, double elevation_deg);
