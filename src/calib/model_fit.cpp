@@ -908,8 +908,7 @@ void require_model_magnitudes(std::span<const ranging::Record> records, const Mo
     if (!surface) continue;
     // The surface reads the time of flight, or the raw distance without one.
     require_magnitude(r.raw.tof_ns, "tof_ns", i);
-    if (!std::isfinite(r.raw.tof_ns))
-      require_magnitude(r.raw.distance_raw_m, "distance_raw_m", i);
+    if (!std::isfinite(r.raw.tof_ns)) require_magnitude(r.raw.distance_raw_m, "distance_raw_m", i);
     if (pulse_width) require_magnitude(r.raw.pulse_width_ns, "pulse_width_ns", i);
     if (o.surface_temperature) require_magnitude(r.raw.temperature_c, "temperature_c", i);
   }

@@ -60,9 +60,10 @@ std::string pct(double value) {
 void require_magnitude(double v, const char* column, std::size_t index) {
   if (std::isfinite(v) && std::fabs(v) > kMaxMagnitude) {
     char buffer[160];
-    std::snprintf(buffer, sizeof buffer,
-                  "%s = %.6g in data row %zu is too large (|value| must be below %.0e: a corrupt cell)",
-                  column, v, index + 1, kMaxMagnitude);
+    std::snprintf(
+        buffer, sizeof buffer,
+        "%s = %.6g in data row %zu is too large (|value| must be below %.0e: a corrupt cell)",
+        column, v, index + 1, kMaxMagnitude);
     throw std::invalid_argument(buffer);
   }
 }
