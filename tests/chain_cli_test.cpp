@@ -205,6 +205,20 @@ TEST_F(ChainCli, SmallCalibrationFitsWithResidualSigmaUnlessConfidenceIsAsked) {
   EXPECT_EQ(asked.status, 1);
   EXPECT_NE(asked.err.find("cal.csv"), std::string::npos) << asked.err;
   EXPECT_FALSE(fs::exists(path("model.json")));
+  // Two plates: the correction fits, but each fold's refit sees one plate.
+  // The message says so, instead of claiming the data have one target.
+  ASSERT_EQ(
+      run(device + "measure --distance 2 --reflectance 0.1,0.8 --count 12 --out " + path("two.csv"))
+          .status,
+      0);
+  const test::CliResult two = run("fit --in " + path("two.csv") + " --out " + path("model.json") +
+                                  " --chain offset,grayvalue --confidence calibrated");
+  EXPECT_EQ(two.status, 1);
+  EXPECT_NE(two.err.find("cross-fitting refits the correction without each of 2 folds of the 2 "
+                         "truth groups, and a refit failed"),
+            std::string::npos)
+      << two.err;
+  EXPECT_FALSE(fs::exists(path("model.json")));
 }
 
 TEST_F(ChainCli, DegenerateInputFailsWithoutWritingAModel) {

@@ -1010,12 +1010,14 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
     folds = std::min(groups, static_cast<std::size_t>(o.confidence_folds));
     const std::vector<std::size_t> fold_of_group =
         intensity_stratified_folds(records, group, groups, folds);
+    bool refitting = false;  // the folds' refits have begun
     try {
       if (groups < 2) {
         throw std::invalid_argument(
             "cross-fitting needs at least 2 groups of identical truth (distances / plates / "
             "temperatures), the data have 1");
       }
+      refitting = true;
       // A walk step's nonlinear fit starts each fold from the full fit's
       // shape (its multistart search is what costs; the folds' data are most
       // of the full data, so the valley is the same).
@@ -1032,6 +1034,13 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
         residuals.add(fit_correction(train, fold_options, nullptr, nullptr), test);
       }
     } catch (const std::invalid_argument& e) {
+      // The correction itself fitted: what failed is a refit on fewer groups.
+      if (o.confidence_required && refitting) {
+        throw std::invalid_argument(
+            format("confidence %s: cross-fitting refits the correction without each of %zu folds "
+                   "of the %zu truth groups, and a refit failed: %s",
+                   to_string(o.confidence).c_str(), folds, groups, e.what()));
+      }
       if (o.confidence_required) throw;
       // Data too small to cross-fit: sigma stays the residual RMS.
       fit_confidence = false;
