@@ -105,6 +105,10 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
        "sensor: pose_m must be finite, within 1e+05 m"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"point.obj\"\nreflectance = 0.5\n",
        "scene.toml:1: surface[0]: mesh has no triangle of nonzero area"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"empty.ply\"\nreflectance = 0.5\n",
+       "empty.ply: element 'vertex' has no properties"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"short.ply\"\nreflectance = 0.5\n",
+       "short.ply: the header's element counts need at least 12000 bytes of data, the file has 12"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
@@ -112,6 +116,13 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
   };
   // Three vertices on one point: a mesh with no surface.
   std::ofstream(dir / "point.obj") << "v 1 0 0\nv 1 0 0\nv 1 0 0\nf 1 2 3\n";
+  // Headers whose counts the data cannot hold (found by fuzz_mesh: 30 million
+  // vertices of no property filled memory).
+  std::ofstream(dir / "empty.ply") << "ply\nformat binary_little_endian 1.0\n"
+                                      "element vertex 30000000\nend_header\n";
+  std::ofstream(dir / "short.ply") << "ply\nformat binary_little_endian 1.0\nelement vertex "
+                                      "1000\nproperty float x\nproperty float y\nproperty "
+                                      "float z\nend_header\n0123456789ab";
   for (const auto& c : cases) {
     const fs::path scene = write_scene(dir, c.text);
     const std::string message = load_error(scene);

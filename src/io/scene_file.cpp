@@ -258,6 +258,30 @@ void load_ply(const fs::path& file, Primitive& mesh) {
     throw SceneError(name + ": PLY format '" + format +
                      "' is not supported (ascii, binary_little_endian)");
   }
+  // Every instance of an element holds at least one value: the counts the
+  // header declares must fit in the data that follows it (a header promising
+  // 30 million vertices in 100 bytes had filled memory).
+  const auto header_end = in.tellg();
+  in.seekg(0, std::ios::end);
+  const double data_bytes = static_cast<double>(in.tellg() - header_end);
+  in.seekg(header_end);
+  double least_bytes = 0;
+  for (const auto& e : elements) {
+    if (e.properties.empty() && e.count > 0)
+      throw SceneError(name + ": element '" + e.name + "' has no properties");
+    double instance = 0;  // ascii: a digit and a separator per value at least
+    for (const auto& p : e.properties)
+      instance +=
+          ascii ? 2.0
+                : static_cast<double>(ply_type_size(p.count_type.empty() ? p.type : p.count_type));
+    least_bytes += static_cast<double>(e.count) * instance;
+  }
+  if (least_bytes > data_bytes + 1) {
+    throw SceneError(
+        fmt::format("{}: the header's element counts need at least {:.0f} bytes of "
+                    "data, the file has {:.0f} (truncated PLY data)",
+                    name, least_bytes, data_bytes));
+  }
   auto read_value = [&](const std::string& type) -> double {
     if (ascii) {
       double v = 0;
