@@ -25,6 +25,7 @@ constexpr double kWalkTolerance_m = 1e-5;
 /// pass's shape. Rows dominated by false stops keep the walk moving pass after
 /// pass, and a search on each took minutes.
 constexpr int kWalkSearchPasses = 2;
+
 double median_of(std::vector<double> v) {
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
   std::nth_element(v.begin(), mid, v.end());
