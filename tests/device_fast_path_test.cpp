@@ -20,8 +20,8 @@ using namespace tofkit::device;
 namespace {
 
 Target halves(double distance_m, double reflectance, double angle_deg) {
-  return Target{{Surface{0.5, distance_m, reflectance, angle_deg},
-                 Surface{0.5, distance_m, reflectance, angle_deg}}};
+  return Target{{Surface{0.5, distance_m, reflectance, incidence_cos(angle_deg)},
+                 Surface{0.5, distance_m, reflectance, incidence_cos(angle_deg)}}};
 }
 
 struct Case {

@@ -357,7 +357,7 @@ TEST(Device, MixedPixelReadsBetweenItsSurfaces) {
   const double d_far = dev.measure(far, {}, 1, 0, 4000).distance_raw_m;
   double previous = d_near - 1e-3;
   for (double f : {0.1, 0.3, 0.5, 0.7, 0.9}) {
-    const Target mixed{{Surface{1.0 - f, 2.0, 0.3, 0.0}, Surface{f, 2.05, 0.3, 0.0}}};
+    const Target mixed{{Surface{1.0 - f, 2.0, 0.3}, Surface{f, 2.05, 0.3}}};
     const double d = dev.measure(mixed, {}, 1, 0, 4000).distance_raw_m;
     EXPECT_GT(d, previous);
     EXPECT_LT(d, d_far + 5e-3);
@@ -642,7 +642,8 @@ void varied_requests(std::vector<Target>& targets, std::vector<Conditions>& cond
     const double rho = 0.002 + 0.11 * (i % 9);
     const double angle = 7.0 * (i % 13);
     if (i % 11 == 3)
-      targets.push_back(Target{{Surface{0.6, r, rho, angle}, Surface{0.4, r + 0.8, 0.5, 10.0}}});
+      targets.push_back(Target{{Surface{0.6, r, rho, incidence_cos(angle)},
+                                Surface{0.4, r + 0.8, 0.5, incidence_cos(10.0)}}});
     else if (i % 17 == 5)
       targets.push_back(Target{});
     else

@@ -37,7 +37,7 @@ TEST(PlateGrid, OrderIsDistanceReflectanceAngleTemperatureRepeat) {
             EXPECT_EQ(p.truth.ambient_c, t);
             ASSERT_EQ(p.request.target.surfaces.size(), 1u);
             EXPECT_EQ(p.request.target.surfaces[0].distance_m, d);
-            EXPECT_EQ(p.request.target.surfaces[0].angle_deg, angle);
+            EXPECT_EQ(p.request.target.surfaces[0].cos_incidence, device::incidence_cos(angle));
             EXPECT_EQ(p.request.conditions.ambient_c, t);
             EXPECT_EQ(p.request.shots, 7);
           }
@@ -95,11 +95,11 @@ TEST(PlateGrid, RunIntoASpanAndPlannedTruth) {
   EXPECT_THROW(run(device, plan, 5, short_out), std::invalid_argument);
   device::Conditions warm;
   warm.ambient_c = 31.0;
-  const PlannedMeasurement mixed =
-      planned(device::Target{{{0.4, 2.0, 0.3, 10.0}, {0.6, 2.5, 0.7, 0.0}}}, warm, 9);
+  const PlannedMeasurement mixed = planned(
+      device::Target{{{0.4, 2.0, 0.3, device::incidence_cos(10.0)}, {0.6, 2.5, 0.7}}}, warm, 9);
   EXPECT_EQ(mixed.truth.distance_m, 2.0);
   EXPECT_EQ(mixed.truth.reflectance, 0.3);
-  EXPECT_EQ(mixed.truth.angle_deg, 10.0);
+  EXPECT_NEAR(mixed.truth.angle_deg, 10.0, 1e-12);
   EXPECT_EQ(mixed.truth.ambient_c, 31.0);
   EXPECT_EQ(mixed.request.shots, 9);
   EXPECT_EQ(mixed.request.target.surfaces.size(), 2u);

@@ -265,7 +265,7 @@ TEST(ScanFootprint, TiltedPlateGivesCosineAmplitudeAndLongerEcho) {
     Footprint::Result tilted;
     fp.trace(caster, {0, 0, 0}, {1, 0, 0}, tilted);
     ASSERT_EQ(tilted.target.surfaces.size(), 1u);
-    EXPECT_NEAR(tilted.target.surfaces[0].angle_deg, phi, 1e-6);
+    EXPECT_NEAR(device::incidence_angle_deg(tilted.target.surfaces[0].cos_incidence), phi, 1e-6);
     EXPECT_NEAR(tilted.target.surfaces[0].distance_m, R, 1e-4);
     const auto echo = dev.echo(tilted.target, {});
     ASSERT_TRUE(echo.detected) << phi << " " << echo.peak_v << " " << echo0.peak_v;
@@ -456,7 +456,7 @@ TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
                 a.beam.column == b.beam.column)
         << i;
     EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
-                same(a.reflectance, b.reflectance) && same(a.angle_deg, b.angle_deg))
+                same(a.reflectance, b.reflectance) && same(a.cos_incidence, b.cos_incidence))
         << i;
     EXPECT_TRUE(same(a.raw, b.raw)) << i;
     EXPECT_TRUE(same(a.range.distance_m, b.range.distance_m) &&

@@ -174,14 +174,30 @@ std::vector<BeamRow> beam_rows(const scan::ScanResult& r) {
   rows.reserve(r.beams.size());
   for (const auto& b : r.beams) {
     const auto& m = b.raw;
-    rows.push_back({b.beam.row,          b.beam.column,       b.beam.time_s,
-                    b.beam.position_m,   b.beam.origin_m[0],  b.beam.origin_m[1],
-                    b.beam.origin_m[2],  b.beam.direction[0], b.beam.direction[1],
-                    b.beam.direction[2], b.true_range_m,      b.surfaces,
-                    b.reflectance,       b.angle_deg,         m.tof_ns,
-                    m.distance_raw_m,    m.pulse_width_ns,    m.amplitude,
-                    m.temperature_c,     m.shots_valid,       m.flags,
-                    b.range.distance_m,  b.range.sigma_m,     b.range.correction_flags});
+    rows.push_back({b.beam.row,
+                    b.beam.column,
+                    b.beam.time_s,
+                    b.beam.position_m,
+                    b.beam.origin_m[0],
+                    b.beam.origin_m[1],
+                    b.beam.origin_m[2],
+                    b.beam.direction[0],
+                    b.beam.direction[1],
+                    b.beam.direction[2],
+                    b.true_range_m,
+                    b.surfaces,
+                    b.reflectance,
+                    device::incidence_angle_deg(b.cos_incidence),
+                    m.tof_ns,
+                    m.distance_raw_m,
+                    m.pulse_width_ns,
+                    m.amplitude,
+                    m.temperature_c,
+                    m.shots_valid,
+                    m.flags,
+                    b.range.distance_m,
+                    b.range.sigma_m,
+                    b.range.correction_flags});
   }
   return rows;
 }

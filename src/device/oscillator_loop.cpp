@@ -97,17 +97,19 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond) co
   std::vector<Step> steps;
   double background_w = 0;
   for (const auto& surf : target.surfaces) {
-    if (surf.fraction <= 0.0 || surf.reflectance <= 0.0 || surf.angle_deg >= 90.0) continue;
-    background_w += surf.fraction * physics::background_power_w(link, surf.reflectance,
-                                                                std::min(surf.angle_deg, 89.9));
+    if (surf.fraction <= 0.0 || surf.reflectance <= 0.0 || !(surf.cos_incidence > 0.0)) continue;
+    const double cos_phi = std::min(surf.cos_incidence, 1.0);
+    background_w +=
+        surf.fraction * physics::background_power_cos_w(
+                            link, surf.reflectance, std::max(cos_phi, detail::kBackgroundCosFloor));
     const double power_w =
         surf.fraction * physics::overlap_fraction(link.laser, rx, surf.distance_m) *
-        physics::received_power_extended_w(link, surf.distance_m, surf.reflectance, surf.angle_deg);
+        physics::received_power_extended_cos_w(link, surf.distance_m, surf.reflectance, cos_phi);
     if (power_w <= 0.0) continue;
     const double amplitude = power_w * volts_per_watt;
     const double delay = 2.0 * surf.distance_m / c_m_per_ns;
     const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, surf.distance_m) *
-                                std::tan(physics::deg_to_rad(surf.angle_deg));
+                                std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
     if (half_depth_m * 2.0 / c_m_per_ns < 1e-4) {
       steps.push_back({delay, amplitude});
       continue;

@@ -126,4 +126,8 @@ inline const FootprintNodes& footprint_nodes() {
   return nodes;
 }
 
+/// The sunlit background (paper Eq. 9) of a surface at grazing incidence is
+/// taken at 89.9 degrees: cos phi held at that angle's.
+inline const double kBackgroundCosFloor = std::cos(physics::deg_to_rad(89.9));
+
 }  // namespace tofkit::device::detail

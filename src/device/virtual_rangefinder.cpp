@@ -427,8 +427,8 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
                                   SurfaceEcho& out) const {
     const auto& link = config.link;
-    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || s.angle_deg >= 90.0) return false;
-    const double cos_phi = std::cos(physics::deg_to_rad(s.angle_deg));
+    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || !(s.cos_incidence > 0.0)) return false;
+    const double cos_phi = std::min(s.cos_incidence, 1.0);
     // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
     // Biaxial optics: only the share of the footprint inside the receiver's field.
     const double power_w =
@@ -479,7 +479,8 @@ struct VirtualRangefinder::Impl {
     double w = 0;
     for (const auto& s : target.surfaces)
       w += s.fraction *
-           physics::background_power_w(config.link, s.reflectance, std::min(s.angle_deg, 89.9));
+           physics::background_power_cos_w(config.link, s.reflectance,
+                                           std::max(s.cos_incidence, detail::kBackgroundCosFloor));
     return w;
   }
 

@@ -36,8 +36,9 @@ AngleResult run_angle(const device::VirtualRangefinder& device, const AngleOptio
   std::vector<PlannedMeasurement> plan;
   for (const int g : options.grey_levels) {
     for (const double a : options.angles_deg) {
-      const auto target = device::Target::plate(options.distance_m, grey_reflectance(g), a);
-      for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, shots));
+      const PlannedMeasurement p =
+          plate(options.distance_m, grey_reflectance(g), c.ambient_c, a, shots);
+      for (std::size_t k = 0; k < per; ++k) plan.push_back(p);
     }
   }
   result.records = run(device, plan, seed);

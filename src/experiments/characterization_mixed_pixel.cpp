@@ -54,11 +54,11 @@ MixedPixelResult run_mixed_pixel(const device::VirtualRangefinder& device,
     device::Target target;
     if (step.near_fraction > 0)
       target.surfaces.push_back(
-          {step.near_fraction, options.near_distance_m, options.near_reflectance, 0.0});
+          {step.near_fraction, options.near_distance_m, options.near_reflectance});
     if (step.near_fraction < 1)
       target.surfaces.push_back({1.0 - step.near_fraction,
                                  options.near_distance_m + options.step_height_m,
-                                 options.far_reflectance, 0.0});
+                                 options.far_reflectance});
     ranging::GroundTruth truth{options.near_distance_m, options.near_reflectance, 0.0,
                                options.ambient_c};
     for (std::size_t s = 0; s < per; ++s) plan.push_back({{target, c, shots}, truth});

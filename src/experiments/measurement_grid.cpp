@@ -13,7 +13,7 @@ PlannedMeasurement planned(device::Target target, const device::Conditions& cond
     const auto& s = target.surfaces.front();
     p.truth.distance_m = s.distance_m;
     p.truth.reflectance = s.reflectance;
-    p.truth.angle_deg = s.angle_deg;
+    p.truth.angle_deg = device::incidence_angle_deg(s.cos_incidence);
   }
   p.request = {std::move(target), conditions, shots};
   return p;
@@ -23,7 +23,10 @@ PlannedMeasurement plate(double distance_m, double reflectance, double ambient_c
                          int shots) {
   device::Conditions conditions;
   conditions.ambient_c = ambient_c;
-  return planned(device::Target::plate(distance_m, reflectance, angle_deg), conditions, shots);
+  PlannedMeasurement p =
+      planned(device::Target::plate(distance_m, reflectance, angle_deg), conditions, shots);
+  p.truth.angle_deg = angle_deg;  // as given (not back from its cosine)
+  return p;
 }
 
 std::vector<ranging::Record> run(const device::VirtualRangefinder& device,

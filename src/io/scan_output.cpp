@@ -305,7 +305,7 @@ std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
     for (const double v : b.beam.direction) num(v);
     num(b.true_range_m);
     num(b.reflectance);
-    num(b.angle_deg);
+    num(device::incidence_angle_deg(b.cos_incidence));
     num(ambient_c);
     const auto& m = b.raw;
     for (const double v :

@@ -57,6 +57,10 @@ double received_power_small_w(const LinkConfig& link, double distance_m, double 
 }
 
 double background_power_w(const LinkConfig& link, double reflectance, double angle_deg) {
+  return background_power_cos_w(link, reflectance, std::cos(deg_to_rad(angle_deg)));
+}
+
+double background_power_cos_w(const LinkConfig& link, double reflectance, double cos_angle) {
   // Paper Eq. 9. As printed it has rho twice (in the prefactor and in the sunlit
   // term); the radiometry has it once (the sunlit term). The printed form is kept
   // behind a switch because it is what reproduces the paper's Figure 3.
@@ -66,7 +70,7 @@ double background_power_w(const LinkConfig& link, double reflectance, double ang
   const double dlambda_um = rx.filter_bandwidth_nm * 1e-3;
   const double ta = env.atmospheric_transmission;
   const double sunlit = ta * reflectance * env.solar_irradiance_w_per_m2_um *
-                        std::cos(deg_to_rad(env.sun_angle_deg)) * std::cos(deg_to_rad(angle_deg));
+                        std::cos(deg_to_rad(env.sun_angle_deg)) * cos_angle;
   const double sky = kPi * env.sky_radiance_w_per_m2_sr_um * (1.0 - ta);
   const double printed_rho = env.eq9_as_printed ? reflectance : 1.0;
   return kPi / 16.0 * rx.optics_efficiency * printed_rho * rx.field_of_view_rad *

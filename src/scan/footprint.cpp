@@ -59,8 +59,7 @@ void Footprint::trace(const RayCaster& caster, const Vec3& origin, const Vec3& a
     result.true_range_m = h.distance_m;
     if (h.hit()) {
       const double cos_phi = std::min(1.0, std::abs(dot(h.normal, axis)));
-      surfaces.push_back(
-          {1.0, h.distance_m, h.reflectance, std::acos(cos_phi) * 180.0 / std::numbers::pi});
+      surfaces.push_back({1.0, h.distance_m, h.reflectance, cos_phi});
     }
     return;
   }
@@ -113,8 +112,7 @@ void Footprint::trace(const RayCaster& caster, const Vec3& origin, const Vec3& a
     const Group& g = i < 16 ? groups[i] : more[i - 16];
     const Vec3 n = normalized(g.normal_sum);
     const double cos_phi = std::min(1.0, std::abs(dot(n, axis)));
-    surfaces.push_back({g.weight, g.distance_sum / g.weight, g.reflectance,
-                        std::acos(cos_phi) * 180.0 / std::numbers::pi});
+    surfaces.push_back({g.weight, g.distance_sum / g.weight, g.reflectance, cos_phi});
   }
   (void)kNaN;
 }

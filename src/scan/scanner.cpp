@@ -131,14 +131,14 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
                           b.true_range_m = fp.true_range_m;
                           b.surfaces = static_cast<int>(fp.target.surfaces.size());
                           b.reflectance = ranging::kNaN;
-                          b.angle_deg = ranging::kNaN;
+                          b.cos_incidence = ranging::kNaN;
                           b.range = {};
                           double largest = 0;
                           for (const auto& surface : fp.target.surfaces) {
                             if (surface.fraction > largest) {
                               largest = surface.fraction;
                               b.reflectance = surface.reflectance;
-                              b.angle_deg = surface.angle_deg;
+                              b.cos_incidence = surface.cos_incidence;
                             }
                           }
                           // (Swapped, not copied: both buffers are reused.)

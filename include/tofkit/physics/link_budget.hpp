@@ -46,6 +46,9 @@ struct LinkConfig {
 /// with environment.eq9_as_printed, the printed form (an extra rho in front).
 [[nodiscard]] double background_power_w(const LinkConfig& link, double reflectance,
                                         double angle_deg);
+/// The same for cos(phi) given.
+[[nodiscard]] double background_power_cos_w(const LinkConfig& link, double reflectance,
+                                            double cos_angle);
 
 /// Maximum range for a minimum detectable power, paper Eq. 7.
 [[nodiscard]] double max_range_extended_m(const LinkConfig& link, double reflectance,

@@ -18,10 +18,10 @@ namespace tofkit::scan {
 /// One beam's outcome. Origin and direction are in the world frame.
 struct BeamResult {
   Beam beam;
-  double true_range_m = 0;             ///< first-hit distance of the beam axis; NaN on a miss
-  int surfaces = 0;                    ///< surfaces in the footprint (2+: a mixed pixel)
-  double reflectance = ranging::kNaN;  ///< of the footprint's largest surface
-  double angle_deg = ranging::kNaN;    ///< incidence angle on that surface
+  double true_range_m = 0;               ///< first-hit distance of the beam axis; NaN on a miss
+  int surfaces = 0;                      ///< surfaces in the footprint (2+: a mixed pixel)
+  double reflectance = ranging::kNaN;    ///< of the footprint's largest surface
+  double cos_incidence = ranging::kNaN;  ///< cos of the incidence angle on that surface
   ranging::RawMeasurement raw;
   ranging::Range range;  ///< NaN until a model is applied
 };
