@@ -166,6 +166,33 @@ TEST(Pipeline, FlagsNoEchoOutOfDomainAndNaN) {
   EXPECT_THROW(p.apply(in, short_out), std::invalid_argument);
 }
 
+// A number beyond kMaxMagnitude is a corrupt cell, not a measurement: read as
+// missing, so a 1e300 ns time of flight does not pass through as a 1.5e299 m
+// range, and a corrupt input a step reads flags its row as non-finite.
+TEST(Pipeline, CorruptMagnitudesReadAsMissing) {
+  const Pipeline p = paper_pipeline();
+  const double k = metres_per_ns(p.time_to_distance());
+  std::vector<RawMeasurement> in{measurement(1e300, 5, 20), measurement(1e300, 5, 20),
+                                 measurement(20, -1e200, 20), measurement(20, 5, 1e101),
+                                 measurement(kMaxMagnitude, 5, 20)};
+  in[0].distance_raw_m = 1.5e299;
+  in[1].distance_raw_m = 3.0;  // the time of flight corrupt, the distance not: the start
+  std::vector<Range> out(in.size());
+  p.apply(in, out);
+  for (std::size_t i : {0, 2, 3}) {
+    EXPECT_TRUE(std::isnan(out[i].distance_m)) << i;
+    EXPECT_EQ(out[i].correction_flags, kCorrNonFinite) << i;
+    EXPECT_TRUE(std::isnan(p.apply(in[i]).distance_m)) << i;
+  }
+  EXPECT_NEAR(out[1].distance_m, 3.0 + paper_correction_m(5, 20), 1e-12);
+  EXPECT_EQ(out[1].correction_flags, 0u);
+  EXPECT_TRUE(std::isnan(p.start_distance_m(in[0])));
+  EXPECT_EQ(p.start_distance_m(in[1]), 3.0);
+  // The limit itself is a measurement.
+  EXPECT_TRUE(std::isfinite(out[4].distance_m));
+  EXPECT_EQ(p.start_distance_m(in[4]), kMaxMagnitude * k);
+}
+
 /// Bitwise equality of two ranges (NaN equal to NaN).
 bool same_range(const Range& a, const Range& b) {
   return std::memcmp(&a.distance_m, &b.distance_m, sizeof(double)) == 0 &&
@@ -404,6 +431,17 @@ TEST(FixedPointChain, FlagsAndNoEcho) {
   EXPECT_GT(flagged, 500u);
   // Codes round-trip through to_codes.
   EXPECT_EQ(chain.to_codes(chain.to_raw(codes[5])).tof_code, codes[5].tof_code);
+  // A reading the 32-bit registers cannot hold (NaN, 1e300) is no echo, not a
+  // wrapped code.
+  for (double tof : {std::nan(""), 1e300, -1e300}) {
+    RawMeasurement m = chain.to_raw(codes[5]);
+    m.tof_ns = tof;
+    const FixedPointInput c = chain.to_codes(m);
+    EXPECT_NE(c.flags & kRawNoEcho, 0u) << tof;
+    const FixedPointOutput out = chain.apply(c);
+    EXPECT_EQ(out.distance_um, kFixedNoDistance) << tof;
+    EXPECT_EQ(out.correction_flags, kCorrNoEcho) << tof;
+  }
 }
 
 TEST(FixedPointChain, RejectsWhatItCannotRepresent) {

@@ -228,13 +228,21 @@ RawMeasurement FixedPointChain::to_raw(const FixedPointInput& in) const {
 
 FixedPointInput FixedPointChain::to_codes(const RawMeasurement& in) const {
   FixedPointInput codes;
-  const auto code = [](double value, double lsb) {
-    return std::isfinite(value) ? static_cast<std::int32_t>(std::lround(value / lsb)) : 0;
+  // A value the 32-bit register cannot hold (NaN, or beyond its range) is no
+  // reading: the row goes to the chain as one without an echo.
+  bool representable = true;
+  const auto code = [&](double value, double lsb) {
+    const double c = std::nearbyint(value / lsb);
+    if (!(std::fabs(c) <= 2147483647.0)) {
+      representable = false;
+      return std::int32_t{0};
+    }
+    return static_cast<std::int32_t>(std::lround(value / lsb));
   };
   codes.tof_code = code(in.tof_ns, c_.format.tdc_lsb_ps * 1e-3);
   codes.pulse_width_code = code(in.pulse_width_ns, c_.format.pulse_width_lsb_ps * 1e-3);
   codes.temperature_code = code(in.temperature_c, c_.format.temperature_lsb_c);
-  codes.flags = in.flags | (in.has_echo() ? 0u : kRawNoEcho);
+  codes.flags = in.flags | (in.has_echo() && representable ? 0u : kRawNoEcho);
   return codes;
 }
 

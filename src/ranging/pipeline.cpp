@@ -12,6 +12,11 @@
 namespace tofkit::ranging {
 namespace {
 
+/// A number beyond kMaxMagnitude is a corrupt cell: read as missing.
+double measured(double v) {
+  return std::fabs(v) <= kMaxMagnitude ? v : kNaN;
+}
+
 /// Rows processed together: small enough that the column buffers stay in L1,
 /// large enough that each step's loop over them vectorizes and amortizes the
 /// dispatch on the step kind.
@@ -374,7 +379,8 @@ void Pipeline::set_residual_rms_m(double residual_rms_m) {
 double Pipeline::start_distance_m(const RawMeasurement& in) const {
   // S = c_air t / 2 (paper Section 2); a source without a time of flight
   // (e.g. a CSV with distances only) supplies its own distance.
-  return std::isfinite(in.tof_ns) ? in.tof_ns * metres_per_ns_ : in.distance_raw_m;
+  const double tof = measured(in.tof_ns);
+  return std::isfinite(tof) ? tof * metres_per_ns_ : measured(in.distance_raw_m);
 }
 
 RawColumns RawColumns::of(std::span<const RawMeasurement> rows) {
@@ -439,17 +445,18 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
     const std::size_t n = std::min(kBlock, in.size - begin);
     for (std::size_t i = 0; i < n; ++i) {
       const std::size_t row = begin + i;
-      const double tof = in.tof_ns[row];
+      const double tof = measured(in.tof_ns[row]);
       const bool echo = in.shots_valid[row] > 0 && (in.flags[row] & kRawNoEcho) == 0;
-      const double start = std::isfinite(tof) ? tof * metres_per_ns_ : in.distance_raw_m[row];
+      const double start =
+          std::isfinite(tof) ? tof * metres_per_ns_ : measured(in.distance_raw_m[row]);
       b.distance[i] = echo ? start : kNaN;
       b.tof[i] = tof;
       b.flags[i] = echo ? 0u : kCorrNoEcho;
       b.outside[i] = 0.0;
       b.extra_variance[i] = 0.0;
-      b.pulse_width[i] = in.pulse_width_ns[row];
-      b.temperature[i] = in.temperature_c[row];
-      b.amplitude[i] = in.amplitude[row];
+      b.pulse_width[i] = measured(in.pulse_width_ns[row]);
+      b.temperature[i] = measured(in.temperature_c[row]);
+      b.amplitude[i] = measured(in.amplitude[row]);
     }
     for (const Step& step : steps_) {
       switch (step.kind) {

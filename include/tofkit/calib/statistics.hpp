@@ -19,10 +19,7 @@
 
 namespace tofkit::calib {
 
-/// Largest |value| a fit or an evaluation accepts: squares and sums of squares
-/// over any realistic row count stay finite (1e100^2 * 1e9 rows << DBL_MAX).
-/// A larger value is a corrupt cell, not a measurement.
-inline constexpr double kMaxMagnitude = 1e100;
+using ranging::kMaxMagnitude;
 
 /// Throws std::invalid_argument naming the column and the data row (`index`
 /// 0-based, printed 1-based) when a finite value exceeds kMaxMagnitude.

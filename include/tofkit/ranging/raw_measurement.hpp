@@ -11,6 +11,12 @@ namespace tofkit::ranging {
 
 inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
+/// Largest |value| of a measurement's number that is a measurement: fits and
+/// evaluations refuse a larger one as a corrupt cell (their squares and sums of
+/// squares over any realistic row count stay finite: 1e100^2 * 1e9 rows <<
+/// DBL_MAX), and the pipeline reads it as missing (NaN).
+inline constexpr double kMaxMagnitude = 1e100;
+
 /// Status bits of a RawMeasurement (`flags` column).
 enum RawFlag : std::uint32_t {
   kRawNoEcho = 1u << 0,           ///< no shot crossed the threshold; distance is empty
@@ -51,7 +57,7 @@ struct Record {
 enum CorrectionFlag : std::uint32_t {
   kCorrNoEcho = 1u << 0,       ///< nothing to correct
   kCorrOutOfDomain = 1u << 1,  ///< an input lies outside the domain the model was fitted on
-  kCorrNonFinite = 1u << 2,    ///< an input needed by the model is NaN
+  kCorrNonFinite = 1u << 2,    ///< an input needed by the model is NaN (or beyond kMaxMagnitude)
 };
 
 /// A corrected range with its expected error.
