@@ -34,23 +34,23 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
       sub.add_option("--azimuth", o.azimuth, "spherical: azimuths, degrees: LIST"),
       sub.add_option("--elevation", o.elevation,
                      "mirror/spherical/spinning: elevations, degrees: LIST"),
-      sub.add_option("--samples", o.samples, "raster: measurements averaged per point")
+      sub.add_option("--samples", o.settings.samples, "raster: measurements averaged per point")
           ->check(CLI::Range(1, 100000))
           ->capture_default_str(),
-      sub.add_option("--speed", o.speed_m_per_s, "raster/line/mirror: stage speed, m/s")
+      sub.add_option("--speed", o.settings.speed_m_per_s, "raster/line/mirror: stage speed, m/s")
           ->check(CLI::Range(0.0, 100.0))
           ->capture_default_str(),
-      sub.add_option("--turnaround", o.turnaround_s, "line: time between lines, s")
+      sub.add_option("--turnaround", o.settings.turnaround_s, "line: time between lines, s")
           ->check(CLI::Range(0.0, 1e4))
           ->capture_default_str(),
-      sub.add_option(rate_option, o.rate_hz,
+      sub.add_option(rate_option, o.settings.rate_hz,
                      "mirror/spherical: mirror revolutions per s; spinning: rotation Hz")
           ->check(CLI::Range(1e-6, 1e5))
           ->capture_default_str(),
-      sub.add_option("--revolutions", o.revolutions, "mirror/spinning: revolutions")
+      sub.add_option("--revolutions", o.settings.revolutions, "mirror/spinning: revolutions")
           ->check(CLI::Range(1, 1000000))
           ->capture_default_str(),
-      sub.add_option("--azimuth-step", o.azimuth_step_deg,
+      sub.add_option("--azimuth-step", o.settings.azimuth_step_deg,
                      "spinning: azimuth between firings, degrees")
           ->check(CLI::Range(1e-4, 360.0))
           ->capture_default_str(),
@@ -64,28 +64,17 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::DeviceConfig& config,
                                     int shots) {
   const double period_s = shots / config.link.laser.repetition_hz;
-  const auto& p = o.pattern;
-  const std::size_t max_beams = io::resource_limits().max_rows;
+  const auto lists = [&](const char* name) {
+    const std::string n = name;
+    const std::string& text = n == "y"         ? o.y
+                              : n == "z"       ? o.z
+                              : n == "azimuth" ? o.azimuth
+                                               : o.elevation;
+    return list(text, ("--" + n).c_str(), o.pattern);
+  };
   try {
-    if (p == "raster")
-      return scan::raster_pattern(
-          {list(o.y, "--y", p), list(o.z, "--z", p), o.samples, o.speed_m_per_s}, period_s,
-          max_beams);
-    if (p == "line")
-      return scan::line_pattern(
-          {list(o.y, "--y", p), list(o.z, "--z", p), o.speed_m_per_s, o.turnaround_s}, period_s,
-          max_beams);
-    if (p == "mirror")
-      return scan::mirror_pattern(
-          {list(o.elevation, "--elevation", p), o.revolutions, o.rate_hz, o.speed_m_per_s},
-          max_beams);
-    if (p == "spherical")
-      return scan::spherical_pattern(
-          {list(o.azimuth, "--azimuth", p), list(o.elevation, "--elevation", p), o.rate_hz},
-          max_beams);
-    return scan::spinning_pattern(
-        {list(o.elevation, "--elevation", p), o.azimuth_step_deg, o.rate_hz, o.revolutions},
-        max_beams);
+    return scan::make_pattern(o.pattern, o.settings, lists, period_s,
+                              io::resource_limits().max_rows);
   } catch (const std::length_error& e) {
     // A beam is a row of scan.csv: the rows' limit applies.
     throw std::invalid_argument(std::string(e.what()) + " (raise it with --max-rows)");

@@ -20,13 +20,8 @@ namespace tofkit::app {
 struct SceneScanOptions {
   std::string scene;    ///< --scene: scene file (TOML)
   std::string pattern;  ///< --pattern: raster | line | mirror | spherical | spinning
-  std::string y, z, azimuth, elevation;  ///< LISTs, as the pattern needs them
-  int samples = 1;                       ///< raster: measurements averaged per point
-  int revolutions = 1;                   ///< mirror/spinning
-  double speed_m_per_s = 0.05;           ///< raster/line/mirror stage speed
-  double turnaround_s = 0.5;             ///< line: time between lines
-  double rate_hz = 10;            ///< mirror/spherical: revolutions per s; spinning: rotation
-  double azimuth_step_deg = 0.2;  ///< spinning: azimuth between firings
+  std::string y, z, azimuth, elevation;               ///< LISTs, as the pattern needs them
+  scan::PatternSettings settings;                     ///< --samples, --revolutions, --speed, ...
   double ambient_c = device::Conditions{}.ambient_c;  ///< --ambient
 };
 

@@ -75,25 +75,17 @@ std::vector<double> value_list(const py::object& value, const std::string& name,
 }
 
 scan::BeamPattern make_pattern(const ScanArgs& a, double period_s) {
-  const std::string& p = a.pattern;
-  const auto list = [&](const py::object& v, const char* name) { return value_list(v, name, p); };
-  if (p == "raster")
-    return scan::raster_pattern({list(a.y, "y"), list(a.z, "z"), a.samples, a.speed_m_per_s},
-                                period_s);
-  if (p == "line")
-    return scan::line_pattern({list(a.y, "y"), list(a.z, "z"), a.speed_m_per_s, a.turnaround_s},
-                              period_s);
-  if (p == "mirror")
-    return scan::mirror_pattern(
-        {list(a.elevation, "elevation"), a.revolutions, a.rate_hz, a.speed_m_per_s});
-  if (p == "spherical")
-    return scan::spherical_pattern(
-        {list(a.azimuth, "azimuth"), list(a.elevation, "elevation"), a.rate_hz});
-  if (p == "spinning")
-    return scan::spinning_pattern(
-        {list(a.elevation, "elevation"), a.azimuth_step_deg, a.rate_hz, a.revolutions});
-  throw std::invalid_argument("pattern: '" + p +
-                              "' is not raster, line, mirror, spherical or spinning");
+  const scan::PatternSettings settings{a.samples,      a.revolutions, a.speed_m_per_s,
+                                       a.turnaround_s, a.rate_hz,     a.azimuth_step_deg};
+  const auto lists = [&](const char* name) {
+    const std::string n = name;
+    const py::object& v = n == "y"         ? a.y
+                          : n == "z"       ? a.z
+                          : n == "azimuth" ? a.azimuth
+                                           : a.elevation;
+    return value_list(v, n, a.pattern);
+  };
+  return scan::make_pattern(a.pattern, settings, lists, period_s);
 }
 
 /// The CLI's option checks (CLI11 ranges), named after the Python arguments.

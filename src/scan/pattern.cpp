@@ -182,4 +182,24 @@ BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
   return p;
 }
 
+BeamPattern make_pattern(const std::string& name, const PatternSettings& s, const PatternList& list,
+                         double measurement_period_s, std::size_t max_beams) {
+  if (name == "raster")
+    return raster_pattern({list("y"), list("z"), s.samples, s.speed_m_per_s}, measurement_period_s,
+                          max_beams);
+  if (name == "line")
+    return line_pattern({list("y"), list("z"), s.speed_m_per_s, s.turnaround_s},
+                        measurement_period_s, max_beams);
+  if (name == "mirror")
+    return mirror_pattern({list("elevation"), s.revolutions, s.rate_hz, s.speed_m_per_s},
+                          max_beams);
+  if (name == "spherical")
+    return spherical_pattern({list("azimuth"), list("elevation"), s.rate_hz}, max_beams);
+  if (name == "spinning")
+    return spinning_pattern({list("elevation"), s.azimuth_step_deg, s.rate_hz, s.revolutions},
+                            max_beams);
+  throw std::invalid_argument("pattern: '" + name +
+                              "' is not raster, line, mirror, spherical or spinning");
+}
+
 }  // namespace tofkit::scan

@@ -6,6 +6,7 @@
 /// follow from the stage speed, the device's output period and mirror rates.
 
 #include <cstddef>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -92,6 +93,29 @@ struct SpinningOptions {
 };
 [[nodiscard]] BeamPattern spinning_pattern(const SpinningOptions& o,
                                            std::size_t max_beams = kMaxPatternBeams);
+
+/// A pattern's scalar settings by `tofkit scan`'s names, with its defaults;
+/// each pattern reads the ones it has.
+struct PatternSettings {
+  int samples = 1;                ///< raster: measurements averaged per point
+  int revolutions = 1;            ///< mirror, spinning
+  double speed_m_per_s = 0.05;    ///< raster, line, mirror: stage speed
+  double turnaround_s = 0.5;      ///< line: time between lines
+  double rate_hz = 10;            ///< mirror, spherical: revolutions per s; spinning: rotation
+  double azimuth_step_deg = 0.2;  ///< spinning: azimuth between firings
+};
+
+/// The list a pattern needs, by name ("y", "z", "azimuth", "elevation"): the
+/// caller parses its own option (and names it in its errors).
+using PatternList = std::function<std::vector<double>(const char* name)>;
+
+/// The pattern called `name` (raster | line | mirror | spherical | spinning),
+/// asking `list` for the lists it needs, for a device with output period
+/// `measurement_period_s`. The one dispatch `tofkit scan`, `emulate --scene` and
+/// Python's tofkit.scan share; throws std::invalid_argument for another name.
+[[nodiscard]] BeamPattern make_pattern(const std::string& name, const PatternSettings& settings,
+                                       const PatternList& list, double measurement_period_s,
+                                       std::size_t max_beams = kMaxPatternBeams);
 
 /// Direction of azimuth a (about z, from +x towards +y) and elevation e.
 [[nodiscard]] Vec3 direction_from_angles(double azimuth_deg, double elevation_deg);
