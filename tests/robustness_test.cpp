@@ -154,6 +154,21 @@ TEST_F(Robustness, HugeCellsInASurfaceOrConfidenceFitAreNamed) {
                 "out.json")
                 .status,
             0);
+  // The noise-systematic confidence reads the correction's axis: pulse width
+  // behind a grayvalue step (the amplitude is not judged), amplitude without one.
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.1,0.5,0.9 --temperature 10,25,40 "
+                "--count 2 --out repeats.csv")
+                .status,
+            0);
+  write_with_cell("repeats_amplitude.csv", 5, 7, "1e300", "repeats.csv");
+  const tofkit::test::CliResult width_axis =
+      run("fit --in repeats_amplitude.csv --chain offset,grayvalue --confidence noise-systematic "
+          "--out out.json");
+  EXPECT_EQ(width_axis.status, 0) << width_axis.err;
+  expect_refused(
+      "fit --in repeats_amplitude.csv --chain offset,temperature --confidence "
+      "noise-systematic --out out.json",
+      {"amplitude = 1e+300 in data row 5"});
 }
 
 // evaluate squares the errors: a corrupt 1e308 cell had turned the bias, RMS

@@ -728,6 +728,9 @@ void fit_repeats_confidence(std::span<const ranging::Record> records, const Mode
   for (std::size_t i = 0; i < records.size(); ++i) {
     const double e = records[i].truth.distance_m - corrected[i].distance_m;
     const double x = pulse_width ? records[i].raw.pulse_width_ns : records[i].raw.amplitude;
+    // (The axis is known only now: require_model_magnitudes left it to here.)
+    if (records[i].raw.has_echo())
+      require_magnitude(x, pulse_width ? "pulse_width_ns" : "amplitude", i);
     if (!std::isfinite(e) || !(x > 0) || !std::isfinite(x) ||
         (corrected[i].correction_flags & ranging::kCorrOutOfDomain) != 0) {
       continue;
@@ -895,11 +898,14 @@ namespace {
 
 /// Refuses a corrupt cell in a column the surface or the confidence reads
 /// (fit_chain checks its own columns): |value| > kMaxMagnitude names the
-/// column and the data row. Rows without an echo are not fitted.
+/// column and the data row. Rows without an echo are not fitted. The
+/// noise-systematic confidence reads the correction's intensity axis, known
+/// after the fit: fit_repeats_confidence checks its column.
 void require_model_magnitudes(std::span<const ranging::Record> records, const ModelFitOptions& o) {
   const bool surface = o.surface.kind != SurfaceKind::none;
-  const bool amplitude = (surface && o.surface_intensity != SurfaceIntensity::pulse_width) ||
-                         o.confidence != ConfidenceKind::none;
+  const bool amplitude =
+      (surface && o.surface_intensity != SurfaceIntensity::pulse_width) ||
+      (o.confidence != ConfidenceKind::none && o.confidence != ConfidenceKind::noise_systematic);
   const bool pulse_width = surface && o.surface_intensity != SurfaceIntensity::amplitude;
   for (std::size_t i = 0; i < records.size(); ++i) {
     const ranging::Record& r = records[i];
