@@ -15,14 +15,22 @@ def _cli_path():
 
 
 @pytest.fixture(scope="session")
-def cli():
-    """Runs `tofkit ARGS...`; returns the CompletedProcess (text mode)."""
+def cli_binary():
+    """The tofkit CLI's path (the test is skipped if it is not built)."""
     path = _cli_path()
     if not path.exists():
         pytest.skip(f"the tofkit CLI is not built ({path})")
+    return path
 
-    def run(*args, check=True):
-        result = subprocess.run([str(path), *map(str, args)], capture_output=True, text=True)
+
+@pytest.fixture(scope="session")
+def cli(cli_binary):
+    """Runs `tofkit ARGS...`; returns the CompletedProcess (text mode). With
+    cwd=, in that directory."""
+
+    def run(*args, check=True, cwd=None):
+        result = subprocess.run([str(cli_binary), *map(str, args)], capture_output=True,
+                                text=True, cwd=cwd)
         if check and result.returncode != 0:
             raise AssertionError(f"tofkit {' '.join(map(str, args))} failed:\n{result.stderr}")
         return result
