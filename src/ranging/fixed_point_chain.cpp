@@ -232,12 +232,12 @@ FixedPointInput FixedPointChain::to_codes(const RawMeasurement& in) const {
   // reading: the row goes to the chain as one without an echo.
   bool representable = true;
   const auto code = [&](double value, double lsb) {
-    const double c = std::nearbyint(value / lsb);
-    if (!(std::fabs(c) <= 2147483647.0)) {
+    const double q = value / lsb;
+    if (!(std::fabs(q) < 2147483647.0)) {  // (NaN fails too)
       representable = false;
       return std::int32_t{0};
     }
-    return static_cast<std::int32_t>(std::lround(value / lsb));
+    return static_cast<std::int32_t>(std::lround(q));
   };
   codes.tof_code = code(in.tof_ns, c_.format.tdc_lsb_ps * 1e-3);
   codes.pulse_width_code = code(in.pulse_width_ns, c_.format.pulse_width_lsb_ps * 1e-3);
