@@ -492,6 +492,44 @@ TEST(ScanPatterns, OversizedPatternsAreRefusedBeforeTheyAreBuilt) {
   EXPECT_EQ(spherical_pattern({{0, 1}, {0, 1, 2}, 10}, 6).beams.size(), 6u);
 }
 
+// Lists a stage or a mirror cannot follow are refused naming them: a line
+// whose columns coincide had swept nothing (0 beams, exit 0), an uneven one put
+// its columns where the images did not, and an azimuth of 1e300 degrees (or a
+// stage position beyond the scene's 100 km) scanned.
+TEST(ScanPatterns, ListsAStageOrAMirrorCannotFollowAreRefused) {
+  const auto message = [](const auto& build) {
+    try {
+      (void)build();
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("(built)");
+  };
+  for (const std::vector<double>& ys :
+       {std::vector<double>{0, 0}, std::vector<double>{0, 0.01, 0.1}}) {
+    EXPECT_NE(message([&] {
+                return line_pattern({ys, {0}, 0.05, 0.5}, 1e-3);
+              }).find("line y must be evenly spaced distinct positions"),
+              std::string::npos);
+  }
+  std::vector<double> even;
+  for (int k = 0; k <= 200; ++k) even.push_back(-0.1 + 0.001 * k);
+  EXPECT_GT(line_pattern({even, {0}, 0.05, 0.5}, 1e-3).beams.size(), 0u);
+  EXPECT_EQ(message([] {
+              return spherical_pattern({{1e300}, {0}, 10});
+            }),
+            "spherical azimuth: 1e+300 is beyond +-360 degrees");
+  EXPECT_EQ(message([] {
+              return spinning_pattern({{-400}, 0.2, 10, 1});
+            }),
+            "spinning elevation: -400 is beyond +-360 degrees");
+  EXPECT_EQ(message([] {
+              return raster_pattern({{2e5}, {0}, 1, 0.05}, 1e-3);
+            }),
+            "raster y: 200000 is beyond +-100000 m");
+  EXPECT_EQ(spherical_pattern({{-360, 360}, {-360, 360}, 10}).beams.size(), 4u);
+}
+
 TEST(ScanPatterns, RasterSerpentineMirrorAndSpinningGeometry) {
   // Raster: serpentine rows, every point once, time includes moves and dwell.
   const auto r = raster_pattern({{0.0, 0.01, 0.02}, {0.0, 0.01}, 4, 0.01}, 1e-3);

@@ -14,11 +14,23 @@ double rad(double deg) {
   return deg * std::numbers::pi / 180.0;
 }
 
-// Descending copy (image row/column 0 = top/left = largest value).
-std::vector<double> descending(std::vector<double> v, const char* what) {
+/// Largest |angle| of a pattern (a turn of the mirror or the table) and
+/// largest |position| of a stage (the scene's extent): beyond, a typo.
+constexpr double kMaxAngleDeg = 360.0;
+constexpr double kMaxPositionM = kSceneExtentM;
+
+// Descending copy (image row/column 0 = top/left = largest value), each value
+// finite and within +-limit (unit: its unit's name, for the message).
+std::vector<double> descending(std::vector<double> v, const char* what, double limit,
+                               const char* unit) {
   if (v.empty()) throw std::invalid_argument(std::string(what) + ": the list is empty");
   for (const double x : v) {
     if (!std::isfinite(x)) throw std::invalid_argument(std::string(what) + ": not finite");
+    if (std::abs(x) > limit) {
+      char text[160];
+      std::snprintf(text, sizeof text, "%s: %g is beyond +-%g %s", what, x, limit, unit);
+      throw std::invalid_argument(text);
+    }
   }
   std::sort(v.begin(), v.end(), std::greater<>());
   return v;
@@ -47,7 +59,8 @@ Vec3 direction_from_angles(double azimuth_deg, double elevation_deg) {
 }
 
 BeamPattern raster_pattern(const RasterOptions& o, double period_s, std::size_t max_beams) {
-  const auto ys = descending(o.y_m, "raster y"), zs = descending(o.z_m, "raster z");
+  const auto ys = descending(o.y_m, "raster y", kMaxPositionM, "m"),
+             zs = descending(o.z_m, "raster z", kMaxPositionM, "m");
   require_positive(o.stage_speed_m_per_s, "raster stage speed");
   if (o.samples < 1) throw std::invalid_argument("raster samples must be at least 1");
   require_beams(static_cast<double>(ys.size()) * static_cast<double>(zs.size()), max_beams,
@@ -71,9 +84,20 @@ BeamPattern raster_pattern(const RasterOptions& o, double period_s, std::size_t 
 }
 
 BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_beams) {
-  const auto ys = descending(o.y_m, "line y"), zs = descending(o.z_m, "line z");
+  const auto ys = descending(o.y_m, "line y", kMaxPositionM, "m"),
+             zs = descending(o.z_m, "line z", kMaxPositionM, "m");
   require_positive(o.stage_speed_m_per_s, "line stage speed");
   if (ys.size() < 2) throw std::invalid_argument("line y needs at least two columns");
+  // The stage sweeps at one speed: its columns are evenly spaced (the images
+  // place column c at ys.front() - c pitch), and apart (else no sample fits).
+  const double spacing = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
+  for (std::size_t c = 1; c < ys.size(); ++c) {
+    if (!(spacing > 0) || !(std::abs(ys[c - 1] - ys[c] - spacing) <= 1e-6 * spacing)) {
+      throw std::invalid_argument(
+          "line y must be evenly spaced distinct positions (the stage's columns), as a:b:step "
+          "gives them");
+    }
+  }
   if (!(o.turnaround_s >= 0)) throw std::invalid_argument("line turnaround must be >= 0");
   BeamPattern p{"line", static_cast<int>(zs.size()), static_cast<int>(ys.size()), 1, {}, ys, 0};
   // The stage sweeps from half a column before the first centre to half a
@@ -104,7 +128,7 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
 }
 
 BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
-  const auto es = descending(o.elevation_deg, "mirror elevation");
+  const auto es = descending(o.elevation_deg, "mirror elevation", kMaxAngleDeg, "degrees");
   require_positive(o.revolutions_per_s, "mirror revolutions per second");
   if (o.revolutions < 1) throw std::invalid_argument("mirror revolutions must be at least 1");
   require_beams(static_cast<double>(o.revolutions) * static_cast<double>(es.size()), max_beams,
@@ -124,8 +148,8 @@ BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
 }
 
 BeamPattern spherical_pattern(const SphericalOptions& o, std::size_t max_beams) {
-  const auto as = descending(o.azimuth_deg, "spherical azimuth");
-  const auto es = descending(o.elevation_deg, "spherical elevation");
+  const auto as = descending(o.azimuth_deg, "spherical azimuth", kMaxAngleDeg, "degrees");
+  const auto es = descending(o.elevation_deg, "spherical elevation", kMaxAngleDeg, "degrees");
   require_positive(o.revolutions_per_s, "spherical revolutions per second");
   require_beams(static_cast<double>(as.size()) * static_cast<double>(es.size()), max_beams,
                 "spherical");
@@ -151,7 +175,7 @@ BeamPattern spherical_pattern(const SphericalOptions& o, std::size_t max_beams) 
 }
 
 BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
-  const auto es = descending(o.elevation_deg, "spinning elevation");
+  const auto es = descending(o.elevation_deg, "spinning elevation", kMaxAngleDeg, "degrees");
   require_positive(o.azimuth_step_deg, "spinning azimuth step");
   require_positive(o.rotation_hz, "spinning rotation rate");
   if (o.revolutions < 1) throw std::invalid_argument("spinning revolutions must be at least 1");

@@ -27,11 +27,11 @@ double cell_uniform(std::uint64_t seed, std::int64_t i, std::int64_t j) {
 bool finite(const Vec3& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
 }
-/// A scene lies within 100 km of the origin (the farthest distance a device
-/// measures) and has no feature under 1 um (far below any beam's footprint):
-/// beyond either, Embree's single-precision bounds and a pattern's cell
-/// index (an int64 of coordinate / cell) would overflow or collapse.
-constexpr double kSceneExtentM = 1e5, kSmallestFeatureM = 1e-6;
+/// A scene lies within kSceneExtentM of the origin and has no feature under
+/// 1 um (far below any beam's footprint): beyond either, Embree's
+/// single-precision bounds and a pattern's cell index (an int64 of coordinate
+/// / cell) would overflow or collapse.
+constexpr double kSmallestFeatureM = 1e-6;
 /// Finite and within the scene's extent.
 bool in_extent(const Vec3& v) {
   return finite(v) && std::abs(v[0]) <= kSceneExtentM && std::abs(v[1]) <= kSceneExtentM &&

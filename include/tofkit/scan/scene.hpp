@@ -14,6 +14,11 @@ namespace tofkit::scan {
 
 using Vec3 = std::array<double, 3>;
 
+/// A scene, and the sensor moving through it, lie within 100 km of the origin
+/// (the farthest distance a device measures): beyond it Embree's
+/// single-precision bounds lose the scene.
+inline constexpr double kSceneExtentM = 1e5;
+
 /// Reflectance over a surface: uniform, stripes, or a checkerboard.
 struct Reflectance {
   enum class Kind { kUniform, kStripes, kChecker };
