@@ -6,6 +6,7 @@
 #include <pybind11/stl/filesystem.h>
 
 #include <cstring>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -97,6 +98,19 @@ py::dict link_budget(const device::DeviceConfig& config,
   const double t = temperature_c.value_or(link.receiver.nominal_temperature_c);
   const auto d = distances_m.unchecked<1>();
   const auto n = d.shape(0);
+  {
+    // The ranges `measure` takes (a negative distance had given a positive
+    // power, a NaN or 0 m a NaN or infinite SNR, without a word).
+    experiments::PlateGrid grid;
+    for (py::ssize_t i = 0; i < n; ++i) grid.distances_m.push_back(d(i));
+    grid.reflectances = {reflectance};
+    grid.angles_deg = {angle_deg};
+    grid.ambient_c = {t};
+    std::string message;
+    for (const auto& p : grid.problems(std::numeric_limits<double>::infinity()))
+      message += (message.empty() ? "" : "\n") + p;
+    if (!message.empty()) throw std::invalid_argument(message);
+  }
   py::array_t<double> received(n), background(n), signal(n), snr(n), signal_shot(n),
       background_shot(n), dark_shot(n), thermal(n), total(n);
   for (py::ssize_t i = 0; i < n; ++i) {

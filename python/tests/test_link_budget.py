@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 import tofkit
 
@@ -28,3 +29,20 @@ def test_extended_target_power_falls_as_inverse_square():
     doubled = tofkit.link_budget([10.0], reflectance=0.4)
     np.testing.assert_allclose(doubled["received_power_w"][0] / b["received_power_w"][0], 2.0,
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(distance_m=[-1.0]), "distance_m: -1 is outside [0.001, 100000]"),
+    (dict(distance_m=[0.0]), "distance_m: 0 is outside [0.001, 100000]"),
+    (dict(distance_m=[1.0, float("nan")]), "distance_m: nan is outside [0.001, 100000]"),
+    (dict(distance_m=[1e300]), "distance_m: 1e+300 is outside [0.001, 100000]"),
+    (dict(distance_m=[1.0], reflectance=2), "reflectance: 2 is outside [0, 1]"),
+    (dict(distance_m=[1.0], angle_deg=90), "angle_deg: 90 is outside [0, 89.9]"),
+    (dict(distance_m=[1.0], temperature_c=1e9), "temperature_c: 1000000000 is outside [-60, 150]"),
+])
+def test_arguments_outside_measure_s_ranges_raise(kwargs, message):
+    # A negative distance had given a positive power, 0 m an infinite SNR,
+    # without a word: the ranges are measure()'s (one check, PlateGrid's).
+    with pytest.raises(ValueError) as error:
+        tofkit.link_budget(**kwargs)
+    assert str(error.value) == message

@@ -46,9 +46,9 @@ def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=N
     if temperature_c is not None:
         grid.ambient_c = _values(temperature_c, "temperature_c")
     grid.count = _int(count, "count")
+    if shots is not None and not 1 <= _int(shots, "shots") <= 10_000_000:
+        raise ValueError(f"shots: {shots} is outside [1, 10000000]")  # as tofkit measure --shots
     grid.shots = 0 if shots is None else _int(shots, "shots")
-    if shots is not None and grid.shots < 1:
-        raise ValueError(f"shots: {shots} is below 1")
     if int(seed) < 0:
         raise ValueError(f"seed: {seed} is negative")
     return _tofkit._measure(_config(config), grid, int(seed), mode)
@@ -66,6 +66,8 @@ def link_budget(distance_m, reflectance=0.1, angle_deg=0.0, temperature_c=None, 
     Returns a dict of arrays: distance_m, received_power_w, background_power_w,
     signal_current_a, noise_{signal_shot,background_shot,dark_shot,thermal,total}_a
     and snr. temperature_c: APD temperature (None: the receiver's nominal one).
+    Raises ValueError for a value outside measure()'s ranges (distance
+    0.001-1e5 m, reflectance 0-1, angle 0-89.9 degrees, -60-150 C).
     """
     distances = np.atleast_1d(np.asarray(distance_m, dtype=np.float64))
     if distances.ndim != 1:
