@@ -216,7 +216,17 @@ TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
   // An empty field (range_min > range_max) is refused, naming the range.
   const auto bad = run("plan --range-min 5 --range-max 2 --reflectance-min 0.06 --single-distance");
   EXPECT_EQ(bad.status, 1);
-  EXPECT_NE(read("stderr.txt").find("range"), std::string::npos) << read("stderr.txt");
+  EXPECT_NE(read("stderr.txt").find("range_max_m (--range-max) must be > range_min_m"),
+            std::string::npos)
+      << read("stderr.txt");
+  // A calibration distance beyond the plan's reach (1 mm .. 10 km) is refused
+  // naming --at: 1 nm had been printed as "calibration distance 1e-09 m".
+  for (const char* at : {"1e-9", "2e4"}) {
+    EXPECT_EQ(run(std::string("plan --range-max 8 --reflectance-min 0.05 --at ") + at).status, 1);
+    EXPECT_NE(read("stderr.txt").find("calibration_distance_m (--at) must be in [0.001, 10000] m"),
+              std::string::npos)
+        << read("stderr.txt");
+  }
 }
 
 // The bench table marks the plates whose echo overdrives the amplifier

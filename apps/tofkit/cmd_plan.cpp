@@ -21,6 +21,30 @@
 namespace tofkit::app {
 namespace {
 
+/// The planner names its fields ("plan: calibration_distance_m must ..."):
+/// the option that sets each is added, "calibration_distance_m (--at)".
+std::string with_option(std::string message) {
+  static constexpr std::pair<const char*, const char*> kOptions[] = {
+      {"range_min_m", "--range-min"},
+      {"range_max_m", "--range-max"},
+      {"reflectance_min", "--reflectance-min"},
+      {"reflectance_max", "--reflectance-max"},
+      {"calibration_distance_m", "--at"},
+      {"plates", "--plates"},
+      {"temperature_min_c", "--temperature-min"},
+      {"temperature_max_c", "--temperature-max"},
+      {"temperature_step_c", "--temperature-step"},
+  };
+  for (const auto& [field, option] : kOptions) {
+    const std::string head = std::string("plan: ") + field;
+    if (message.rfind(head, 0) == 0 && message.size() > head.size() &&
+        (message[head.size()] == ' ' || message[head.size()] == ':')) {
+      return message.insert(head.size(), std::string(" (") + option + ")");
+    }
+  }
+  return message;
+}
+
 struct PlanOptions {
   calib::CalibrationPlanOptions plan;
   bool bench = false;
@@ -149,7 +173,7 @@ const bool registered = register_command("plan", [](CLI::App& sub, AppContext& c
     try {
       run_plan(*o, ctx);
     } catch (const std::invalid_argument& e) {
-      throw std::runtime_error(e.what());
+      throw std::runtime_error(with_option(e.what()));
     }
   });
 });

@@ -81,9 +81,9 @@ void CalibrationPlanOptions::validate() const {
   require(
       std::isfinite(reflectance_max) && reflectance_max >= reflectance_min && reflectance_max <= 1,
       "reflectance_max", "must be in [reflectance_min, 1]");
-  require(std::isnan(calibration_distance_m) ||
-              (std::isfinite(calibration_distance_m) && calibration_distance_m > 0),
-          "calibration_distance_m", "must be > 0");
+  require(std::isnan(calibration_distance_m) || (calibration_distance_m >= kNearestPlateM &&
+                                                 calibration_distance_m <= kFarthestPlateM),
+          "calibration_distance_m", "must be in [0.001, 10000] m (the plan's reach)");
   require(plates >= 2 && plates <= 100, "plates", "must be in [2, 100]");
   require(std::isnan(clip_power_w) || (std::isfinite(clip_power_w) && clip_power_w > 0),
           "clip_power_w", "must be > 0 (or NaN: unknown)");
