@@ -494,6 +494,20 @@ TEST(RawCsv, MalformedFilesNameFileLineAndColumn) {
   msg = csv_error(path, "tof_ns,tof_ns\n1,2\n");
   EXPECT_NE(msg.find("twice"), std::string::npos) << msg;
 
+  // A spreadsheet's export in semicolons or tabs: the message says so.
+  for (const char* separator : {";", "\t"}) {
+    std::string other = header + good;
+    for (char& c : other)
+      if (c == ',') c = separator[0];
+    msg = csv_error(path, other);
+    EXPECT_NE(msg.find("bad.csv:1: header has neither 'tof_ns' nor 'distance_raw_m' (its fields "
+                       "are not separated by commas"),
+              std::string::npos)
+        << msg;
+  }
+  msg = csv_error(path, "distance_true_m,reflectance\n1,0.1\n");
+  EXPECT_EQ(msg.find("separated"), std::string::npos) << msg;
+
   msg = csv_error(path, "");
   EXPECT_NE(msg.find("bad.csv"), std::string::npos) << msg;
 

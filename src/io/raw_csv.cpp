@@ -171,7 +171,13 @@ class TableReader {
       }
     }
     if (!index_[kTof] && !index_[kDistanceRaw]) {
-      fail(line, "header has neither 'tof_ns' nor 'distance_raw_m'");
+      // One field holding ';' or tabs: a spreadsheet's export in another separator.
+      const bool other_separator =
+          names.size() == 1 && names[0].find_first_of(";\t") != std::string_view::npos;
+      fail(line, std::string("header has neither 'tof_ns' nor 'distance_raw_m'") +
+                     (other_separator ? " (its fields are not separated by commas: tofkit reads "
+                                        "comma-separated values)"
+                                      : ""));
     }
     if (corrected_ && !index_[kDistance]) fail(line, "header has no 'distance_m' column");
   }
