@@ -135,6 +135,39 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
               1);
     EXPECT_TRUE(fs::is_empty(out)) << c.expect;
   }
+  // Scene and mesh files are read as every input is (io::read_text_file): a
+  // directory or a device is named as such (both had been "not found"), and
+  // a mesh over --max-input-mb is refused before it is parsed.
+  EXPECT_NE(load_error(dir).find(dir.string() + ": is a directory, expected a scene file"),
+            std::string::npos);
+  EXPECT_NE(load_error("/dev/null").find("/dev/null: is not a regular file, expected a scene file"),
+            std::string::npos);
+  {
+    std::ofstream big(dir / "big.obj");
+    for (int i = 0; i < 200000; ++i) big << "v 1 " << i * 1e-4 << " " << i % 2 << "\n";
+    big << "f 1 2 3\n";
+  }
+  const fs::path big_scene =
+      write_scene(dir, "[[surface]]\nkind = \"mesh\"\nfile = \"big.obj\"\nreflectance = 0.5\n");
+  const fs::path out = dir / "out";
+  fs::remove_all(out);
+  fs::create_directories(out);
+  const std::string limited = std::string(TOFKIT_BINARY) + " --max-input-mb 1 scan --scene " +
+                              big_scene.string() +
+                              " --pattern spherical --azimuth=0 --elevation=0 --out " +
+                              out.string() + " 2> " + (dir / "err.txt").string();
+  const int status = std::system(limited.c_str());
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
+  std::ifstream err(dir / "err.txt");
+  const std::string said((std::istreambuf_iterator<char>(err)), std::istreambuf_iterator<char>());
+  EXPECT_NE(said.find("big.obj: "), std::string::npos) << said;
+  EXPECT_NE(said.find("is larger than the input limit of 1048576 bytes"), std::string::npos)
+      << said;
+  EXPECT_TRUE(fs::is_empty(out));
+  EXPECT_EQ(
+      run(std::string(TOFKIT_BINARY) + " scan --scene " + big_scene.string() +
+          " --pattern spherical --azimuth=0 --elevation=0 --out " + out.string() + " > /dev/null"),
+      0);
   fs::remove_all(dir);
 }
 

@@ -4,11 +4,12 @@
 #include <toml++/toml.h>
 
 #include <cstring>
-#include <fstream>
 #include <set>
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include "tofkit/io/input_file.hpp"
 
 namespace tofkit::io {
 namespace {
@@ -30,6 +31,36 @@ struct Problems {
     std::string text;
     for (const auto& l : lines) text += (text.empty() ? "" : "\n") + l;
     throw SceneError(text);
+  }
+};
+
+/// A file's whole text through io::read_text_file (its checks and
+/// --max-input-mb), its errors as SceneErrors.
+std::string read_input(const fs::path& file, std::string_view what) {
+  try {
+    return read_text_file(file, what);
+  } catch (const std::runtime_error& e) {
+    throw SceneError(e.what());
+  }
+}
+
+/// An input stream over a text already read, without copying it (seekable:
+/// the PLY reader measures the data after its header).
+class TextBuffer : public std::streambuf {
+ public:
+  explicit TextBuffer(std::string& text) {
+    setg(text.data(), text.data(), text.data() + text.size());
+  }
+
+ protected:
+  pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
+    char* base = dir == std::ios_base::beg ? eback() : dir == std::ios_base::cur ? gptr() : egptr();
+    if (off < eback() - base || off > egptr() - base) return pos_type(off_type(-1));
+    setg(eback(), base + off, egptr());
+    return pos_type(gptr() - eback());
+  }
+  pos_type seekpos(pos_type pos, std::ios_base::openmode which) override {
+    return seekoff(off_type(pos), std::ios_base::beg, which);
   }
 };
 
@@ -126,14 +157,9 @@ class Reader {
 };
 
 toml::table parse(const fs::path& file) {
-  std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) throw SceneError(file.string() + ": scene file not found");
-  std::ifstream in(file, std::ios::binary);
-  if (!in) throw SceneError(file.string() + ": cannot open scene file");
-  std::ostringstream text;
-  text << in.rdbuf();
+  const std::string text = read_input(file, "scene file");
   try {
-    return toml::parse(text.str(), file.string());
+    return toml::parse(text, file.string());
   } catch (const toml::parse_error& e) {
     throw SceneError(fmt::format("{}:{}:{}: TOML syntax error: {}", file.string(),
                                  e.source().begin.line, e.source().begin.column, e.description()));
@@ -143,7 +169,9 @@ toml::table parse(const fs::path& file) {
 // ---- meshes ----
 
 void load_obj(const fs::path& file, Primitive& mesh) {
-  std::ifstream in(file);
+  std::string text = read_input(file, "mesh file");
+  TextBuffer buffer(text);
+  std::istream in(&buffer);
   std::string line;
   int line_no = 0;
   while (std::getline(in, line)) {
@@ -219,7 +247,9 @@ double ply_read_binary(const char* p, const std::string& t) {
 }
 
 void load_ply(const fs::path& file, Primitive& mesh) {
-  std::ifstream in(file, std::ios::binary);
+  std::string text = read_input(file, "mesh file");
+  TextBuffer buffer(text);
+  std::istream in(&buffer);
   const std::string name = file.string();
   std::string line;
   std::getline(in, line);
@@ -372,8 +402,6 @@ Reflectance read_reflectance(Reader& r, Problems& problems, const toml::table& t
 }  // namespace
 
 void load_mesh(const fs::path& file, Primitive& mesh) {
-  std::error_code ec;
-  if (!fs::is_regular_file(file, ec)) throw SceneError(file.string() + ": mesh file not found");
   const auto ext = file.extension().string();
   if (ext == ".obj" || ext == ".OBJ") {
     load_obj(file, mesh);
