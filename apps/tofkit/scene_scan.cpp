@@ -64,13 +64,10 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::DeviceConfig& config,
                                     int shots) {
   const double period_s = shots / config.link.laser.repetition_hz;
-  const auto lists = [&](const char* name) {
-    const std::string n = name;
-    const std::string& text = n == "y"         ? o.y
-                              : n == "z"       ? o.z
-                              : n == "azimuth" ? o.azimuth
-                                               : o.elevation;
-    return list(text, ("--" + n).c_str(), o.pattern);
+  const std::string* texts[] = {&o.y, &o.z, &o.azimuth, &o.elevation};  // PatternListName order
+  const auto lists = [&](scan::PatternListName l) {
+    return list(*texts[static_cast<std::size_t>(l)],
+                (std::string("--") + scan::pattern_list_name(l)).c_str(), o.pattern);
   };
   try {
     return scan::make_pattern(o.pattern, o.settings, lists, period_s,

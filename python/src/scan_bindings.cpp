@@ -77,13 +77,9 @@ std::vector<double> value_list(const py::object& value, const std::string& name,
 scan::BeamPattern make_pattern(const ScanArgs& a, double period_s) {
   const scan::PatternSettings settings{a.samples,      a.revolutions, a.speed_m_per_s,
                                        a.turnaround_s, a.rate_hz,     a.azimuth_step_deg};
-  const auto lists = [&](const char* name) {
-    const std::string n = name;
-    const py::object& v = n == "y"         ? a.y
-                          : n == "z"       ? a.z
-                          : n == "azimuth" ? a.azimuth
-                                           : a.elevation;
-    return value_list(v, n, a.pattern);
+  const py::object* values[] = {&a.y, &a.z, &a.azimuth, &a.elevation};  // PatternListName order
+  const auto lists = [&](scan::PatternListName l) {
+    return value_list(*values[static_cast<std::size_t>(l)], scan::pattern_list_name(l), a.pattern);
   };
   return scan::make_pattern(a.pattern, settings, lists, period_s);
 }

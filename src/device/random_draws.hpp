@@ -1,6 +1,7 @@
 #pragma once
-/// \file Internal to device/: the random draws and footprint quadrature the
-/// pulsed core (virtual_rangefinder.cpp) and the oscillator loop share.
+/// \file Internal to device/: the random draws, footprint quadrature and
+/// sunlit-background floor the pulsed core (virtual_rangefinder.cpp) and the
+/// oscillator loop share.
 
 #include <Random123/philox.h>
 

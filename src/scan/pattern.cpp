@@ -90,9 +90,9 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
   if (ys.size() < 2) throw std::invalid_argument("line y needs at least two columns");
   // The stage sweeps at one speed: its columns are evenly spaced (the images
   // place column c at ys.front() - c pitch), and apart (else no sample fits).
-  const double spacing = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
+  const double pitch = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
   for (std::size_t c = 1; c < ys.size(); ++c) {
-    if (!(spacing > 0) || !(std::abs(ys[c - 1] - ys[c] - spacing) <= 1e-6 * spacing)) {
+    if (!(pitch > 0) || !(std::abs(ys[c - 1] - ys[c] - pitch) <= 1e-6 * pitch)) {
       throw std::invalid_argument(
           "line y must be evenly spaced distinct positions (the stage's columns), as a:b:step "
           "gives them");
@@ -102,7 +102,6 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
   BeamPattern p{"line", static_cast<int>(zs.size()), static_cast<int>(ys.size()), 1, {}, ys, 0};
   // The stage sweeps from half a column before the first centre to half a
   // column past the last, so every column is covered.
-  const double pitch = (ys.front() - ys.back()) / static_cast<double>(ys.size() - 1);
   const double start = ys.front() + 0.5 * pitch, stop = ys.back() - 0.5 * pitch;
   const double length = start - stop;
   const double v = o.stage_speed_m_per_s;
@@ -206,21 +205,26 @@ BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
   return p;
 }
 
+const char* pattern_list_name(PatternListName list) {
+  static constexpr const char* kNames[] = {"y", "z", "azimuth", "elevation"};
+  return kNames[static_cast<std::size_t>(list)];
+}
+
 BeamPattern make_pattern(const std::string& name, const PatternSettings& s, const PatternList& list,
                          double measurement_period_s, std::size_t max_beams) {
+  using enum PatternListName;
   if (name == "raster")
-    return raster_pattern({list("y"), list("z"), s.samples, s.speed_m_per_s}, measurement_period_s,
+    return raster_pattern({list(y), list(z), s.samples, s.speed_m_per_s}, measurement_period_s,
                           max_beams);
   if (name == "line")
-    return line_pattern({list("y"), list("z"), s.speed_m_per_s, s.turnaround_s},
-                        measurement_period_s, max_beams);
+    return line_pattern({list(y), list(z), s.speed_m_per_s, s.turnaround_s}, measurement_period_s,
+                        max_beams);
   if (name == "mirror")
-    return mirror_pattern({list("elevation"), s.revolutions, s.rate_hz, s.speed_m_per_s},
-                          max_beams);
+    return mirror_pattern({list(elevation), s.revolutions, s.rate_hz, s.speed_m_per_s}, max_beams);
   if (name == "spherical")
-    return spherical_pattern({list("azimuth"), list("elevation"), s.rate_hz}, max_beams);
+    return spherical_pattern({list(azimuth), list(elevation), s.rate_hz}, max_beams);
   if (name == "spinning")
-    return spinning_pattern({list("elevation"), s.azimuth_step_deg, s.rate_hz, s.revolutions},
+    return spinning_pattern({list(elevation), s.azimuth_step_deg, s.rate_hz, s.revolutions},
                             max_beams);
   throw std::invalid_argument("pattern: '" + name +
                               "' is not raster, line, mirror, spherical or spinning");

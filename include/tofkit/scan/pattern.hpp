@@ -105,9 +105,14 @@ struct PatternSettings {
   double azimuth_step_deg = 0.2;  ///< spinning: azimuth between firings
 };
 
-/// The list a pattern needs, by name ("y", "z", "azimuth", "elevation"): the
-/// caller parses its own option (and names it in its errors).
-using PatternList = std::function<std::vector<double>(const char* name)>;
+/// The lists a pattern may need, in this order (a caller can index its own
+/// four fields by them), and their names: "y", "z", "azimuth", "elevation".
+enum class PatternListName { y, z, azimuth, elevation };
+[[nodiscard]] const char* pattern_list_name(PatternListName list);
+
+/// The list a pattern needs: the caller parses its own option (and names it
+/// in its errors).
+using PatternList = std::function<std::vector<double>(PatternListName list)>;
 
 /// The pattern called `name` (raster | line | mirror | spherical | spinning),
 /// asking `list` for the lists it needs, for a device with output period
