@@ -12,6 +12,11 @@
 //                    into a fresh ScanResult (a one-off scan: the kernel clears its pages)
 //   ScanFrames/R     the same, frame after frame into one ScanResult (a real-time
 //                    scanner: its results' storage is reused)
+//   ResultBytes/F    the baseline of the results' share: memcpy of a frame's
+//                    bytes (sizeof(BeamResult) per beam, from a buffer of the same
+//                    size) in the scanner's blocks, into fresh memory (F = 1: the
+//                    kernel maps and clears its pages, as for Scan) or into one
+//                    buffer frame after frame (F = 0, as for ScanFrames)
 // The second argument is the thread count. With 1 thread the CPU column is
 // the whole cost (useful on a shared machine, where real time includes waits).
 #include <benchmark/benchmark.h>
@@ -19,6 +24,8 @@
 #include <tbb/parallel_for.h>
 
 #include <cmath>
+#include <cstring>
+#include <memory>
 #include <numbers>
 #include <vector>
 
@@ -242,6 +249,29 @@ void BM_ScanFrames(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
+void BM_ResultBytes(benchmark::State& state) {
+  const bool fresh = state.range(0) != 0;
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  const std::size_t beams = static_cast<std::size_t>(kSide) * kSide;
+  constexpr std::size_t kBytes = sizeof(BeamResult);
+  const auto source = std::make_unique<std::byte[]>(beams * kBytes);  // zeroed: its pages are in
+  auto reused = std::make_unique<std::byte[]>(beams * kBytes);
+  for (auto _ : state) {
+    std::unique_ptr<std::byte[]> target;
+    if (fresh) target = std::make_unique_for_overwrite<std::byte[]>(beams * kBytes);
+    std::byte* to = fresh ? target.get() : reused.get();
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, beams, 256), [&](const auto& block) {
+      std::memcpy(to + block.begin() * kBytes, source.get() + block.begin() * kBytes,
+                  block.size() * kBytes);
+    });
+    benchmark::DoNotOptimize(to);
+    benchmark::ClobberMemory();
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(beams));
+  state.SetBytesProcessed(state.iterations() * static_cast<std::int64_t>(beams * kBytes));
+}
+
 }  // namespace
 
 void rays_and_threads(benchmark::internal::Benchmark* b) {
@@ -255,3 +285,8 @@ BENCHMARK(BM_Footprint)->Apply(rays_and_threads);
 BENCHMARK(BM_Measured)->Apply(rays_and_threads);
 BENCHMARK(BM_Scan)->Apply(rays_and_threads);
 BENCHMARK(BM_ScanFrames)->Apply(rays_and_threads);
+BENCHMARK(BM_ResultBytes)
+    ->ArgsProduct({{1, 0}, {1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
