@@ -46,9 +46,10 @@ def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=N
     if temperature_c is not None:
         grid.ambient_c = _values(temperature_c, "temperature_c")
     grid.count = _int(count, "count")
-    if shots is not None and not 1 <= _int(shots, "shots") <= 10_000_000:
+    n_shots = 0 if shots is None else _int(shots, "shots")
+    if shots is not None and not 1 <= n_shots <= 10_000_000:
         raise ValueError(f"shots: {shots} is outside [1, 10000000]")  # as tofkit measure --shots
-    grid.shots = 0 if shots is None else _int(shots, "shots")
+    grid.shots = n_shots
     if int(seed) < 0:
         raise ValueError(f"seed: {seed} is negative")
     return _tofkit._measure(_config(config), grid, int(seed), mode)
