@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from . import _tofkit
+from .device import _config
 
 _COLUMNS = _tofkit.RECORD_DTYPE.names
 
@@ -81,11 +82,6 @@ class Model:
         """
         out = self._model.apply(_columns(raw), out)
         return out["distance_m"], out["sigma_m"], out["correction_flags"]
-
-
-def _config(config):
-    from .device import DeviceConfig
-    return DeviceConfig() if config is None else config
 
 
 def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confidence="none",

@@ -4,7 +4,7 @@ rangefinder, as ``tofkit scan``, with NumPy images and points instead of files."
 import os
 
 from . import _tofkit
-from .device import DeviceConfig
+from .device import _config, _int
 
 BEAM_DTYPE = _tofkit.BEAM_DTYPE
 """The per-beam table's fields: scan.csv's columns (row, column, time_s,
@@ -99,12 +99,5 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
         raise ValueError(f"seed: {seed} is negative")
     args.seed = int(seed)
     args.mode = str(mode)
-    config = DeviceConfig() if config is None else config
-    return ScanResult(_tofkit._scan(config, os.fspath(scene), args,
+    return ScanResult(_tofkit._scan(_config(config), os.fspath(scene), args,
                                     None if model is None else model._model))
-
-
-def _int(value, name):
-    if isinstance(value, bool) or int(value) != value:
-        raise ValueError(f"{name}: expected an integer, got {value!r}")
-    return int(value)
