@@ -145,6 +145,8 @@ def test_errors_carry_the_cli_message(cli, tmp_path):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, samples=0)
     with pytest.raises(ValueError, match="mode"):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, mode="exact")
+    with pytest.raises(ValueError, match="revolutions: expected an integer, got 'two'"):
+        tofkit.scan(BLOCKS, "mirror", elevation=0, revolutions="two")
     with pytest.raises(TypeError):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, model=3)
 

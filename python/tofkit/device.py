@@ -50,15 +50,20 @@ def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=N
     if shots is not None and not 1 <= n_shots <= 10_000_000:
         raise ValueError(f"shots: {shots} is outside [1, 10000000]")  # as tofkit measure --shots
     grid.shots = n_shots
-    if int(seed) < 0:
+    if _int(seed, "seed") < 0:
         raise ValueError(f"seed: {seed} is negative")
     return _tofkit._measure(_config(config), grid, int(seed), mode)
 
 
 def _int(value, name):
-    if isinstance(value, bool) or int(value) != value:
+    """An integral argument; anything else (a fraction, a string, None) is refused by name."""
+    try:
+        as_int = int(value)
+    except (TypeError, ValueError):
+        as_int = None
+    if as_int is None or isinstance(value, bool) or as_int != value:
         raise ValueError(f"{name}: expected an integer, got {value!r}")
-    return int(value)
+    return as_int
 
 
 def link_budget(distance_m, reflectance=0.1, angle_deg=0.0, temperature_c=None, config=None):
