@@ -39,14 +39,16 @@ void reserve_populated(std::vector<T>& v, std::size_t n) {
 #endif
 }
 
-/// A block's targets, conditions and measurements, kept per thread (the
-/// targets' surface lists keep their storage from block to block).
+/// A block's footprints, targets, conditions and measurements, kept per
+/// thread (the surface lists keep their storage from block to block).
 struct BlockScratch {
+  std::vector<Footprint::Result> footprints;
   std::vector<device::Target> targets;
   std::vector<device::Conditions> conditions;
   std::vector<ranging::RawMeasurement> raw;
   void resize(std::size_t n) {
     if (targets.size() < n) {
+      footprints.resize(n);
       targets.resize(n);
       conditions.resize(n);
       raw.resize(n);
@@ -113,48 +115,64 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
   const int shots = base_shots * pattern.shots_multiplier;
   for (std::size_t begin = 0; begin < n; begin += kProgressBlock) {
     const std::size_t end = std::min(n, begin + kProgressBlock);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),
-                      [&](const tbb::blocked_range<std::size_t>& block) {
-                        // The block's footprints, then their measurements in one
-                        // call (single shots run in lanes).
-                        BlockScratch& s = block_scratch();
-                        const std::size_t count = block.size();
-                        s.resize(count);
-                        Footprint::Result fp;
-                        for (std::size_t k = 0; k < count; ++k) {
-                          const std::size_t i = block.begin() + k;
-                          BeamResult& b = result.beams[i];
-                          b.beam = pattern.beams[i];
-                          b.beam.origin_m = pose.transform(b.beam.origin_m);
-                          b.beam.direction = pose.rotate(b.beam.direction);
-                          footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
-                          b.true_range_m = fp.true_range_m;
-                          b.surfaces = static_cast<int>(fp.target.surfaces.size());
-                          b.reflectance = ranging::kNaN;
-                          b.cos_incidence = ranging::kNaN;
-                          b.range = {};
-                          double largest = 0;
-                          for (const auto& surface : fp.target.surfaces) {
-                            if (surface.fraction > largest) {
-                              largest = surface.fraction;
-                              b.reflectance = surface.reflectance;
-                              b.cos_incidence = surface.cos_incidence;
-                            }
-                          }
-                          // (Swapped, not copied: both buffers are reused.)
-                          std::swap(s.targets[k].surfaces, fp.target.surfaces);
-                          device::Conditions& conditions = s.conditions[k];
-                          conditions = options.conditions;
-                          if (options.clocks_follow_beams) {
-                            conditions.minutes_since_power_on += b.beam.time_s / 60.0;
-                            conditions.ms_since_laser_on += b.beam.time_s * 1e3;
-                          }
-                        }
-                        device.measure({s.targets.data(), count}, {s.conditions.data(), count},
-                                       options.seed, block.begin(), shots, {s.raw.data(), count});
-                        for (std::size_t k = 0; k < count; ++k)
-                          result.beams[block.begin() + k].raw = s.raw[k];
-                      });
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(begin, end, 256),
+        [&](const tbb::blocked_range<std::size_t>& block) {
+          // The block in stages, each over all its beams: the beams
+          // in the world frame and their conditions, the footprints,
+          // the targets, then their measurements in one call (single
+          // shots run in lanes). A stage reads what the one before
+          // wrote long after the stores: a load that follows a store
+          // to the same bytes closely, but is wider than it, waits
+          // for the store to reach the cache (~15 cycles a time).
+          BlockScratch& s = block_scratch();
+          const std::size_t count = block.size();
+          s.resize(count);
+          BeamResult* const beams = &result.beams[block.begin()];
+          for (std::size_t k = 0; k < count; ++k) {
+            const Beam& from = pattern.beams[block.begin() + k];
+            Beam& beam = beams[k].beam;
+            beam.row = from.row;
+            beam.column = from.column;
+            beam.time_s = from.time_s;
+            beam.position_m = from.position_m;
+            beam.origin_m = pose.transform(from.origin_m);
+            beam.direction = pose.rotate(from.direction);
+            const device::Conditions& at_start = options.conditions;
+            device::Conditions& conditions = s.conditions[k];
+            conditions = at_start;
+            if (options.clocks_follow_beams) {
+              conditions.minutes_since_power_on =
+                  at_start.minutes_since_power_on + from.time_s / 60.0;
+              conditions.ms_since_laser_on = at_start.ms_since_laser_on + from.time_s * 1e3;
+            }
+          }
+          for (std::size_t k = 0; k < count; ++k)
+            footprint.trace(caster, beams[k].beam.origin_m, beams[k].beam.direction,
+                            s.footprints[k]);
+          for (std::size_t k = 0; k < count; ++k) {
+            BeamResult& b = beams[k];
+            Footprint::Result& fp = s.footprints[k];
+            double largest = 0, reflectance = ranging::kNaN, cos_incidence = ranging::kNaN;
+            for (const auto& surface : fp.target.surfaces) {
+              if (surface.fraction > largest) {
+                largest = surface.fraction;
+                reflectance = surface.reflectance;
+                cos_incidence = surface.cos_incidence;
+              }
+            }
+            b.true_range_m = fp.true_range_m;
+            b.surfaces = static_cast<int>(fp.target.surfaces.size());
+            b.reflectance = reflectance;
+            b.cos_incidence = cos_incidence;
+            b.range = {};
+            // (Swapped, not copied: both buffers are reused.)
+            std::swap(s.targets[k].surfaces, fp.target.surfaces);
+          }
+          device.measure({s.targets.data(), count}, {s.conditions.data(), count}, options.seed,
+                         block.begin(), shots, {s.raw.data(), count});
+          for (std::size_t k = 0; k < count; ++k) beams[k].raw = s.raw[k];
+        });
     if (options.progress) options.progress(end, n);
   }
 }
