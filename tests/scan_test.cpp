@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/scan_sequence.hpp"
 #include "tofkit/scan/footprint.hpp"
 #include "tofkit/scan/pattern.hpp"
 #include "tofkit/scan/ray_caster.hpp"
@@ -465,6 +466,52 @@ TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
         << i;
   }
   EXPECT_GT(misses, 0);
+}
+
+// A sequence scan with a still beam traces every beam as the scanner does:
+// the same beams in the world frame (a posed sensor), true ranges, surface
+// counts, and the largest surface's reflectance and incidence (NaN on a miss;
+// the sequence scan had left them NaN on every beam).
+TEST(ScanScanner, SequenceScanTracesBeamsAsTheScannerDoes) {
+  Scene s;
+  s.primitives.push_back(plane({2.0, 0.1, 0}, {-1, 0.2, 0}, 1.0, 1.0, 0.3));
+  s.primitives.push_back(plane({2.5, -0.5, 0}, {-1, 0, 0}, 1.0, 1.0, 0.7));
+  s.sensor.position_m = {0.1, -0.2, 0.05};
+  s.sensor.rpy_deg = {2, -3, 5};
+  const RayCaster caster(s);
+  device::DeviceConfig config;
+  config.scan.rays_per_beam = 7;
+  const device::VirtualRangefinder dev(config);
+  std::vector<double> az, el;
+  for (int k = -40; k <= 40; k += 4) az.push_back(k);
+  for (int k = -20; k <= 20; k += 5) el.push_back(k);
+  const auto pattern = spherical_pattern({az, el, 10});
+  ScanOptions o;
+  o.shots = 2;
+  const ScanResult plain = run_scan(caster, Footprint(config), dev, pattern, o);
+  experiments::SequenceScanOptions so;
+  so.shots = 2;
+  so.window_points = 1;
+  const auto seq = experiments::run_sequence_scan(caster, Footprint(config), dev, pattern, so);
+  auto same = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) == 0; };
+  ASSERT_EQ(seq.result.beams.size(), plain.beams.size());
+  int misses = 0, dark = 0, bright = 0;
+  for (std::size_t i = 0; i < plain.beams.size(); ++i) {
+    const BeamResult &a = seq.result.beams[i], &b = plain.beams[i];
+    misses += b.surfaces == 0;
+    dark += b.surfaces > 0 && b.reflectance == 0.3;
+    bright += b.surfaces > 0 && b.reflectance == 0.7;
+    EXPECT_TRUE(same(a.beam.time_s, b.beam.time_s) && same(a.beam.origin_m, b.beam.origin_m) &&
+                same(a.beam.direction, b.beam.direction) && a.beam.row == b.beam.row &&
+                a.beam.column == b.beam.column)
+        << i;
+    EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
+                same(a.reflectance, b.reflectance) && same(a.cos_incidence, b.cos_incidence))
+        << i;
+  }
+  EXPECT_GT(misses, 0);
+  EXPECT_GT(dark, 0);
+  EXPECT_GT(bright, 0);
 }
 
 // A pattern's size is checked before its beams are made: a spinning step of

@@ -37,12 +37,9 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
         for (std::size_t i = block.begin(); i != block.end(); ++i) {
           const scan::Beam& beam = pattern.beams[i];
           scan::BeamResult& b = result.beams[i];
-          b.beam = beam;
-          b.beam.origin_m = to_world.transform(beam.origin_m);
-          b.beam.direction = to_world.rotate(beam.direction);
+          scan::beam_to_world(beam, to_world, b.beam);
           footprint.trace(caster, b.beam.origin_m, b.beam.direction, fp);
-          b.true_range_m = fp.true_range_m;
-          b.surfaces = static_cast<int>(fp.target.surfaces.size());
+          scan::record_footprint(fp, b);
           auto& item = items[i];
           item.conditions = options.conditions;
           item.time_s = beam.time_s;

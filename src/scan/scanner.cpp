@@ -78,6 +78,30 @@ Image finish(int rows, int columns, const std::vector<double>& sum, const std::v
 
 }  // namespace
 
+void beam_to_world(const Beam& beam, const RigidTransform& to_world, Beam& out) {
+  out.row = beam.row;
+  out.column = beam.column;
+  out.time_s = beam.time_s;
+  out.position_m = beam.position_m;
+  out.origin_m = to_world.transform(beam.origin_m);
+  out.direction = to_world.rotate(beam.direction);
+}
+
+void record_footprint(const Footprint::Result& footprint, BeamResult& b) {
+  double largest = 0, reflectance = ranging::kNaN, cos_incidence = ranging::kNaN;
+  for (const auto& surface : footprint.target.surfaces) {
+    if (surface.fraction > largest) {
+      largest = surface.fraction;
+      reflectance = surface.reflectance;
+      cos_incidence = surface.cos_incidence;
+    }
+  }
+  b.true_range_m = footprint.true_range_m;
+  b.surfaces = static_cast<int>(footprint.target.surfaces.size());
+  b.reflectance = reflectance;
+  b.cos_incidence = cos_incidence;
+}
+
 double reported_distance_m(const BeamResult& b) {
   return std::isnan(b.range.distance_m) ? b.raw.distance_raw_m : b.range.distance_m;
 }
@@ -115,64 +139,46 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
   const int shots = base_shots * pattern.shots_multiplier;
   for (std::size_t begin = 0; begin < n; begin += kProgressBlock) {
     const std::size_t end = std::min(n, begin + kProgressBlock);
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(begin, end, 256),
-        [&](const tbb::blocked_range<std::size_t>& block) {
-          // The block in stages, each over all its beams: the beams
-          // in the world frame and their conditions, the footprints,
-          // the targets, then their measurements in one call (single
-          // shots run in lanes). A stage reads what the one before
-          // wrote long after the stores: a load that follows a store
-          // to the same bytes closely, but is wider than it, waits
-          // for the store to reach the cache (~15 cycles a time).
-          BlockScratch& s = block_scratch();
-          const std::size_t count = block.size();
-          s.resize(count);
-          BeamResult* const beams = &result.beams[block.begin()];
-          for (std::size_t k = 0; k < count; ++k) {
-            const Beam& from = pattern.beams[block.begin() + k];
-            Beam& beam = beams[k].beam;
-            beam.row = from.row;
-            beam.column = from.column;
-            beam.time_s = from.time_s;
-            beam.position_m = from.position_m;
-            beam.origin_m = pose.transform(from.origin_m);
-            beam.direction = pose.rotate(from.direction);
-            const device::Conditions& at_start = options.conditions;
-            device::Conditions& conditions = s.conditions[k];
-            conditions = at_start;
-            if (options.clocks_follow_beams) {
-              conditions.minutes_since_power_on =
-                  at_start.minutes_since_power_on + from.time_s / 60.0;
-              conditions.ms_since_laser_on = at_start.ms_since_laser_on + from.time_s * 1e3;
-            }
-          }
-          for (std::size_t k = 0; k < count; ++k)
-            footprint.trace(caster, beams[k].beam.origin_m, beams[k].beam.direction,
-                            s.footprints[k]);
-          for (std::size_t k = 0; k < count; ++k) {
-            BeamResult& b = beams[k];
-            Footprint::Result& fp = s.footprints[k];
-            double largest = 0, reflectance = ranging::kNaN, cos_incidence = ranging::kNaN;
-            for (const auto& surface : fp.target.surfaces) {
-              if (surface.fraction > largest) {
-                largest = surface.fraction;
-                reflectance = surface.reflectance;
-                cos_incidence = surface.cos_incidence;
-              }
-            }
-            b.true_range_m = fp.true_range_m;
-            b.surfaces = static_cast<int>(fp.target.surfaces.size());
-            b.reflectance = reflectance;
-            b.cos_incidence = cos_incidence;
-            b.range = {};
-            // (Swapped, not copied: both buffers are reused.)
-            std::swap(s.targets[k].surfaces, fp.target.surfaces);
-          }
-          device.measure({s.targets.data(), count}, {s.conditions.data(), count}, options.seed,
-                         block.begin(), shots, {s.raw.data(), count});
-          for (std::size_t k = 0; k < count; ++k) beams[k].raw = s.raw[k];
-        });
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),
+                      [&](const tbb::blocked_range<std::size_t>& block) {
+                        // The block in stages, each over all its beams: the beams
+                        // in the world frame and their conditions, the footprints,
+                        // the targets, then their measurements in one call (single
+                        // shots run in lanes). A stage reads what the one before
+                        // wrote long after the stores: a load that follows a store
+                        // to the same bytes closely, but is wider than it, waits
+                        // for the store to reach the cache (~15 cycles a time).
+                        BlockScratch& s = block_scratch();
+                        const std::size_t count = block.size();
+                        s.resize(count);
+                        BeamResult* const beams = &result.beams[block.begin()];
+                        for (std::size_t k = 0; k < count; ++k) {
+                          const Beam& from = pattern.beams[block.begin() + k];
+                          beam_to_world(from, pose, beams[k].beam);
+                          const device::Conditions& at_start = options.conditions;
+                          device::Conditions& conditions = s.conditions[k];
+                          conditions = at_start;
+                          if (options.clocks_follow_beams) {
+                            conditions.minutes_since_power_on =
+                                at_start.minutes_since_power_on + from.time_s / 60.0;
+                            conditions.ms_since_laser_on =
+                                at_start.ms_since_laser_on + from.time_s * 1e3;
+                          }
+                        }
+                        for (std::size_t k = 0; k < count; ++k)
+                          footprint.trace(caster, beams[k].beam.origin_m, beams[k].beam.direction,
+                                          s.footprints[k]);
+                        for (std::size_t k = 0; k < count; ++k) {
+                          Footprint::Result& fp = s.footprints[k];
+                          record_footprint(fp, beams[k]);
+                          beams[k].range = {};
+                          // (Swapped, not copied: both buffers are reused.)
+                          std::swap(s.targets[k].surfaces, fp.target.surfaces);
+                        }
+                        device.measure({s.targets.data(), count}, {s.conditions.data(), count},
+                                       options.seed, block.begin(), shots, {s.raw.data(), count});
+                        for (std::size_t k = 0; k < count; ++k) beams[k].raw = s.raw[k];
+                      });
     if (options.progress) options.progress(end, n);
   }
 }

@@ -26,6 +26,16 @@ struct BeamResult {
   ranging::Range range;  ///< NaN until a model is applied
 };
 
+/// `beam` (sensor frame) into `out` in the world frame of `to_world`. Written
+/// field by field, not as a copy: the scanner reads the result's origin and
+/// direction soon after, and a load wider than the stores before it waits for
+/// them to reach the cache.
+void beam_to_world(const Beam& beam, const RigidTransform& to_world, Beam& out);
+
+/// A beam's footprint into its result: the axis's true range, the number of
+/// surfaces, and the reflectance and incidence of the largest (NaN on a miss).
+void record_footprint(const Footprint::Result& footprint, BeamResult& b);
+
 struct ScanResult {
   /// The pattern's description (name, size, line columns); its `beams` are
   /// left empty: every beam is in `beams` below, in the world frame.
