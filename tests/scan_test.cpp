@@ -41,6 +41,23 @@ Scene single(Primitive p) {
   return s;
 }
 
+// The same bytes (NaNs included).
+template <class T>
+bool same(const T& x, const T& y) {
+  return std::memcmp(&x, &y, sizeof x) == 0;
+}
+
+// Two results of beam i with the same beam (world frame) and footprint.
+void expect_same_trace(const BeamResult& a, const BeamResult& b, std::size_t i) {
+  EXPECT_TRUE(same(a.beam.time_s, b.beam.time_s) && same(a.beam.origin_m, b.beam.origin_m) &&
+              same(a.beam.direction, b.beam.direction) && a.beam.row == b.beam.row &&
+              a.beam.column == b.beam.column)
+      << i;
+  EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
+              same(a.reflectance, b.reflectance) && same(a.cos_incidence, b.cos_incidence))
+      << i;
+}
+
 // Deterministic ray origins and directions that are not float-representable.
 Vec3 origin(int i) {
   return {0.1 + 0.0123456789 * i, -0.03 + 0.00731 * i, 0.017 * std::sin(i)};
@@ -443,7 +460,6 @@ TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
   ASSERT_LT(pattern.beams.size(), reused.beams.size());
   run_scan(caster, Footprint(config), dev, pattern, o, reused);
   const ScanResult fresh = run_scan(caster, Footprint(config), dev, pattern, o);
-  auto same = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) == 0; };
   EXPECT_FALSE(reused.has_model);
   EXPECT_EQ(reused.pattern.rows, fresh.pattern.rows);
   EXPECT_EQ(reused.pattern.columns, fresh.pattern.columns);
@@ -452,13 +468,7 @@ TEST(ScanScanner, ReusedResultGivesTheBytesOfAFreshOne) {
   for (std::size_t i = 0; i < fresh.beams.size(); ++i) {
     const BeamResult &a = reused.beams[i], &b = fresh.beams[i];
     misses += b.surfaces == 0;
-    EXPECT_TRUE(same(a.beam.time_s, b.beam.time_s) && same(a.beam.origin_m, b.beam.origin_m) &&
-                same(a.beam.direction, b.beam.direction) && a.beam.row == b.beam.row &&
-                a.beam.column == b.beam.column)
-        << i;
-    EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
-                same(a.reflectance, b.reflectance) && same(a.cos_incidence, b.cos_incidence))
-        << i;
+    expect_same_trace(a, b, i);
     EXPECT_TRUE(same(a.raw, b.raw)) << i;
     EXPECT_TRUE(same(a.range.distance_m, b.range.distance_m) &&
                 same(a.range.sigma_m, b.range.sigma_m) &&
@@ -493,7 +503,6 @@ TEST(ScanScanner, SequenceScanTracesBeamsAsTheScannerDoes) {
   so.shots = 2;
   so.window_points = 1;
   const auto seq = experiments::run_sequence_scan(caster, Footprint(config), dev, pattern, so);
-  auto same = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) == 0; };
   ASSERT_EQ(seq.result.beams.size(), plain.beams.size());
   int misses = 0, dark = 0, bright = 0;
   for (std::size_t i = 0; i < plain.beams.size(); ++i) {
@@ -501,13 +510,7 @@ TEST(ScanScanner, SequenceScanTracesBeamsAsTheScannerDoes) {
     misses += b.surfaces == 0;
     dark += b.surfaces > 0 && b.reflectance == 0.3;
     bright += b.surfaces > 0 && b.reflectance == 0.7;
-    EXPECT_TRUE(same(a.beam.time_s, b.beam.time_s) && same(a.beam.origin_m, b.beam.origin_m) &&
-                same(a.beam.direction, b.beam.direction) && a.beam.row == b.beam.row &&
-                a.beam.column == b.beam.column)
-        << i;
-    EXPECT_TRUE(same(a.true_range_m, b.true_range_m) && a.surfaces == b.surfaces &&
-                same(a.reflectance, b.reflectance) && same(a.cos_incidence, b.cos_incidence))
-        << i;
+    expect_same_trace(a, b, i);
   }
   EXPECT_GT(misses, 0);
   EXPECT_GT(dark, 0);
