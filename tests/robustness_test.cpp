@@ -261,6 +261,19 @@ TEST_F(Robustness, NumbersThatDoNotFitADoubleAreErrorsWithTheirPlace) {
   expect_refused("measure --distance 1 --reflectance 0.5 --seed -1 --out a.csv", {"--seed -1"});
   expect_refused("measure --distance 1 --reflectance 0.5 --seed 18446744073709551616 --out a.csv",
                  {"--seed 18446744073709551616"});
+  // scan and emulate read their seed as measure does (scan took -1 as 2^64 - 1).
+  write("plate.toml",
+        "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
+        "size_m = [1, 1]\nreflectance = 0.5\n");
+  for (const std::string seed : {"-1", "18446744073709551616", "1.5"}) {
+    expect_refused(
+        "scan --scene plate.toml --pattern spherical --azimuth 0:2:1 --elevation 0 "
+        "--seed " +
+            seed + " --out .",
+        {"--seed " + seed});
+    expect_refused("emulate --distance 1 --reflectance 0.5 --seed " + seed + " --out -",
+                   {"--seed " + seed});
+  }
 }
 
 TEST_F(Robustness, OldMacLineEndingsReadLikeUnixOnes) {
