@@ -64,6 +64,11 @@ def test_seed_selects_the_run():
     (dict(distance_m=1, reflectance=0.1, shots="x"), "shots: expected an integer, got 'x'"),
     (dict(distance_m=1, reflectance=0.1, count=None), "count: expected an integer, got None"),
     (dict(distance_m=1, reflectance=0.1, seed=2.5), "seed: expected an integer, got 2.5"),
+    (dict(distance_m=1, reflectance=0.1, seed=-1), "seed: -1 is outside [0, 18446744073709551615]"),
+    (dict(distance_m=1, reflectance=0.1, seed=2**64),
+     "seed: 18446744073709551616 is outside [0, 18446744073709551615]"),
+    (dict(distance_m=1, reflectance=0.1, count=2**31),  # beyond a C int: a pybind TypeError
+     "count: 2147483648 is outside [-2147483648, 2147483647]"),
     (dict(distance_m=[], reflectance=0.1), "distance_m: no values"),
     (dict(distance_m=np.full(10001, 1.0), reflectance=np.full(10001, 0.5)),
      "the grid has 1.0002e+08 rows, more than 1e+08"),

@@ -147,6 +147,13 @@ def test_errors_carry_the_cli_message(cli, tmp_path):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, mode="exact")
     with pytest.raises(ValueError, match="revolutions: expected an integer, got 'two'"):
         tofkit.scan(BLOCKS, "mirror", elevation=0, revolutions="two")
+    # Beyond the C++ field's type: refused by name, not with pybind's TypeError.
+    with pytest.raises(ValueError, match=r"revolutions: 1180591620717411303424 is outside"):
+        tofkit.scan(BLOCKS, "mirror", elevation=0, revolutions=2**70)
+    with pytest.raises(ValueError, match=r"seed: 18446744073709551616 is outside \[0, "):
+        tofkit.scan(BLOCKS, "mirror", elevation=0, seed=2**64)
+    with pytest.raises(ValueError, match=r"seed: -1 is outside \[0, "):
+        tofkit.scan(BLOCKS, "mirror", elevation=0, seed=-1)
     with pytest.raises(TypeError):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, model=3)
 

@@ -46,24 +46,29 @@ def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=N
     if temperature_c is not None:
         grid.ambient_c = _values(temperature_c, "temperature_c")
     grid.count = _int(count, "count")
-    n_shots = 0 if shots is None else _int(shots, "shots")
-    if shots is not None and not 1 <= n_shots <= 10_000_000:
-        raise ValueError(f"shots: {shots} is outside [1, 10000000]")  # as tofkit measure --shots
-    grid.shots = n_shots
-    if _int(seed, "seed") < 0:
-        raise ValueError(f"seed: {seed} is negative")
-    return _tofkit._measure(_config(config), grid, int(seed), mode)
+    # (None: the config's; else as tofkit measure --shots)
+    grid.shots = 0 if shots is None else _int(shots, "shots", 1, 10_000_000)
+    return _tofkit._measure(_config(config), grid, _seed(seed), mode)
 
 
-def _int(value, name):
-    """An integral argument; anything else (a fraction, a string, None) is refused by name."""
+def _int(value, name, lo=-2**31, hi=2**31 - 1):
+    """An integral argument in [lo, hi] (by default a C int's range: the C++
+    side checks the argument's own range); anything else (a fraction, a
+    string, None, 2**40) is refused by name."""
     try:
         as_int = int(value)
     except (TypeError, ValueError):
         as_int = None
     if as_int is None or isinstance(value, bool) or as_int != value:
         raise ValueError(f"{name}: expected an integer, got {value!r}")
+    if not lo <= as_int <= hi:
+        raise ValueError(f"{name}: {as_int} is outside [{lo}, {hi}]")
     return as_int
+
+
+def _seed(value):
+    """A random seed: a whole number in [0, 2**64 - 1], as the CLI's --seed."""
+    return _int(value, "seed", 0, 2**64 - 1)
 
 
 def link_budget(distance_m, reflectance=0.1, angle_deg=0.0, temperature_c=None, config=None):

@@ -4,7 +4,7 @@ rangefinder, as ``tofkit scan``, with NumPy images and points instead of files."
 import os
 
 from . import _tofkit
-from .device import _config, _int
+from .device import _config, _int, _seed
 
 BEAM_DTYPE = _tofkit.BEAM_DTYPE
 """The per-beam table's fields: scan.csv's columns (row, column, time_s,
@@ -95,9 +95,7 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
     args.azimuth_step_deg = float(azimuth_step_deg)
     if ambient_c is not None:
         args.ambient_c = float(ambient_c)
-    if _int(seed, "seed") < 0:
-        raise ValueError(f"seed: {seed} is negative")
-    args.seed = int(seed)
+    args.seed = _seed(seed)
     args.mode = str(mode)
     return ScanResult(_tofkit._scan(_config(config), os.fspath(scene), args,
                                     None if model is None else model._model))
