@@ -39,6 +39,8 @@ def test_extended_target_power_falls_as_inverse_square():
     (dict(distance_m=[1.0], reflectance=2), "reflectance: 2 is outside [0, 1]"),
     (dict(distance_m=[1.0], angle_deg=90), "angle_deg: 90 is outside [0, 89.9]"),
     (dict(distance_m=[1.0], temperature_c=1e9), "temperature_c: 1000000000 is outside [-60, 150]"),
+    (dict(distance_m=[1.0], reflectance="a"), "reflectance: expected a number, got 'a'"),
+    (dict(distance_m=[1.0], angle_deg=None), "angle_deg: expected a number, got None"),
 ])
 def test_arguments_outside_measure_s_ranges_raise(kwargs, message):
     # A negative distance had given a positive power, 0 m an infinite SNR,

@@ -69,6 +69,7 @@ def test_seed_selects_the_run():
      "seed: 18446744073709551616 is outside [0, 18446744073709551615]"),
     (dict(distance_m=1, reflectance=0.1, count=2**31),  # beyond a C int: a pybind TypeError
      "count: 2147483648 is outside [-2147483648, 2147483647]"),
+    (dict(distance_m=1, reflectance=0.1, mode=None), "mode: 'None' is not analytic or waveform"),
     (dict(distance_m=[], reflectance=0.1), "distance_m: no values"),
     (dict(distance_m=np.full(10001, 1.0), reflectance=np.full(10001, 0.5)),
      "the grid has 1.0002e+08 rows, more than 1e+08"),
@@ -82,3 +83,8 @@ def test_bad_arguments_raise_value_error(kwargs, message):
 def test_nan_is_rejected():
     with pytest.raises(ValueError, match="distance_m: nan is outside"):
         tofkit.measure(float("nan"), 0.1)
+
+
+def test_a_config_that_is_not_one_is_refused_by_name():
+    with pytest.raises(TypeError, match="config: expected a tofkit.DeviceConfig or None, got str"):
+        tofkit.measure(1.0, 0.5, config="paper")

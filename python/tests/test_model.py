@@ -187,8 +187,23 @@ def test_bad_inputs_raise(calibration):
         tofkit.fit_surface(records, "poly:x")
     with pytest.raises(ValueError, match="rcond applies"):
         tofkit.fit_surface(records, "bspline", rcond=0.1)
+    # Arguments of the wrong kind are refused by name (they had surfaced
+    # pybind's "incompatible function arguments", or an AttributeError).
+    with pytest.raises(ValueError, match="rcond: expected a number, got 'small'"):
+        tofkit.fit_surface(records, rcond="small")
+    with pytest.raises(TypeError, match="chain: expected a tofkit.Model or None, got int"):
+        tofkit.fit_surface(records, chain=3)
+    with pytest.raises(TypeError, match="config: expected a tofkit.DeviceConfig or None, got str"):
+        tofkit.fit_chain(records, config="paper")
     empty_distance, _, _ = model.apply(records[:0])
     assert empty_distance.shape == (0,)
+
+
+def test_chain_steps_as_a_list_are_the_cli_s_list(calibration):
+    _, records = calibration
+    as_list = tofkit.fit_chain(records, ["offset", "grayvalue"])
+    as_text = tofkit.fit_chain(records, "offset,grayvalue")
+    assert as_list.to_json() == as_text.to_json()
 
 
 def test_apply_into_a_reused_output(calibration):

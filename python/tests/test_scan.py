@@ -154,6 +154,10 @@ def test_errors_carry_the_cli_message(cli, tmp_path):
         tofkit.scan(BLOCKS, "mirror", elevation=0, seed=2**64)
     with pytest.raises(ValueError, match=r"seed: -1 is outside \[0, "):
         tofkit.scan(BLOCKS, "mirror", elevation=0, seed=-1)
+    with pytest.raises(ValueError, match="speed_m_per_s: expected a number, got 'fast'"):
+        tofkit.scan(BLOCKS, "line", y="0:0.1:0.05", z=0, speed_m_per_s="fast")
+    with pytest.raises(ValueError, match="rate_hz: expected a number, got None"):
+        tofkit.scan(BLOCKS, "mirror", elevation=0, rate_hz=None)
     with pytest.raises(TypeError):
         tofkit.scan(BLOCKS, "raster", y=0, z=0, model=3)
 

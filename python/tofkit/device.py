@@ -22,7 +22,25 @@ def _values(x, name):
 
 
 def _config(config):
-    return DeviceConfig() if config is None else config
+    """The device of a call: a DeviceConfig, or None for the default one."""
+    if config is None:
+        return DeviceConfig()
+    if not isinstance(config, DeviceConfig):
+        raise TypeError(f"config: expected a tofkit.DeviceConfig or None, got "
+                        f"{type(config).__name__}")
+    return config
+
+
+def _float(value, name):
+    """A real argument; anything else (a string, None, a bool) is refused by
+    name. NaN and infinities pass: the C++ side checks every range."""
+    try:
+        as_float = float(value)
+    except (TypeError, ValueError):
+        as_float = None
+    if as_float is None or isinstance(value, bool):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
+    return as_float
 
 
 def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=None, count=1,
@@ -48,7 +66,7 @@ def measure(distance_m, reflectance, angle_deg=None, temperature_c=None, shots=N
     grid.count = _int(count, "count")
     # (None: the config's; else as tofkit measure --shots)
     grid.shots = 0 if shots is None else _int(shots, "shots", 1, 10_000_000)
-    return _tofkit._measure(_config(config), grid, _seed(seed), mode)
+    return _tofkit._measure(_config(config), grid, _seed(seed), str(mode))
 
 
 def _int(value, name, lo=-2**31, hi=2**31 - 1):
@@ -83,5 +101,7 @@ def link_budget(distance_m, reflectance=0.1, angle_deg=0.0, temperature_c=None, 
     distances = np.atleast_1d(np.asarray(distance_m, dtype=np.float64))
     if distances.ndim != 1:
         raise ValueError("distance_m: expected a number or a 1-D array")
-    return _tofkit._link_budget(_config(config), distances, float(reflectance), float(angle_deg),
-                                None if temperature_c is None else float(temperature_c))
+    return _tofkit._link_budget(_config(config), distances, _float(reflectance, "reflectance"),
+                                _float(angle_deg, "angle_deg"),
+                                None if temperature_c is None else _float(temperature_c,
+                                                                          "temperature_c"))

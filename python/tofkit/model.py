@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from . import _tofkit
-from .device import _config
+from .device import _config, _float
 
 _COLUMNS = _tofkit.RECORD_DTYPE.names
 
@@ -96,9 +96,12 @@ def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confid
     "calibrated" (sigma fitted on out-of-fold residuals) or "thesis".
     refine_walk: add a dense penalized correction in pulse width to the
     grayvalue step (nodes and smoothing by grouped cross-validation).
+    steps: the CLI's LIST ("offset,grayvalue") or a list of step names.
     """
-    return Model(_tofkit._fit_chain(_columns(records), steps, _config(config), confidence,
-                                    bool(refine_walk)))
+    if isinstance(steps, (list, tuple)):
+        steps = ",".join(str(step) for step in steps)
+    return Model(_tofkit._fit_chain(_columns(records), str(steps), _config(config),
+                                    str(confidence), bool(refine_walk)))
 
 
 def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=None,
@@ -112,7 +115,10 @@ def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=
     cols = dict(zip(_COLUMNS, _columns(records)))
     if cols["distance_true_m"] is None:
         raise ValueError("records: a surface fit needs the distance_true_m column")
+    if chain is not None and not isinstance(chain, Model):
+        raise TypeError(f"chain: expected a tofkit.Model or None, got {type(chain).__name__}")
     base = chain._model if chain is not None else None
-    return Model(_tofkit._fit_surface(base, _config(config), _columns(records), surface,
+    return Model(_tofkit._fit_surface(base, _config(config), _columns(records), str(surface),
                                       bool(temperature),
-                                      None if rcond is None else float(rcond), confidence))
+                                      None if rcond is None else _float(rcond, "rcond"),
+                                      str(confidence)))

@@ -4,7 +4,7 @@ rangefinder, as ``tofkit scan``, with NumPy images and points instead of files."
 import os
 
 from . import _tofkit
-from .device import _config, _int, _seed
+from .device import _config, _float, _int, _seed
 
 BEAM_DTYPE = _tofkit.BEAM_DTYPE
 """The per-beam table's fields: scan.csv's columns (row, column, time_s,
@@ -89,12 +89,12 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
     args.shots = 0 if shots is None else _int(shots, "shots")
     if shots is not None and args.shots < 1:
         raise ValueError(f"shots: {shots} is below 1")
-    args.speed_m_per_s = float(speed_m_per_s)
-    args.turnaround_s = float(turnaround_s)
-    args.rate_hz = float(rate_hz)
-    args.azimuth_step_deg = float(azimuth_step_deg)
+    args.speed_m_per_s = _float(speed_m_per_s, "speed_m_per_s")
+    args.turnaround_s = _float(turnaround_s, "turnaround_s")
+    args.rate_hz = _float(rate_hz, "rate_hz")
+    args.azimuth_step_deg = _float(azimuth_step_deg, "azimuth_step_deg")
     if ambient_c is not None:
-        args.ambient_c = float(ambient_c)
+        args.ambient_c = _float(ambient_c, "ambient_c")
     args.seed = _seed(seed)
     args.mode = str(mode)
     return ScanResult(_tofkit._scan(_config(config), os.fspath(scene), args,
