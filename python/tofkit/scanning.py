@@ -86,9 +86,8 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
     args.y, args.z, args.azimuth, args.elevation = y, z, azimuth, elevation
     args.samples = _int(samples, "samples")
     args.revolutions = _int(revolutions, "revolutions")
-    args.shots = 0 if shots is None else _int(shots, "shots")
-    if shots is not None and args.shots < 1:
-        raise ValueError(f"shots: {shots} is below 1")
+    # (None: the config's; else as tofkit scan --shots and measure())
+    args.shots = 0 if shots is None else _int(shots, "shots", 1, 10_000_000)
     args.speed_m_per_s = _float(speed_m_per_s, "speed_m_per_s")
     args.turnaround_s = _float(turnaround_s, "turnaround_s")
     args.rate_hz = _float(rate_hz, "rate_hz")

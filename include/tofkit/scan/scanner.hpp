@@ -26,10 +26,8 @@ struct BeamResult {
   ranging::Range range;  ///< NaN until a model is applied
 };
 
-/// `beam` (sensor frame) into `out` in the world frame of `to_world`. Written
-/// field by field, not as a copy: the scanner reads the result's origin and
-/// direction soon after, and a load wider than the stores before it waits for
-/// them to reach the cache.
+/// `beam` (sensor frame) into `out` in the world frame of `to_world`, field
+/// by field (the origin and direction are not copied and then overwritten).
 void beam_to_world(const Beam& beam, const RigidTransform& to_world, Beam& out);
 
 /// A beam's footprint into its result: the axis's true range, the number of
