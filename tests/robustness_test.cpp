@@ -66,6 +66,13 @@ class Robustness : public tofkit::test::CliFixture {
     return entries;
   }
 
+  // plate.toml: one 1 x 1 m plate 2 m ahead.
+  void write_plate_scene() const {
+    write("plate.toml",
+          "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
+          "size_m = [1, 1]\nreflectance = 0.5\n");
+  }
+
   // The case must fail with status 1, a message containing every `needles`,
   // and leave the directory untouched.
   void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
@@ -226,9 +233,7 @@ TEST_F(Robustness, SettingsThatWouldHangAreRefusedNamingTheKey) {
       {"--distance/--angle"});
   // A scan's beams are rows of scan.csv: a 0.01 x 0.1 degree sphere (65 M
   // beams, some 20 GB) had run until memory ran out.
-  write("plate.toml",
-        "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
-        "size_m = [1, 1]\nreflectance = 0.5\n");
+  write_plate_scene();
   expect_refused(
       "scan --scene plate.toml --pattern spherical --azimuth -180:180:0.01 --elevation -90:90:0.1 "
       "--out .",
@@ -262,9 +267,7 @@ TEST_F(Robustness, NumbersThatDoNotFitADoubleAreErrorsWithTheirPlace) {
   expect_refused("measure --distance 1 --reflectance 0.5 --seed 18446744073709551616 --out a.csv",
                  {"--seed 18446744073709551616"});
   // scan and emulate read their seed as measure does (scan took -1 as 2^64 - 1).
-  write("plate.toml",
-        "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
-        "size_m = [1, 1]\nreflectance = 0.5\n");
+  write_plate_scene();
   for (const std::string seed : {"-1", "18446744073709551616", "1.5"}) {
     expect_refused(
         "scan --scene plate.toml --pattern spherical --azimuth 0:2:1 --elevation 0 "

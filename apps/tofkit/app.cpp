@@ -66,4 +66,11 @@ std::uint64_t parse_seed(const std::string& text, const std::string& option) {
   return seed;
 }
 
+CLI::Option* add_seed_option(CLI::App& sub, std::uint64_t& seed, const std::string& help) {
+  return sub
+      .add_option_function<std::string>(
+          "--seed", [&seed](const std::string& text) { seed = parse_seed(text, "--seed"); }, help)
+      ->default_str(std::to_string(seed));
+}
+
 }  // namespace tofkit::app

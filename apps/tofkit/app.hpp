@@ -70,4 +70,8 @@ void require_output_directory(const std::filesystem::path& path, const std::stri
 /// 18446744073709551616, 1e3): a seed is never clamped or wrapped.
 [[nodiscard]] std::uint64_t parse_seed(const std::string& text, const std::string& option);
 
+/// `--seed` of a command, read by parse_seed into `seed` (whose value is the
+/// default shown in --help); a bad seed fails the command (exit 1).
+CLI::Option* add_seed_option(CLI::App& sub, std::uint64_t& seed, const std::string& help);
+
 }  // namespace tofkit::app

@@ -31,7 +31,6 @@ struct CharacterizeOptions {
   std::string name;
   std::string out = ".";
   std::uint64_t seed = 1;
-  std::string seed_text = "1";  // --seed, parsed by parse_seed
   bool json = false;
 };
 
@@ -154,13 +153,9 @@ const bool registered = register_command("characterize", [](CLI::App& sub, AppCo
       ->required()
       ->check(CLI::IsMember(names));
   sub.add_option("--out", o->out, "output directory")->capture_default_str();
-  sub.add_option("--seed", o->seed_text, "random seed (the output depends on it only)")
-      ->capture_default_str();
+  add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_flag("--json", o->json, "print the findings as JSON instead of the summary");
-  sub.callback([o, &ctx] {
-    o->seed = parse_seed(o->seed_text, "--seed");
-    run_characterize(*o, ctx);
-  });
+  sub.callback([o, &ctx] { run_characterize(*o, ctx); });
 });
 
 }  // namespace

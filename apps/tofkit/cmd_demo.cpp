@@ -29,7 +29,6 @@ namespace {
 struct DemoOptions {
   std::filesystem::path out = "demo-out";
   std::uint64_t seed = 2022;
-  std::string seed_text = "2022";  // --seed, parsed by parse_seed
   bool plots = true;
 };
 
@@ -248,13 +247,9 @@ const bool registered = register_command("demo", [](CLI::App& sub, AppContext& c
       "(Section 5), and write a report");
   auto options = std::make_shared<DemoOptions>();
   sub.add_option("--out", options->out, "output directory")->capture_default_str();
-  sub.add_option("--seed", options->seed_text, "random seed of the whole study")
-      ->capture_default_str();
+  add_seed_option(sub, options->seed, "random seed of the whole study");
   sub.add_flag("!--no-plots", options->plots, "skip rendering PNG plots");
-  sub.callback([options, &ctx] {
-    options->seed = parse_seed(options->seed_text, "--seed");
-    run_demo(*options, ctx);
-  });
+  sub.callback([options, &ctx] { run_demo(*options, ctx); });
 });
 
 }  // namespace

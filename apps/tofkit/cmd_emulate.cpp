@@ -48,7 +48,6 @@ struct EmulateOptions {
   SceneScanOptions scan;  // --scene and the pattern options of `tofkit scan`
   int shots = 0;
   int count = 1;
-  std::string seed_text = "1";  // --seed, parsed by parse_seed
   std::uint64_t seed = 1;
   std::string mode = "analytic";
   double corrupt = 0;
@@ -238,8 +237,7 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
   const SceneScanOptionHandles scene_options = add_scene_scan_options(sub, o->scan, "--scan-rate");
   sub.add_option("--shots", o->shots, "shots averaged per measurement (default: config's)")
       ->check(CLI::Range(1, 65535));
-  sub.add_option("--seed", o->seed_text, "random seed (as tofkit measure and tofkit scan)")
-      ->capture_default_str();
+  add_seed_option(sub, o->seed, "random seed (as tofkit measure and tofkit scan)");
   sub.add_option("--mode", o->mode, "analytic or waveform")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
@@ -249,7 +247,6 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
       ->capture_default_str();
   sub.add_option("--out", o->out, "'-' for stdout (default: a new pseudo-terminal)");
   sub.callback([o, &ctx, plate_options, scene_options] {
-    o->seed = parse_seed(o->seed_text, "--seed");
     if (!o->out.empty() && o->out != "-") {
       throw std::invalid_argument(
           "--out: only '-' (stdout); without --out a pseudo-terminal is made");

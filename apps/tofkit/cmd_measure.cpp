@@ -33,7 +33,6 @@ struct MeasureOptions {
   int count = 1;
   std::string count_text = "1";  // --count: a whole number, "1e3" allowed
   std::uint64_t seed = 1;
-  std::string seed_text = "1";  // --seed, parsed by parse_seed
   std::string mode = "analytic";
   std::string out;
 };
@@ -126,14 +125,12 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
       ->check(CLI::Range(1, 10'000'000));
   sub.add_option("--count", o->count_text, "repeated measurements per grid point")
       ->capture_default_str();
-  sub.add_option("--seed", o->seed_text, "random seed (the output depends on it only)")
-      ->capture_default_str();
+  add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
   sub.add_option("--out", o->out, "raw CSV to write")->required();
   sub.callback([o, &ctx] {
-    o->seed = parse_seed(o->seed_text, "--seed");
     o->count = parse_count(o->count_text);
     run_measure(*o, ctx);
   });

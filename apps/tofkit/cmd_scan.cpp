@@ -30,7 +30,6 @@ struct ScanCliOptions {
   SceneScanOptions scan;
   std::string model, mode = "analytic", write = "all", out;
   int shots = 0;
-  std::string seed_text = "1";  // --seed, parsed by parse_seed
   std::uint64_t seed = 1;
 };
 
@@ -168,15 +167,11 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
       ->capture_default_str();
   sub.add_option("--shots", o->shots, "shots averaged per beam (default: config's)")
       ->check(CLI::Range(1, 10'000'000));
-  sub.add_option("--seed", o->seed_text, "random seed (the output depends on it only)")
-      ->capture_default_str();
+  add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();
   sub.add_option("--out", o->out, "output directory (must exist)")->required();
-  sub.callback([o, &ctx] {
-    o->seed = parse_seed(o->seed_text, "--seed");
-    run_scan_command(*o, ctx);
-  });
+  sub.callback([o, &ctx] { run_scan_command(*o, ctx); });
 });
 
 }  // namespace
