@@ -172,6 +172,15 @@ class SpreadEchoTable {
   [[nodiscard]] double fall_ns(At a, double y0, double y1) const {
     return cross(a, y0, y1, kLow + kHigh);
   }
+  /// Both at the same level: rise_ns and fall_ns, sharing the level's place in the rows.
+  void rise_fall_ns(At a, double y0, double y1, double& rise, double& fall) const {
+    row_cross_both(a.row, y0, rise, fall);
+    if (a.w <= 0) return;
+    double rise1 = 0, fall1 = 0;
+    row_cross_both(a.row + 1, y1, rise1, fall1);
+    rise += a.w * (rise1 - rise);
+    fall += a.w * (fall1 - fall);
+  }
 
  private:
   static double low_level(std::size_t j) {
@@ -182,23 +191,48 @@ class SpreadEchoTable {
   static double mix(At a, const std::vector<double>& v) {
     return a.w > 0 ? v[a.row] + a.w * (v[a.row + 1] - v[a.row]) : v[a.row];
   }
-  [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
-    const double* t = &times_[row * kRowSize + branch];
+  /// Where level y falls in a row: entry i and weight w of entry i + 1; false
+  /// at the peak (y >= 1).
+  [[nodiscard]] bool row_position(double y, std::size_t& i, double& w) const {
     double f = 0;
     if (y >= 0.5) {
-      if (y >= 1.0) return peak_times_[row];
+      if (y >= 1.0) return false;
       f = static_cast<double>(kLow) + std::sqrt(0.5) * high_scale_ -
           std::sqrt(1.0 - y) * high_scale_;
     } else {
       // (bits(y) - bits(2^-32)) / 2^52 is log2(y) + 32, piecewise linear in y.
       constexpr auto kBase = std::bit_cast<std::int64_t>(0x1p-32);
       const auto bits = std::bit_cast<std::int64_t>(y) - kBase;
-      if (bits <= 0) return t[0];
+      if (bits <= 0) {
+        i = 0;
+        w = 0;
+        return true;
+      }
       f = static_cast<double>(bits) * (kPerOctave * 0x1p-52);
     }
-    const auto i = std::min(static_cast<std::size_t>(f), kLow + kHigh - 2);
-    const double w = f - static_cast<double>(i);
+    i = std::min(static_cast<std::size_t>(f), kLow + kHigh - 2);
+    w = f - static_cast<double>(i);
+    return true;
+  }
+  [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
+    std::size_t i = 0;
+    double w = 0;
+    if (!row_position(y, i, w)) return peak_times_[row];
+    const double* t = &times_[row * kRowSize + branch];
     return t[i] + w * (t[i + 1] - t[i]);
+  }
+  /// Both crossings of one row at the same level.
+  void row_cross_both(std::size_t row, double y, double& rise, double& fall) const {
+    std::size_t i = 0;
+    double w = 0;
+    if (!row_position(y, i, w)) {
+      rise = fall = peak_times_[row];
+      return;
+    }
+    const double* r = &times_[row * kRowSize];
+    const double* f = r + (kLow + kHigh);
+    rise = r[i] + w * (r[i + 1] - r[i]);
+    fall = f[i] + w * (f[i + 1] - f[i]);
   }
   [[nodiscard]] double cross(At a, double y0, double y1, std::size_t branch) const {
     const double t0 = row_cross(a.row, y0, branch);
@@ -617,7 +651,12 @@ struct VirtualRangefinder::Impl {
   /// Fast path: time over the threshold of the noise-free echo (0 if it stays below).
   [[nodiscard]] double fast_lag_ns(const MeasurementSetup& m) const {
     const double threshold = config.discriminator.threshold_v;
-    return m.peak_v >= threshold ? fall_at(m, threshold) - rise_at(m, threshold) : 0.0;
+    if (m.peak_v < threshold) return 0.0;
+    // fall_at(m, threshold) - rise_at(m, threshold), the level placed in the rows once.
+    const double l = std::clamp(threshold, m.level_begin_v, m.level_end_v);
+    double rise = 0, fall = 0;
+    shapes->rise_fall_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1], rise, fall);
+    return (m.delay_ns + fall) - (m.delay_ns + rise);
   }
 
   /// Fast path: the noise's correlation at the two crossings and the false alarms.

@@ -8,11 +8,6 @@
 namespace tofkit::physics {
 namespace {
 
-double optics_and_atmosphere(const LinkConfig& link) {
-  const double ta = link.environment.atmospheric_transmission;
-  return link.laser.transmit_efficiency * link.receiver.optics_efficiency * ta * ta;
-}
-
 double snr_at(const LinkConfig& link, double distance_m, double reflectance, double angle_deg) {
   return link_budget_at(link, distance_m, reflectance, angle_deg,
                         link.receiver.nominal_temperature_c)
@@ -21,26 +16,10 @@ double snr_at(const LinkConfig& link, double distance_m, double reflectance, dou
 
 }  // namespace
 
-double aperture_area_m2(const ReceiverConfig& receiver) {
-  const double d = receiver.aperture_diameter_mm * 1e-3;
-  return kPi * d * d / 4.0;
-}
-
-double footprint_diameter_m(const LaserConfig& laser, double distance_m) {
-  return laser.exit_beam_diameter_mm * 1e-3 + distance_m * laser.beam_divergence_mrad * 1e-3;
-}
-
 double received_power_extended_w(const LinkConfig& link, double distance_m, double reflectance,
                                  double angle_deg) {
   return received_power_extended_cos_w(link, distance_m, reflectance,
                                        std::cos(deg_to_rad(angle_deg)));
-}
-
-double received_power_extended_cos_w(const LinkConfig& link, double distance_m, double reflectance,
-                                     double cos_angle) {
-  // Extended Lambertian target, paper Eq. 6.
-  return link.laser.peak_power_w * aperture_area_m2(link.receiver) * reflectance * cos_angle /
-         (kPi * distance_m * distance_m) * optics_and_atmosphere(link);
 }
 
 double received_power_small_w(const LinkConfig& link, double distance_m, double cross_section_m2) {
@@ -99,17 +78,7 @@ double apd_gain_at(const ReceiverConfig& receiver, double temperature_c) {
   return std::max(gain, 1.0);
 }
 
-double overlap_fraction(const LaserConfig& laser, const ReceiverConfig& receiver,
-                        double distance_m) {
-  // Two discs at distance R: the beam footprint (radius a) and the receiver's
-  // field (radius b = aperture / 2 + R theta_r / 2), centres apart by the axis
-  // offset d. The received share is their intersection over the beam's area.
-  const double a = 0.5 * footprint_diameter_m(laser, distance_m);
-  const double b =
-      0.5 * (receiver.aperture_diameter_mm * 1e-3 + distance_m * receiver.field_of_view_rad);
-  const double d = receiver.axis_offset_mm * 1e-3;
-  if (d >= a + b) return 0.0;
-  if (d <= std::abs(b - a)) return b >= a ? 1.0 : (b * b) / (a * a);
+double overlap_lens_fraction(double a, double b, double d) {
   const double alpha = std::acos(std::clamp((d * d + a * a - b * b) / (2 * d * a), -1.0, 1.0));
   const double beta = std::acos(std::clamp((d * d + b * b - a * a) / (2 * d * b), -1.0, 1.0));
   const double lens =

@@ -2,8 +2,11 @@
 /// \file Optical link budget of a pulsed ToF rangefinder (paper Eqs. 4-9) and the
 /// receiver's noise currents and SNR (Eq. 8).
 
+#include <algorithm>
+#include <cmath>
 #include <vector>
 
+#include "tofkit/physics/constants.hpp"
 #include "tofkit/physics/environment.hpp"
 #include "tofkit/physics/laser.hpp"
 #include "tofkit/physics/receiver.hpp"
@@ -18,18 +21,33 @@ struct LinkConfig {
 };
 
 /// Receiving aperture area Ar.
-[[nodiscard]] double aperture_area_m2(const ReceiverConfig& receiver);
+[[nodiscard]] inline double aperture_area_m2(const ReceiverConfig& receiver) {
+  const double d = receiver.aperture_diameter_mm * 1e-3;
+  return kPi * d * d / 4.0;
+}
+
+/// Transmit and receive optics and the atmosphere both ways: Tt Tr Ta^2.
+[[nodiscard]] inline double optics_and_atmosphere(const LinkConfig& link) {
+  const double ta = link.environment.atmospheric_transmission;
+  return link.laser.transmit_efficiency * link.receiver.optics_efficiency * ta * ta;
+}
 
 /// Beam footprint diameter at distance R (exit diameter plus divergence).
-[[nodiscard]] double footprint_diameter_m(const LaserConfig& laser, double distance_m);
+[[nodiscard]] inline double footprint_diameter_m(const LaserConfig& laser, double distance_m) {
+  return laser.exit_beam_diameter_mm * 1e-3 + distance_m * laser.beam_divergence_mrad * 1e-3;
+}
 
 /// Received peak power from an extended Lambertian target that fills the beam,
 /// paper Eq. 6: Pr = Pt Ar rho cos(phi) / (pi R^2) Tt Tr Ta^2.
 [[nodiscard]] double received_power_extended_w(const LinkConfig& link, double distance_m,
                                                double reflectance, double angle_deg);
 /// The same with cos(phi) given (the same value for cos_angle = cos(phi)).
-[[nodiscard]] double received_power_extended_cos_w(const LinkConfig& link, double distance_m,
-                                                   double reflectance, double cos_angle);
+[[nodiscard]] inline double received_power_extended_cos_w(const LinkConfig& link, double distance_m,
+                                                          double reflectance, double cos_angle) {
+  // Extended Lambertian target, paper Eq. 6.
+  return link.laser.peak_power_w * aperture_area_m2(link.receiver) * reflectance * cos_angle /
+         (kPi * distance_m * distance_m) * optics_and_atmosphere(link);
+}
 
 /// Received peak power from a target smaller than the footprint, paper Eq. 4
 /// with its pi right: Pr = Pt Ar sigma / (4 pi^2 theta_t^2 R^4) Tt Tr Ta^2 with
@@ -61,8 +79,22 @@ struct LinkConfig {
 
 /// Share of the beam footprint the receiver sees at a distance (biaxial
 /// optics): 0 in the near blind zone, 1 once the field covers the footprint.
-[[nodiscard]] double overlap_fraction(const LaserConfig& laser, const ReceiverConfig& receiver,
-                                      double distance_m);
+/// The lens-shaped intersection of discs of radii a (the footprint) and b,
+/// centres d apart, over the first disc's area (partial overlap only).
+[[nodiscard]] double overlap_lens_fraction(double a, double b, double d);
+[[nodiscard]] inline double overlap_fraction(const LaserConfig& laser,
+                                             const ReceiverConfig& receiver, double distance_m) {
+  // Two discs at distance R: the beam footprint (radius a) and the receiver's
+  // field (radius b = aperture / 2 + R theta_r / 2), centres apart by the axis
+  // offset d. The received share is their intersection over the beam's area.
+  const double a = 0.5 * footprint_diameter_m(laser, distance_m);
+  const double b =
+      0.5 * (receiver.aperture_diameter_mm * 1e-3 + distance_m * receiver.field_of_view_rad);
+  const double d = receiver.axis_offset_mm * 1e-3;
+  if (d >= a + b) return 0.0;
+  if (d <= std::abs(b - a)) return b >= a ? 1.0 : (b * b) / (a * a);
+  return overlap_lens_fraction(a, b, d);
+}
 
 /// Noise currents at the APD output (multiplied), paper Eq. 8.
 struct NoiseCurrents {
