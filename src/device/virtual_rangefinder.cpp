@@ -284,6 +284,7 @@ struct MeasurementValues {
   double noise_floor_var_v2 = 0;  // noise variance without signal
   double shot_var_per_v = 0;      // signal shot noise variance per volt of signal
   double edge_correlation = 0;    // correlation of the noise at the two crossings
+  double edge_independence = 1;   // sqrt(1 - correlation^2): the fall's noise's own share
   double recovery_ns = 0;         // extra clip time of an overdriven amplifier
   bool saturated = false;
   double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
@@ -663,7 +664,7 @@ struct VirtualRangefinder::Impl {
   void fast_edges(MeasurementSetup& m, double lag_ns) const {
     const double threshold = config.discriminator.threshold_v;
     // No crossing at the threshold: the tables' flat top.
-    m.edge_correlation = m.peak_v >= threshold ? pulse.noise_correlation(lag_ns) : 1.0;
+    set_edge_correlation(m, m.peak_v >= threshold ? pulse.noise_correlation(lag_ns) : 1.0);
     // A shot's alarm needs its 24-bit uniform below the probability, so one
     // below 2^-26 never fires: the window need not be worked out.
     const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
@@ -810,7 +811,7 @@ struct VirtualRangefinder::Impl {
     // Noise at the two crossings is correlated through the receiver bandwidth.
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
-    m.edge_correlation = std::isnan(rise0) ? 1.0 : pulse.noise_correlation(fall0 - rise0);
+    set_edge_correlation(m, std::isnan(rise0) ? 1.0 : pulse.noise_correlation(fall0 - rise0));
     const double tau = pulse.pole_time_constant_ns();
     // Earliest and latest rising crossing over the levels (the first and last
     // level's without blanking, where the crossing time grows with the level).
@@ -839,6 +840,11 @@ struct VirtualRangefinder::Impl {
             std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
     }
     set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
+  }
+
+  static void set_edge_correlation(MeasurementSetup& m, double correlation) {
+    m.edge_correlation = correlation;
+    m.edge_independence = std::sqrt(1.0 - correlation * correlation);
   }
 
   /// Noise crossings count from the end of the blanking to `end_ns`.
@@ -878,8 +884,7 @@ struct VirtualRangefinder::Impl {
                        double& level_rise, double& level_fall) const {
     const double threshold = config.discriminator.threshold_v;
     level_rise = crossing_level(m, threshold, z_rise);
-    const double z_fall = m.edge_correlation * z_rise +
-                          std::sqrt(1.0 - m.edge_correlation * m.edge_correlation) * z_fall_ind;
+    const double z_fall = m.edge_correlation * z_rise + m.edge_independence * z_fall_ind;
     level_fall = crossing_level(m, threshold, z_fall);
   }
 
