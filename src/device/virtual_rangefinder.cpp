@@ -842,6 +842,8 @@ struct VirtualRangefinder::Impl {
     set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
   }
 
+  /// The noise's correlation at the two crossings, and the fall's own share
+  /// sqrt(1 - rho^2) that every shot's comparator levels use.
   static void set_edge_correlation(MeasurementSetup& m, double correlation) {
     m.edge_correlation = correlation;
     m.edge_independence = std::sqrt(1.0 - correlation * correlation);

@@ -77,11 +77,13 @@ struct LinkConfig {
 /// loop tracks V_br up to receiver.bias_tracking_error_v_per_c.
 [[nodiscard]] double apd_gain_at(const ReceiverConfig& receiver, double temperature_c);
 
-/// Share of the beam footprint the receiver sees at a distance (biaxial
-/// optics): 0 in the near blind zone, 1 once the field covers the footprint.
 /// The lens-shaped intersection of discs of radii a (the footprint) and b,
 /// centres d apart, over the first disc's area (partial overlap only).
 [[nodiscard]] double overlap_lens_fraction(double a, double b, double d);
+
+/// Share of the beam footprint the receiver sees at a distance (biaxial
+/// optics): 0 in the near blind zone, 1 once the field covers the footprint.
+/// Inline, as the formulas above: the device asks at every beam.
 [[nodiscard]] inline double overlap_fraction(const LaserConfig& laser,
                                              const ReceiverConfig& receiver, double distance_m) {
   // Two discs at distance R: the beam footprint (radius a) and the receiver's
