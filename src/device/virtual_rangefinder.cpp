@@ -214,12 +214,15 @@ class SpreadEchoTable {
     w = f - static_cast<double>(i);
     return true;
   }
+  /// Entry i of t moved w of the way to entry i + 1.
+  static double lerp_at(const double* t, std::size_t i, double w) {
+    return t[i] + w * (t[i + 1] - t[i]);
+  }
   [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
     std::size_t i = 0;
     double w = 0;
     if (!row_position(y, i, w)) return peak_times_[row];
-    const double* t = &times_[row * kRowSize + branch];
-    return t[i] + w * (t[i + 1] - t[i]);
+    return lerp_at(&times_[row * kRowSize + branch], i, w);
   }
   /// Both crossings of one row at the same level.
   void row_cross_both(std::size_t row, double y, double& rise, double& fall) const {
@@ -230,9 +233,8 @@ class SpreadEchoTable {
       return;
     }
     const double* r = &times_[row * kRowSize];
-    const double* f = r + (kLow + kHigh);
-    rise = r[i] + w * (r[i + 1] - r[i]);
-    fall = f[i] + w * (f[i + 1] - f[i]);
+    rise = lerp_at(r, i, w);
+    fall = lerp_at(r + (kLow + kHigh), i, w);
   }
   [[nodiscard]] double cross(At a, double y0, double y1, std::size_t branch) const {
     const double t0 = row_cross(a.row, y0, branch);

@@ -78,6 +78,8 @@ double apd_gain_at(const ReceiverConfig& receiver, double temperature_c) {
   return std::max(gain, 1.0);
 }
 
+namespace detail {
+
 double overlap_lens_fraction(double a, double b, double d) {
   const double alpha = std::acos(std::clamp((d * d + a * a - b * b) / (2 * d * a), -1.0, 1.0));
   const double beta = std::acos(std::clamp((d * d + b * b - a * a) / (2 * d * b), -1.0, 1.0));
@@ -85,6 +87,8 @@ double overlap_lens_fraction(double a, double b, double d) {
       a * a * (alpha - std::sin(2 * alpha) / 2) + b * b * (beta - std::sin(2 * beta) / 2);
   return std::clamp(lens / (kPi * a * a), 0.0, 1.0);
 }
+
+}  // namespace detail
 
 NoiseCurrents noise_currents(const ReceiverConfig& receiver, double signal_power_w,
                              double background_power_w, double apd_gain) {

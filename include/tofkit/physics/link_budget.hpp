@@ -77,9 +77,11 @@ struct LinkConfig {
 /// loop tracks V_br up to receiver.bias_tracking_error_v_per_c.
 [[nodiscard]] double apd_gain_at(const ReceiverConfig& receiver, double temperature_c);
 
+namespace detail {
 /// The lens-shaped intersection of discs of radii a (the footprint) and b,
-/// centres d apart, over the first disc's area (partial overlap only).
+/// centres d apart, over the first disc's area (overlap_fraction's partial case).
 [[nodiscard]] double overlap_lens_fraction(double a, double b, double d);
+}  // namespace detail
 
 /// Share of the beam footprint the receiver sees at a distance (biaxial
 /// optics): 0 in the near blind zone, 1 once the field covers the footprint.
@@ -95,7 +97,7 @@ struct LinkConfig {
   const double d = receiver.axis_offset_mm * 1e-3;
   if (d >= a + b) return 0.0;
   if (d <= std::abs(b - a)) return b >= a ? 1.0 : (b * b) / (a * a);
-  return overlap_lens_fraction(a, b, d);
+  return detail::overlap_lens_fraction(a, b, d);
 }
 
 /// Noise currents at the APD output (multiplied), paper Eq. 8.
