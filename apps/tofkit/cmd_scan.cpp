@@ -18,6 +18,7 @@
 #include "app.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scene_file.hpp"
@@ -108,11 +109,15 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
-  // Everything is encoded in memory first, then committed all-or-nothing.
+  // Every file through the one writer: staged, and committed with the
+  // others only when the command succeeds (main's OutputTransaction); a
+  // target that is an input, a link, a FIFO or a directory is refused.
   const scan::ScanImages images = scan::make_images(result);
-  std::vector<io::OutputFile> files;
-  if (outputs.count("csv") != 0)
-    files.push_back({"scan.csv", io::encode_scan_csv(result, o.scan.ambient_c)});
+  const std::filesystem::path dir(o.out);
+  auto write = [&](const std::string& name, const std::string& bytes) {
+    io::write_file_atomically(dir / name, bytes);
+  };
+  if (outputs.count("csv") != 0) write("scan.csv", io::encode_scan_csv(result, o.scan.ambient_c));
   const struct {
     const char* name;
     const char* quantity;
@@ -126,20 +131,17 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     if (outputs.count("png") != 0) {
       const io::Png16 png = io::encode_png16(*p.image);
       const std::string name = std::string(p.name) + ".png";
-      files.push_back({name, png.png});
-      files.push_back({std::string(p.name) + ".json",
-                       sidecar(name, p.quantity, p.units, png, result, o).dump(2) + "\n"});
+      write(name, png.png);
+      write(std::string(p.name) + ".json",
+            sidecar(name, p.quantity, p.units, png, result, o).dump(2) + "\n");
     }
-    if (outputs.count("npy") != 0)
-      files.push_back({std::string(p.name) + ".npy", io::encode_npy(*p.image)});
+    if (outputs.count("npy") != 0) write(std::string(p.name) + ".npy", io::encode_npy(*p.image));
   }
   const auto points = io::cloud_points(result);
-  if (outputs.count("ply") != 0) files.push_back({"points.ply", io::encode_ply(points)});
-  if (outputs.count("pcd") != 0) files.push_back({"points.pcd", io::encode_pcd(points)});
-  if (outputs.count("las") != 0) files.push_back({"points.las", io::encode_las(points)});
-  if (outputs.count("view") != 0)
-    files.push_back({"range_view.png", io::encode_range_view(images)});
-  io::commit_files(o.out, files);
+  if (outputs.count("ply") != 0) write("points.ply", io::encode_ply(points));
+  if (outputs.count("pcd") != 0) write("points.pcd", io::encode_pcd(points));
+  if (outputs.count("las") != 0) write("points.las", io::encode_las(points));
+  if (outputs.count("view") != 0) write("range_view.png", io::encode_range_view(images));
 
   std::size_t mixed = 0;
   for (const auto& b : result.beams) mixed += b.surfaces > 1 ? 1 : 0;
@@ -150,8 +152,9 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
              "seed {}): "
              "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
              result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
-             config.scan.rays_per_beam, shots * pattern.shots_multiplier, o.mode, o.seed,
-             points.size(), mixed, result.beams.size() - points.size(), seconds, threads, o.out);
+             config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
+             o.seed, points.size(), mixed, result.beams.size() - points.size(), seconds, threads,
+             o.out);
 }
 
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {

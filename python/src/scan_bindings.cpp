@@ -249,7 +249,7 @@ py::dict run(const device::DeviceConfig& config, const fs::path& scene_path, con
   out["pattern"] = result.pattern.name;
   out["rows"] = result.pattern.rows;
   out["columns"] = result.pattern.columns;
-  out["shots"] = shots * result.pattern.shots_multiplier;
+  out["shots"] = scan::shots_per_beam(config, shots, result.pattern);
   out["has_model"] = result.has_model;
   out["sensor_position_m"] = result.sensor.position_m;
   out["sensor_rpy_deg"] = result.sensor.rpy_deg;

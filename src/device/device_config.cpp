@@ -192,7 +192,7 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "temperature sensor noise (1 sigma)"),
 
       // measurement: timing and averaging
-      field("measurement.shots", &m.shots, 1, 1e7, "shots averaged per output"),
+      field("measurement.shots", &m.shots, 1, kMaxShots, "shots averaged per output"),
       field("measurement.fixed_delay_ns", &m.fixed_delay_ns, 0, 1e4, kClosed,
             "trigger-to-emission plus receive-chain delay at the nominal temperature. Assumption"),
       field("measurement.power_on_offset_ps", &m.power_on_offset_ps, 0, 1e6, kClosed,

@@ -19,8 +19,7 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
   options.validate();
   using scan::operator+, scan::operator-, scan::operator*;
   const device::EchoMemory memory(device);
-  const int shots = (options.shots > 0 ? options.shots : device.config().measurement.shots) *
-                    pattern.shots_multiplier;
+  const int shots = scan::shots_per_beam(device.config(), options.shots, pattern);
   const double window_s = memory.window_s(shots);
   SequenceScan out;
   auto& result = out.result;

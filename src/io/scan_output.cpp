@@ -7,15 +7,12 @@
 #include <array>
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <iterator>
 #include <limits>
 #include <stdexcept>
 
 namespace tofkit::io {
 namespace {
-
-namespace fs = std::filesystem;
 
 template <typename T>
 void put(std::string& out, T value) {
@@ -361,34 +358,6 @@ std::string encode_range_view(const scan::ScanImages& images) {
   canvas.text(text_top, 2 * gap + w, ilo, 2);
   canvas.text(text_top, 2 * gap + 2 * w - 8 * static_cast<int>(ihi.size()), ihi, 2);
   return encode_png_rgb(canvas.rows, canvas.columns, canvas.rgb);
-}
-
-void commit_files(const fs::path& dir, const std::vector<OutputFile>& files) {
-  std::error_code ec;
-  if (!fs::is_directory(dir, ec))
-    throw std::runtime_error(dir.string() + ": output directory does not exist");
-  std::vector<fs::path> temps;
-  auto cleanup = [&] {
-    for (const auto& t : temps) fs::remove(t, ec);
-  };
-  for (const auto& f : files) {
-    const fs::path temp = dir / (f.name + ".tmp-tofkit");
-    temps.push_back(temp);
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    out.write(f.bytes.data(), static_cast<std::streamsize>(f.bytes.size()));
-    out.close();
-    if (!out) {
-      cleanup();
-      throw std::runtime_error((dir / f.name).string() + ": cannot write");
-    }
-  }
-  for (std::size_t i = 0; i < files.size(); ++i) {
-    fs::rename(temps[i], dir / files[i].name, ec);
-    if (ec) {
-      cleanup();
-      throw std::runtime_error((dir / files[i].name).string() + ": cannot write: " + ec.message());
-    }
-  }
 }
 
 }  // namespace tofkit::io

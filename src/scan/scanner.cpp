@@ -6,6 +6,8 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 #if defined(__linux__)
 #include <sys/mman.h>
@@ -102,6 +104,18 @@ void record_footprint(const Footprint::Result& footprint, BeamResult& b) {
   b.cos_incidence = cos_incidence;
 }
 
+int shots_per_beam(const device::DeviceConfig& config, int shots, const BeamPattern& pattern) {
+  const std::int64_t base = shots > 0 ? shots : config.measurement.shots;
+  const std::int64_t total = base * pattern.shots_multiplier;
+  if (total > device::kMaxShots) {
+    throw std::invalid_argument(std::to_string(pattern.shots_multiplier) + " samples x " +
+                                std::to_string(base) + " shots = " + std::to_string(total) +
+                                " shots per point is over the limit of " +
+                                std::to_string(device::kMaxShots));
+  }
+  return static_cast<int>(total);
+}
+
 double reported_distance_m(const BeamResult& b) {
   return std::isnan(b.range.distance_m) ? b.raw.distance_raw_m : b.range.distance_m;
 }
@@ -135,8 +149,7 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
     reserve_populated(result.beams, n);
   }
   result.beams.resize(n);
-  const int base_shots = options.shots > 0 ? options.shots : device.config().measurement.shots;
-  const int shots = base_shots * pattern.shots_multiplier;
+  const int shots = shots_per_beam(device.config(), options.shots, pattern);
   for (std::size_t begin = 0; begin < n; begin += kProgressBlock) {
     const std::size_t end = std::min(n, begin + kProgressBlock);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),

@@ -76,6 +76,10 @@ struct ThermalConfig {
 };
 
 /// Timing and averaging of one output measurement.
+/// Most shots one output may average (measurement.shots, --shots, and a
+/// raster's samples times its shots).
+inline constexpr int kMaxShots = 10'000'000;
+
 struct MeasurementConfig {
   int shots = 1000;                  ///< shots averaged per output (1 MHz -> 1 kHz)
   double fixed_delay_ns = 2.5;       ///< trigger-to-emission plus receive-chain delay with the

@@ -7,19 +7,12 @@
 /// are invalid pixels (NaN in .npy, 0 in PNG): no fake ranges (REP-117).
 /// Points are in the world frame (REP-103), metres.
 
-#include <filesystem>
 #include <string>
 #include <vector>
 
 #include "tofkit/scan/scanner.hpp"
 
 namespace tofkit::io {
-
-/// A file's name and bytes, to be committed with others.
-struct OutputFile {
-  std::string name;
-  std::string bytes;
-};
 
 /// 16-bit grayscale PNG of `image`: pixel p > 0 stands for offset + scale * p,
 /// 0 is invalid. Scale and offset span the image's finite values.
@@ -55,9 +48,5 @@ struct CloudPoint {
 /// Colour-mapped range with a scale bar (labelled in metres) beside the
 /// intensity image.
 [[nodiscard]] std::string encode_range_view(const scan::ScanImages& images);
-
-/// Write every file into `dir` all-or-nothing: each goes to a temporary file
-/// first; only when all are written are they renamed into place.
-void commit_files(const std::filesystem::path& dir, const std::vector<OutputFile>& files);
 
 }  // namespace tofkit::io

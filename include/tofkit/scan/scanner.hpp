@@ -54,6 +54,12 @@ struct ScanOptions {
   std::function<void(std::size_t, std::size_t)> progress;
 };
 
+/// Shots one beam of `pattern` averages: `shots` (0: the device's
+/// measurement.shots) times the pattern's multiplier (a raster's samples).
+/// Throws std::invalid_argument when that exceeds device::kMaxShots.
+[[nodiscard]] int shots_per_beam(const device::DeviceConfig& config, int shots,
+                                 const BeamPattern& pattern);
+
 [[nodiscard]] ScanResult run_scan(const RayCaster& caster, const Footprint& footprint,
                                   const device::VirtualRangefinder& device,
                                   const BeamPattern& pattern, const ScanOptions& options);
