@@ -111,6 +111,8 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
        "empty.ply: element 'vertex' has no properties"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"short.ply\"\nreflectance = 0.5\n",
        "short.ply: the header's element counts need at least 12000 bytes of data, the file has 12"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"index.ply\"\nreflectance = 0.5\n",
+       "index.ply: face 1 refers to vertex 7, but the file has 3"},
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
@@ -122,6 +124,10 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
   // vertices of no property filled memory).
   std::ofstream(dir / "empty.ply") << "ply\nformat binary_little_endian 1.0\n"
                                       "element vertex 30000000\nend_header\n";
+  std::ofstream(dir / "index.ply") << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float "
+                                      "x\nproperty float y\nproperty float z\nelement face 2\n"
+                                      "property list uchar int vertex_indices\nend_header\n"
+                                      "1 0 0\n1 1 0\n1 0 1\n3 0 1 2\n3 0 1 7\n";
   std::ofstream(dir / "short.ply") << "ply\nformat binary_little_endian 1.0\nelement vertex "
                                       "1000\nproperty float x\nproperty float y\nproperty "
                                       "float z\nend_header\n0123456789ab";

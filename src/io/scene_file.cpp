@@ -318,12 +318,17 @@ void load_ply(const fs::path& file, Primitive& mesh) {
       if (!(in >> v)) throw SceneError(name + ": truncated PLY data");
       return v;
     }
-    char buffer[8];
-    if (!in.read(buffer, static_cast<std::streamsize>(ply_type_size(type)))) {
+    char bytes[8];
+    if (!in.read(bytes, static_cast<std::streamsize>(ply_type_size(type)))) {
       throw SceneError(name + ": truncated PLY data");
     }
-    return ply_read_binary(buffer, type);
+    return ply_read_binary(bytes, type);
   };
+  // A face's indices are checked against the header's vertex count (the
+  // vertex element may follow the faces), so the message can name the face.
+  std::size_t vertex_count = 0;
+  for (const auto& e : elements)
+    if (e.name == "vertex") vertex_count = e.count;
   for (const auto& e : elements) {
     for (std::size_t i = 0; i < e.count; ++i) {
       Vec3 v{0, 0, 0};
@@ -338,6 +343,12 @@ void load_ply(const fs::path& file, Primitive& mesh) {
             idx.push_back(static_cast<std::uint32_t>(x));
           }
           if (e.name == "face" && (p.name == "vertex_indices" || p.name == "vertex_index")) {
+            for (const auto index : idx) {
+              if (index >= vertex_count) {
+                throw SceneError(fmt::format("{}: face {} refers to vertex {}, but the file has {}",
+                                             name, i, index, vertex_count));
+              }
+            }
             for (std::size_t k = 1; k + 1 < idx.size(); ++k)
               mesh.triangles.push_back({idx[0], idx[k], idx[k + 1]});
           }
