@@ -226,10 +226,7 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
 
   ranging::RawMeasurement out;
   const double internal_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-  const double reading = internal_c + th.sensor_noise_c * z2[0];
-  out.temperature_c = th.sensor_resolution_c > 0
-                          ? std::round(reading / th.sensor_resolution_c) * th.sensor_resolution_c
-                          : reading;
+  out.temperature_c = sensor_reading_c(th, internal_c, z2[0]);
   if (cond.ms_since_laser_on < 5.0 * laser.turn_on_time_constant_ms)
     out.flags |= ranging::kRawTurnOnTransient;
   if (cond.minutes_since_power_on < 4.0 * th.warmup_time_constant_min)

@@ -43,6 +43,9 @@ constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-o
 constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
 constexpr double kFlickerLowestHz = 1e-3;
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
+// Analytic crossings need the noise frozen over each edge: at most this many
+// extra (chatter) crossings per edge on average, else the noise is sampled.
+constexpr double kChatterTolerance = 1e-4;
 
 /// Monotone table lookup: values y at equally spaced x from x0 with step dx.
 inline double table_at(const std::vector<double>& y, double x0, double inv_dx, double x) {
@@ -280,6 +283,7 @@ struct MeasurementValues {
   // with g_h the device's tabulated normalized echo at spread h.
   bool fast = false;
   double delay_ns = 0;
+  double amplitude_v = 0, spread_ns = 0;  // the surface's echo (sampled noise reads it)
   SpreadEchoTable::At spread{};
   double inv_row_peak_v[2] = {0, 0};  // 1 / (amplitude x peak) of the two rows
   double noise_at_threshold_v = 0;
@@ -297,6 +301,9 @@ struct MeasurementValues {
   // Noise alone crossing the threshold before the echo (false alarms).
   double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
   double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
+  // The noise is sampled on the waveform (waveform mode, or an analytic
+  // measurement whose edges are too slow for a frozen-noise crossing).
+  bool sampled = false;
   double record_begin_ns = 0;          // waveform mode samples from here on
   double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
   double record_end_ns = 0;            // waveform mode samples up to here
@@ -307,7 +314,7 @@ struct MeasurementValues {
 struct MeasurementSetup : MeasurementValues {
   // Noise-free linear echo on a fine grid (the sum of all components).
   std::vector<double> composite;
-  std::vector<double> noise_sigma;       // waveform mode: noise (1 sigma) along the composite grid
+  std::vector<double> noise_sigma;  // sampled noise: 1 sigma along the composite (over the record)
   std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
   /// Back to a fresh setup, keeping the vectors' storage.
   void reset() {
@@ -550,6 +557,7 @@ struct VirtualRangefinder::Impl {
       case Echo::kFast:
         fast_echo(m, e);
         fast_edges(m, fast_lag_ns(m));
+        if (!noise_frozen_at_edges(m)) sample_fast_echo(m);
         break;
       case Echo::kExact:
         exact_echo(target, cond, m);
@@ -639,6 +647,8 @@ struct VirtualRangefinder::Impl {
     const auto& rx = config.link.receiver;
     m.fast = true;
     m.delay_ns = e.delay_ns;
+    m.amplitude_v = e.amplitude_v;
+    m.spread_ns = e.spread_ns;
     m.spread = shapes->at(e.spread_ns);
     m.inv_row_peak_v[0] = 1.0 / (e.amplitude_v * shapes->row_peak(m.spread.row));
     m.inv_row_peak_v[1] =
@@ -835,13 +845,90 @@ struct VirtualRangefinder::Impl {
     m.record_end_ns = m.fall_ns[0] + m.recovery_ns + 4.0;
     if (gated || crosstalk_v > 0.0)
       m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
-    if (mode == SimulationMode::kWaveform) {
-      m.noise_sigma.resize(n);
-      for (std::size_t i = 0; i < n; ++i)
-        m.noise_sigma[i] =
-            std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(m.composite[i], 0.0));
+    m.sampled = mode == SimulationMode::kWaveform || !noise_frozen_at_edges(m);
+    if (m.sampled) {
+      // Over the record only (the sampler reads no further): the echo's
+      // tail beyond it can be most of the grid.
+      const double lo = std::floor((m.record_begin_ns - m.grid_begin_ns) / kCompositeStepNs) - 1;
+      const double hi = std::ceil((m.record_end_ns - m.grid_begin_ns) / kCompositeStepNs) + 2;
+      const auto i_lo = static_cast<std::size_t>(std::clamp(lo, 0.0, static_cast<double>(n)));
+      const auto i_hi = static_cast<std::size_t>(std::clamp(hi, 0.0, static_cast<double>(n)));
+      m.noise_sigma.assign(n, 0.0);
+      for (std::size_t i = i_lo; i < i_hi; ++i) m.noise_sigma[i] = noise_sigma_v(m, m.composite[i]);
     }
-    set_false_alarm_window(m, mode == SimulationMode::kAnalytic ? first_rise : m.record_begin_ns);
+    set_false_alarm_window(m, m.sampled ? m.record_begin_ns : first_rise);
+  }
+
+  /// The fast path with its noise sampled (its edges are slower than the
+  /// noise): the waveform sampler reads the echo off the pulse template
+  /// (signal_at), over the record the table's crossings bound, as the exact
+  /// path's tables bound it.
+  void sample_fast_echo(MeasurementSetup& m) const {
+    const double tau = pulse.pole_time_constant_ns();
+    // (The crossings of levels above the peak read the peak's time.)
+    const double first_rise = rise_at(m, m.level_begin_v), last_rise = rise_at(m, m.level_end_v);
+    m.sampled = true;
+    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
+    m.record_end_ns = fall_at(m, m.level_begin_v) + m.recovery_ns + 4.0;
+    set_false_alarm_window(m, m.record_begin_ns);
+  }
+
+  /// The fast path's noise-free echo at t (V): A g_h(t - delay) from the
+  /// pulse template, g_h the sum over the footprint's nodes.
+  [[nodiscard]] double fast_signal_at(const MeasurementSetup& m, double t) const {
+    if (m.spread_ns == 0.0) return m.amplitude_v * pulse(t - m.delay_ns);
+    const auto& nodes = footprint_nodes();
+    double g = 0;
+    for (std::size_t k = 0; k < nodes.u.size(); ++k)
+      g += nodes.w[k] * pulse(t - m.delay_ns - nodes.u[k] * m.spread_ns);
+    return m.amplitude_v * g;
+  }
+
+  /// Noise (1 sigma, V) at a signal level: the floor plus the signal's shot
+  /// noise (Eq. 8 terms).
+  [[nodiscard]] static double noise_sigma_v(const MeasurementSetup& m, double signal_v) {
+    return std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * std::max(signal_v, 0.0));
+  }
+
+  /// Whether the noise stays frozen over the echo's threshold crossings, as
+  /// the analytic crossings assume. An edge crossing the threshold at slope a
+  /// through band-limited Gaussian noise (sigma, derivative sigma / tau_p) is
+  /// crossed 1 + 2c times on average (Rice's formula integrated over the edge),
+  /// c = r phi(1/r) - Q(1/r) with r = sigma / (a tau_p): its jitter over the
+  /// noise's correlation time. A slow edge (a long pulse, a weak echo near its
+  /// peak) makes the comparator chatter: the first crossing comes early and a
+  /// fall can follow the rise within a nanosecond, which one frozen noise value
+  /// per crossing cannot give. Where c exceeds kChatterTolerance at either
+  /// edge, the measurement samples its noise on the waveform instead.
+  [[nodiscard]] bool noise_frozen_at_edges(const MeasurementSetup& m) const {
+    const double threshold = config.discriminator.threshold_v;
+    if (m.peak_v < threshold) return true;  // crossed by noise only when at all (analytic levels)
+    const double half = 0.5 * m.noise_at_threshold_v;
+    // The edges' times across the noise band threshold +- sigma / 2 (clamped at the peak).
+    const double rise = rise_at(m, threshold + half) - rise_at(m, threshold - half);
+    const double fall =
+        fall_at(m, threshold - half) -
+        (threshold + half >= m.level_top_v ? m.peak_time_ns : fall_at(m, threshold + half));
+    static const double r_limit = chatter_ratio_limit();
+    // (NaN: a blanked edge, crossed by noise or not at all as the analytic levels give it.)
+    return !(rise > r_limit * pulse.pole_time_constant_ns()) &&
+           !(fall > r_limit * pulse.pole_time_constant_ns());
+  }
+
+  /// The jitter-over-correlation-time ratio r at which c(r) = r phi(1/r) -
+  /// Q(1/r) reaches kChatterTolerance (c grows with r; bisection).
+  static double chatter_ratio_limit() {
+    auto extra_crossings = [](double r) {
+      const double x = 1.0 / r;
+      return r * std::exp(-0.5 * x * x) / std::sqrt(2.0 * kPi) -
+             0.5 * std::erfc(x / std::sqrt(2.0));
+    };
+    double lo = 0.05, hi = 5.0;
+    for (int i = 0; i < 100; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (extra_crossings(mid) < kChatterTolerance ? lo : hi) = mid;
+    }
+    return lo;
   }
 
   /// The noise's correlation at the two crossings, and the fall's own share
@@ -909,7 +996,7 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] bool crossings_waveform(const MeasurementSetup& m, const CounterRng& rng,
                                         std::uint64_t stream, std::uint32_t shot, double phase_u,
                                         double& rise, double& fall) const {
-    if (m.composite.empty()) return false;
+    if (!m.fast && m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
     const double threshold = config.discriminator.threshold_v;
     const double dt = waveform_dt_ns;
@@ -940,6 +1027,10 @@ struct VirtualRangefinder::Impl {
       y2 = a * y2 + (1.0 - a) * y1;
     }
     auto input_at = [&](double t, double unit_noise) {
+      if (m.fast) {
+        const double s = fast_signal_at(m, t);
+        return s + noise_sigma_v(m, s) * unit_noise;
+      }
       const double g = std::clamp((t - m.grid_begin_ns) * inv_grid, 0.0, grid_last - 1e-9);
       const auto gi = static_cast<std::size_t>(g);
       const double w = g - static_cast<double>(gi);
@@ -1102,7 +1193,7 @@ struct VirtualRangefinder::Impl {
     bool echo = false;
     if (false_alarm(m, unit_open(r[3]), rise, fall)) {
       echo = true;
-    } else if (mode == SimulationMode::kAnalytic) {
+    } else if (!m.sampled) {
       const auto z = normal_pair(r[0], r[1]);
       double level_rise = 0, level_fall = 0;
       analytic_levels(m, z[0], z[1], level_rise, level_fall);
@@ -1193,7 +1284,6 @@ struct VirtualRangefinder::Impl {
     const RunDraws& run = run_draws(rng);
     thread_local Lanes lanes;
     auto& m = lanes.setups;
-    const bool analytic = mode == SimulationMode::kAnalytic;
     for (std::size_t begin = 0; begin < targets.size(); begin += kLanes) {
       const std::size_t n = std::min(kLanes, targets.size() - begin);
       const std::uint64_t stream0 = first_stream + begin;
@@ -1215,6 +1305,10 @@ struct VirtualRangefinder::Impl {
         fast_echo(m[lanes.fast[j]], lanes.echoes[lanes.fast[j]]);
       for (std::size_t j = 0; j < n_fast; ++j) lanes.lag[j] = fast_lag_ns(m[lanes.fast[j]]);
       for (std::size_t j = 0; j < n_fast; ++j) fast_edges(m[lanes.fast[j]], lanes.lag[j]);
+      for (std::size_t j = 0; j < n_fast; ++j) {
+        const std::size_t k = lanes.fast[j];
+        if (!noise_frozen_at_edges(m[k])) sample_fast_echo(m[k]);
+      }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
       slow_offsets_ns(run, stream0, n, lanes.offsets.data());
@@ -1222,8 +1316,8 @@ struct VirtualRangefinder::Impl {
         lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
         lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
       }
-      if (analytic) {
-        for (std::size_t k = 0; k < n; ++k)
+      for (std::size_t k = 0; k < n; ++k) {
+        if (!m[k].sampled)
           analytic_levels(m[k], lanes.z[k][0], lanes.z[k][1], lanes.level_rise[k],
                           lanes.level_fall[k]);
       }
@@ -1233,7 +1327,7 @@ struct VirtualRangefinder::Impl {
         const auto& r = lanes.shot_words;
         if (false_alarm(m[k], unit_open(r[3][k]), rise, fall))
           lanes.echo[k] = true;
-        else if (analytic)
+        else if (!m[k].sampled)
           lanes.echo[k] =
               analytic_crossings(m[k], lanes.level_rise[k], lanes.level_fall[k], rise, fall);
         else
@@ -1269,8 +1363,7 @@ struct VirtualRangefinder::Impl {
     ranging::RawMeasurement out;
     // Temperature sensor: noise, then its resolution.
     const auto& th = config.thermal;
-    const double reading = internal_c + th.sensor_noise_c * z[0];
-    out.temperature_c = std::round(reading / th.sensor_resolution_c) * th.sensor_resolution_c;
+    out.temperature_c = sensor_reading_c(th, internal_c, z[0]);
     out.shots_valid = valid;
     if (valid == 0) {
       out.flags |= ranging::kRawNoEcho;

@@ -4,6 +4,8 @@
 /// imposed here; the range drift follows from what each temperature moves
 /// (delay tempcos, APD gain through walk, TDC bin width) in the rangefinder.
 
+#include <cmath>
+
 #include "tofkit/device/device_config.hpp"
 
 namespace tofkit::device {
@@ -18,6 +20,16 @@ namespace tofkit::device {
 /// further first-order lag (thermal.sensor_lag_min), so it trails during warm-up.
 [[nodiscard]] double sensor_temperature_c(const ThermalConfig& thermal, double ambient_c,
                                           double minutes_since_power_on);
+
+/// The sensor's reading of `sensed_c`: its noise (z standard normal), then
+/// its resolution (thermal.sensor_resolution_c; 0: a continuous reading).
+/// Inline: every measurement reads it.
+[[nodiscard]] inline double sensor_reading_c(const ThermalConfig& thermal, double sensed_c,
+                                             double z) {
+  const double reading = sensed_c + thermal.sensor_noise_c * z;
+  const double lsb = thermal.sensor_resolution_c;
+  return lsb > 0 ? std::round(reading / lsb) * lsb : reading;
+}
 
 /// Timing board temperature: the die temperature lifted by a proportional
 /// cold-weather heater below its setpoint (limited to heater_max_rise_c).
