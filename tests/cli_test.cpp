@@ -112,7 +112,9 @@ TEST_F(CliTest, BadConfigStopsBeforeWritingAnything) {
 TEST_F(CliTest, UsageErrorsExitWithTwo) {
   EXPECT_EQ(run("measure --distance 1 --reflectance 0.5").status, 2);  // no --out
   EXPECT_EQ(run("no-such-command").status, 2);
-  EXPECT_EQ(run("measure --distance 1 --reflectance 0.5 --mode bogus --out x.csv").status, 2);
+  // A value outside its option's set or range is bad input (1), not a usage error.
+  EXPECT_EQ(run("measure --distance 1 --reflectance 0.5 --mode bogus --out x.csv").status, 1);
+  EXPECT_EQ(run("measure --distance 1 --reflectance 0.5 --shots 0 --out x.csv").status, 1);
   EXPECT_EQ(run("--help").status, 0);
 }
 

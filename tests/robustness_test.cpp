@@ -410,3 +410,29 @@ TEST_F(Robustness, DemoVerdictIsNoWhenNoEchoIsMeasured) {
 }
 
 }  // namespace
+
+// Values the option checks had let through: NaN (CLI11's ranges compare and
+// every comparison with NaN is false), an empty --write item after a comma,
+// a distance a TFmini frame cannot carry (clamped to 655.31 m before).
+TEST_F(Robustness, NanOptionsEmptyItemsAndUnfitFramesAreRefused) {
+  write_plate_scene();
+  expect_refused(
+      "emulate --format native --rate nan --distance 2 --reflectance 0.5 --count 1 "
+      "--out -",
+      {"--rate", "not a number"});
+  expect_refused("--max-input-mb nan measure --distance 1 --reflectance 0.5 --out a.csv",
+                 {"--max-input-mb", "not a number"});
+  expect_refused("plan --at nan", {"--at", "not a number"});
+  expect_refused(
+      "scan --scene plate.toml --pattern spherical --azimuth 0 --elevation 0 "
+      "--ambient nan --out .",
+      {"--ambient", "not a number"});
+  expect_refused(
+      "scan --scene plate.toml --pattern spherical --azimuth 0 --elevation 0 "
+      "--write csv, --out .",
+      {"--write", "unknown output ''"});
+  expect_refused(
+      "--set laser.repetition_hz=100000 --set laser.peak_power_w=10000 emulate "
+      "--format tfmini --rate 10000 --distance 1000 --reflectance 1 --shots 10 --out -",
+      {"TFmini frame: distance_raw_m", "does not fit its field"});
+}

@@ -116,6 +116,13 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
+      // A NaN or huge sensor angle had aborted on Embree's ray check; a 1e300
+      // normal overflowed its length and the plane vanished (exit 0, no echo).
+      {"[sensor]\nrpy_deg = [nan, 0, 0]\n" + plane + "reflectance = 0.5\n",
+       "scene.toml:1: sensor: rpy_deg must be finite angles within +-360 degrees"},
+      {"[[surface]]\nkind = \"plane\"\ncenter_m = [1, 0, 0]\nnormal = [-1e300, 0, 0]\n"
+       "size_m = [1, 1]\nreflectance = 0.5\n",
+       "surface[0]: normal must be a nonzero vector (length in [1e-12, 1e+12])"},
       {plane + "pattern = \"stripes\"\ncell_m = 0.01\n", "surface[0].values is missing"},
   };
   // Three vertices on one point: a mesh with no surface.

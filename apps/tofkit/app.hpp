@@ -16,6 +16,7 @@
 /// "tofkit <command>: error: <message>" and exits with status 1.
 
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -53,6 +54,32 @@ bool register_command(std::string name, CommandSetup setup);
 
 /// All registered subcommands, by name.
 [[nodiscard]] const std::map<std::string, CommandSetup>& registered_commands();
+
+/// A validator's message for NaN ("" otherwise): CLI11's validators let it
+/// through (every comparison with NaN is false).
+inline std::string nan_refused(const std::string& input) {
+  double value = 0;
+  if (CLI::detail::lexical_cast(input, value) && std::isnan(value))
+    return "Value " + input + " is not a number";
+  return "";
+}
+
+/// CLI::Range that also refuses NaN. Every bounded option uses it.
+class InRange : public CLI::Range {
+ public:
+  template <typename T>
+  InRange(T min_value, T max_value) : CLI::Range(min_value, max_value) {
+    func_ = [bounds = func_](std::string& input) {
+      std::string refused = nan_refused(input);
+      return refused.empty() ? bounds(input) : refused;
+    };
+  }
+};
+
+/// A number option without bounds of its own (its command checks them) but
+/// not NaN.
+inline const CLI::Validator kNotNan([](std::string& input) { return nan_refused(input); },
+                                    "NUMBER");
 
 /// Throws std::runtime_error if `path`'s directory does not exist (check an
 /// output path before a long computation).

@@ -219,7 +219,7 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
       ->check(CLI::IsMember({"native", "tfmini"}))
       ->capture_default_str();
   sub.add_option("--rate", o->rate_hz, "frames per second")
-      ->check(CLI::Range(1e-3, 1e7))
+      ->check(InRange(1e-3, 1e7))
       ->capture_default_str();
   const std::vector<CLI::Option*> plate_options = {
       sub.add_option("--distance", o->distances, "true distances, m: LIST (as tofkit measure)"),
@@ -229,21 +229,21 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
       sub.add_option("--temperature", o->temperatures, "ambient temperatures, C: LIST")
           ->capture_default_str(),
       sub.add_option("--count", o->count, "repeated measurements per grid point")
-          ->check(CLI::Range(1, 100'000'000))
+          ->check(InRange(1, 100'000'000))
           ->capture_default_str(),
   };
   // --scene and the pattern options as `tofkit scan` takes them; its --rate
   // (the mirror's or the head's) is --scan-rate here.
   const SceneScanOptionHandles scene_options = add_scene_scan_options(sub, o->scan, "--scan-rate");
   sub.add_option("--shots", o->shots, "shots averaged per measurement (default: config's)")
-      ->check(CLI::Range(1, 65535));
+      ->check(InRange(1, 65535));
   add_seed_option(sub, o->seed, "random seed (as tofkit measure and tofkit scan)");
   sub.add_option("--mode", o->mode, "analytic or waveform")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
   sub.add_option("--corrupt", o->corrupt,
                  "share of bytes with one flipped bit (bytes only; values unchanged)")
-      ->check(CLI::Range(0.0, 1.0))
+      ->check(InRange(0.0, 1.0))
       ->capture_default_str();
   sub.add_option("--out", o->out, "'-' for stdout (default: a new pseudo-terminal)");
   sub.callback([o, &ctx, plate_options, scene_options] {

@@ -239,7 +239,7 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                  "fits the chain's residual");
   CLI::Option* rcond =
       sub.add_option("--rcond", o->rcond, "poly: relative singular-value cutoff (thesis: 1e-2)")
-          ->check(CLI::Range(0.0, 1.0))
+          ->check(InRange(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");
   sub.add_option("--intensity", o->intensity,
@@ -277,7 +277,7 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
   sub.add_option("--confidence-folds", o->confidence_folds,
                  "cross-fitting folds of whole truth groups for the confidence fit (fewer groups: "
                  "one per group)")
-      ->check(CLI::Range(2, 50))
+      ->check(InRange(2, 50))
       ->capture_default_str();
   sub.add_option("--firmware", o->firmware,
                  "also export the chain in fixed point: STEM.json and STEM.h (C header)");

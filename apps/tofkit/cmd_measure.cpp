@@ -122,7 +122,7 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
   sub.add_option("--temperature", o->temperatures, "ambient temperatures, C: LIST")
       ->capture_default_str();
   sub.add_option("--shots", o->shots, "shots averaged per measurement (default: config's)")
-      ->check(CLI::Range(1, 10'000'000));
+      ->check(InRange(1, 10'000'000));
   sub.add_option("--count", o->count_text, "repeated measurements per grid point")
       ->capture_default_str();
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");

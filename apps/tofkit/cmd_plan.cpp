@@ -154,7 +154,8 @@ const bool registered = register_command("plan", [](CLI::App& sub, AppContext& c
   sub.add_option("--reflectance-max", p.reflectance_max, "brightest field target")
       ->capture_default_str();
   sub.add_option("--at", p.calibration_distance_m,
-                 "calibration distance, m (default: geometric mean of the field's ranges)");
+                 "calibration distance, m (default: geometric mean of the field's ranges)")
+      ->check(kNotNan);
   sub.add_option("--plates", p.plates, "number of plates (target powers)")->capture_default_str();
   sub.add_option("--temperature-min", p.temperature_min_c, "temperature run start, C")
       ->capture_default_str();
@@ -163,7 +164,7 @@ const bool registered = register_command("plan", [](CLI::App& sub, AppContext& c
   sub.add_option("--temperature-step", p.temperature_step_c, "temperature run step, C")
       ->capture_default_str();
   sub.add_option("--count", o->count, "repeats per plate in the measure lines")
-      ->check(CLI::Range(1, 100000))
+      ->check(InRange(1, 100000))
       ->capture_default_str();
   sub.add_flag("--single-distance", p.single_distance,
                "all plates at one distance: the one centring the plates' powers on the field's "

@@ -11,7 +11,6 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <set>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -41,9 +40,10 @@ const std::vector<std::string>& all_outputs() {
 
 std::set<std::string> parse_write(const std::string& text) {
   std::set<std::string> picked;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
+  // Every item between commas, the empty ones too ("csv," names an empty output).
+  for (std::size_t start = 0, comma = 0; comma != std::string::npos; start = comma + 1) {
+    comma = text.find(',', start);
+    const std::string item = text.substr(start, comma == std::string::npos ? comma : comma - start);
     if (item == "all") {
       picked.insert(all_outputs().begin(), all_outputs().end());
       continue;
@@ -169,7 +169,7 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
   sub.add_option("--shots", o->shots, "shots averaged per beam (default: config's)")
-      ->check(CLI::Range(1, 10'000'000));
+      ->check(InRange(1, 10'000'000));
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();

@@ -210,7 +210,7 @@ const bool registered = register_command("stream", [](CLI::App& sub, AppContext&
       ->required();
   sub.add_option("--in", o->in, "serial device, pty, capture file, or - for stdin")->required();
   sub.add_option("--baud", o->baud, "serial line speed (terminals only; default: leave as is)")
-      ->check(CLI::Range(1, 4'000'000));
+      ->check(InRange(1, 4'000'000));
   sub.add_option("--model", o->model, "model file (JSON, from tofkit fit) applied to every frame");
   sub.add_option("--count", o->count, "stop after this many frames (default: at end of stream)");
   sub.add_option("--out", o->out, "CSV to write, or - for stdout")->required();

@@ -39,7 +39,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   double max_input_mb = static_cast<double>(limits.max_input_bytes) / 1048576.0;
   app.add_option("--max-input-mb", max_input_mb, "largest input file read, MB")
-      ->check(CLI::Range(1e-3, 1e6))
+      ->check(tofkit::app::InRange(1e-3, 1e6))
       ->capture_default_str();
 
   // Applies --threads and the input limit before any subcommand callback runs.
@@ -68,6 +68,12 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     outputs.commit();
+  } catch (const CLI::ValidationError& e) {
+    // A value outside its option's range or set (NaN included) is bad input,
+    // as every other: status 1 naming the option, like a bad config key.
+    return fail(e.what());
+  } catch (const CLI::ConversionError& e) {
+    return fail(e.what());
   } catch (const CLI::ParseError& e) {
     const int code = app.exit(e);
     return code == 0 ? 0 : 2;

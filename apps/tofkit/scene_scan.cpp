@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "app.hpp"
 #include "tofkit/io/input_file.hpp"
 #include "tofkit/io/value_list.hpp"
 
@@ -35,27 +36,27 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
       sub.add_option("--elevation", o.elevation,
                      "mirror/spherical/spinning: elevations, degrees: LIST"),
       sub.add_option("--samples", o.settings.samples, "raster: measurements averaged per point")
-          ->check(CLI::Range(1, 100000))
+          ->check(InRange(1, 100000))
           ->capture_default_str(),
       sub.add_option("--speed", o.settings.speed_m_per_s, "raster/line/mirror: stage speed, m/s")
-          ->check(CLI::Range(0.0, 100.0))
+          ->check(InRange(0.0, 100.0))
           ->capture_default_str(),
       sub.add_option("--turnaround", o.settings.turnaround_s, "line: time between lines, s")
-          ->check(CLI::Range(0.0, 1e4))
+          ->check(InRange(0.0, 1e4))
           ->capture_default_str(),
       sub.add_option(rate_option, o.settings.rate_hz,
                      "mirror/spherical: mirror revolutions per s; spinning: rotation Hz")
-          ->check(CLI::Range(1e-6, 1e5))
+          ->check(InRange(1e-6, 1e5))
           ->capture_default_str(),
       sub.add_option("--revolutions", o.settings.revolutions, "mirror/spinning: revolutions")
-          ->check(CLI::Range(1, 1000000))
+          ->check(InRange(1, 1000000))
           ->capture_default_str(),
       sub.add_option("--azimuth-step", o.settings.azimuth_step_deg,
                      "spinning: azimuth between firings, degrees")
-          ->check(CLI::Range(1e-4, 360.0))
+          ->check(InRange(1e-4, 360.0))
           ->capture_default_str(),
       sub.add_option("--ambient", o.ambient_c, "ambient temperature, C")
-          ->check(CLI::Range(-60.0, 150.0))
+          ->check(InRange(-60.0, 150.0))
           ->capture_default_str(),
   };
   return h;

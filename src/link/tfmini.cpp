@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "frame_scanner.hpp"
 
@@ -93,8 +95,14 @@ TfminiReading tfmini_reading_from(const ranging::RawMeasurement& raw) {
     r.strength = 0;
     return r;
   }
-  r.distance_cm = static_cast<std::uint16_t>(std::clamp(
-      std::nearbyint(raw.distance_raw_m * 100.0), 0.0, static_cast<double>(kTfminiMaxDistanceCm)));
+  // A distance the field cannot hold is refused, as the native frame's
+  // (clamped, 1000 m had read 655.31 m).
+  const double cm = std::nearbyint(raw.distance_raw_m * 100.0);
+  if (!(cm >= 0.0 && cm <= static_cast<double>(kTfminiMaxDistanceCm))) {
+    throw std::out_of_range("TFmini frame: distance_raw_m " + std::to_string(raw.distance_raw_m) +
+                            " m does not fit its field (0 to 655.31 m)");
+  }
+  r.distance_cm = static_cast<std::uint16_t>(cm);
   const double mv = std::isnan(raw.amplitude) ? 0.0 : raw.amplitude * 1e3;
   r.strength = static_cast<std::uint16_t>(std::clamp(std::nearbyint(mv), 0.0, 65534.0));
   return r;

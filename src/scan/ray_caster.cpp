@@ -1,6 +1,7 @@
 #include "tofkit/scan/ray_caster.hpp"
 
 #include <cmath>
+#include <new>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -274,6 +275,18 @@ void intersect_callback(const RTCIntersectFunctionNArguments* args) {
   }
 }
 
+/// Throws on an Embree error: std::bad_alloc when it ran out of memory (a
+/// mesh's acceleration structure can take hundreds of times its file's
+/// size), else std::runtime_error. Without the check an Embree that failed
+/// to build a mesh left it out of the scene (its beams: no echo, exit 0).
+void check_embree(RTCDevice device, const char* what) {
+  const RTCError error = rtcGetDeviceError(device);
+  if (error == RTC_ERROR_NONE) return;
+  if (error == RTC_ERROR_OUT_OF_MEMORY) throw std::bad_alloc();
+  throw std::runtime_error(std::string("Embree: ") + what + " failed (error " +
+                           std::to_string(static_cast<int>(error)) + ")");
+}
+
 }  // namespace
 
 RayCaster::RayCaster(Scene scene) : impl_(std::make_unique<Impl>()) {
@@ -298,11 +311,21 @@ RayCaster::RayCaster(Scene scene) : impl_(std::make_unique<Impl>()) {
       g = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
       auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
           g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), p.vertices.size()));
+      if (v == nullptr) {
+        rtcReleaseGeometry(g);
+        check_embree(impl_->device, "a mesh's vertices");
+        throw std::bad_alloc();  // (no buffer without an error)
+      }
       for (std::size_t k = 0; k < p.vertices.size(); ++k) {
         for (std::size_t c = 0; c < 3; ++c) v[3 * k + c] = static_cast<float>(p.vertices[k][c]);
       }
       auto* t = static_cast<unsigned*>(rtcSetNewGeometryBuffer(
           g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned), p.triangles.size()));
+      if (t == nullptr) {
+        rtcReleaseGeometry(g);
+        check_embree(impl_->device, "a mesh's triangles");
+        throw std::bad_alloc();  // (no buffer without an error)
+      }
       for (std::size_t k = 0; k < p.triangles.size(); ++k) {
         for (std::size_t c = 0; c < 3; ++c) t[3 * k + c] = p.triangles[k][c];
       }
@@ -323,6 +346,7 @@ RayCaster::RayCaster(Scene scene) : impl_(std::make_unique<Impl>()) {
     rtcReleaseGeometry(g);
   }
   rtcCommitScene(impl_->rtc_scene);
+  check_embree(impl_->device, "building the scene");
 }
 
 RayCaster::~RayCaster() = default;

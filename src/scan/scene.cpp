@@ -44,6 +44,12 @@ bool feature_size(double v) {
 double norm(const Vec3& v) {
   return std::sqrt(dot(v, v));
 }
+/// A direction the ray caster can normalize (a 1e300 component overflowed
+/// its length to inf and made the surface vanish).
+bool direction(const Vec3& v) {
+  const double n = norm(v);
+  return n >= 1e-12 && n <= 1e12;
+}
 
 }  // namespace
 
@@ -102,6 +108,12 @@ std::vector<std::string> Scene::validate() const {
   };
   if (!in_extent(sensor.position_m))
     messages.push_back("sensor: pose_m must be finite, within 1e+05 m");
+  for (const double a : sensor.rpy_deg) {
+    if (!(std::abs(a) <= 360.0)) {
+      messages.push_back("sensor: rpy_deg must be finite angles within +-360 degrees");
+      break;
+    }
+  }
   for (const auto& p : primitives) {
     const auto& r = p.reflectance;
     auto check_rho = [&](double rho, const char* key) {
@@ -121,7 +133,8 @@ std::vector<std::string> Scene::validate() const {
     switch (p.kind) {
       case PrimitiveKind::kPlane:
         if (!in_extent(p.center_m)) bad(p, "center_m must be finite, within 1e+05 m");
-        if (!finite(p.normal) || norm(p.normal) < 1e-12) bad(p, "normal must be a nonzero vector");
+        if (!direction(p.normal))
+          bad(p, "normal must be a nonzero vector (length in [1e-12, 1e+12])");
         if (!feature_size(p.size_m[0]) || !feature_size(p.size_m[1]))
           bad(p, "size_m must be two sizes in [1e-06, 2e+05] m");
         break;
@@ -141,7 +154,7 @@ std::vector<std::string> Scene::validate() const {
         break;
       case PrimitiveKind::kCylinder:
         if (!in_extent(p.base_m)) bad(p, "base_m must be finite, within 1e+05 m");
-        if (!finite(p.axis) || norm(p.axis) < 1e-12) bad(p, "axis must be a nonzero vector");
+        if (!direction(p.axis)) bad(p, "axis must be a nonzero vector (length in [1e-12, 1e+12])");
         if (!feature_size(p.radius_m)) bad(p, "radius_m must be in [1e-06, 2e+05] m");
         if (!feature_size(p.height_m)) bad(p, "height_m must be in [1e-06, 2e+05] m");
         break;

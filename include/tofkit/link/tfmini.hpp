@@ -34,7 +34,7 @@ struct TfminiReading {
 [[nodiscard]] std::array<std::uint8_t, kTfminiFrameBytes> encode_tfmini(const TfminiReading& r);
 
 /// How the emulator reports a RawMeasurement as a TFmini would: distance_raw_m
-/// rounded to cm (clamped to the valid maximum), strength = amplitude in mV
+/// rounded to cm (std::out_of_range outside 0 .. 655.31 m), strength = amplitude in mV
 /// (clamped to 65534; 65535 means saturation), temperature rounded to 1/8 C;
 /// no echo -> Dist -1 with strength 0.
 [[nodiscard]] TfminiReading tfmini_reading_from(const ranging::RawMeasurement& raw);
