@@ -116,6 +116,15 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
       {"[[surface]]\nkind = \"mesh\"\nfile = \"nowhere.ply\"\nreflectance = 0.5\n",
        "scene.toml:3: surface[0].file: "},
       {plane + "reflectance = 1.5\n", "surface[0]: reflectance must lie in [0, 1]"},
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"junk.obj\"\nreflectance = 0.5\n",
+       "junk.obj:4: bad face index '3x'"},  // (had been read as 3)
+      {"[[surface]]\nkind = \"mesh\"\nfile = \"nan.ply\"\nreflectance = 0.5\n",
+       "nan.ply: 'nan' in the PLY data is not a number"},  // (had said "truncated")
+      {plane + "pattern = \"checker\"\ncell_m = 0.01\nseed = -3\n",
+       "surface[0].seed must be a whole number >= 0"},
+      {plane + "pattern = \"checker\"\ncell_m = 0.01\nseed = 3\nrandom_min = 0.8\n"
+               "random_max = 0.2\n",
+       "surface[0]: random_min must not exceed random_max"},
       // A NaN or huge sensor angle had aborted on Embree's ray check; a 1e300
       // normal overflowed its length and the plane vanished (exit 0, no echo).
       {"[sensor]\nrpy_deg = [nan, 0, 0]\n" + plane + "reflectance = 0.5\n",
@@ -131,6 +140,11 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
   // vertices of no property filled memory).
   std::ofstream(dir / "empty.ply") << "ply\nformat binary_little_endian 1.0\n"
                                       "element vertex 30000000\nend_header\n";
+  std::ofstream(dir / "junk.obj") << "v 1 0 0\nv 1 1 0\nv 1 0 1\nf 1 2 3x\n";
+  std::ofstream(dir / "nan.ply") << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float "
+                                    "x\nproperty float y\nproperty float z\nelement face 1\n"
+                                    "property list uchar int vertex_indices\nend_header\n"
+                                    "1 0 0\nnan 1 0\n1 0 1\n3 0 1 2\n";
   std::ofstream(dir / "index.ply") << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float "
                                       "x\nproperty float y\nproperty float z\nelement face 2\n"
                                       "property list uchar int vertex_indices\nend_header\n"
@@ -183,6 +197,26 @@ TEST(ScanIo, BadScenesNameFileAndKeyAndWriteNothing) {
       run(std::string(TOFKIT_BINARY) + " scan --scene " + big_scene.string() +
           " --pattern spherical --azimuth=0 --elevation=0 --out " + out.string() + " > /dev/null"),
       0);
+  fs::remove_all(dir);
+}
+
+// An OBJ file that starts with a UTF-8 byte-order mark is the same mesh (the
+// mark had hidden the first vertex's tag: the faces pointed one vertex off).
+TEST(ScanIo, AnObjWithAByteOrderMarkIsTheSameMesh) {
+  const fs::path dir = fresh_dir("bom");
+  const std::string obj = "v 1 0 0\nv 1 1 0\nv 1 0 1\nv 1 1 1\nf 1 2 3\nf 2 4 3\n";
+  std::ofstream(dir / "plain.obj") << obj;
+  std::ofstream(dir / "marked.obj") << "\xEF\xBB\xBF" << obj;
+  auto mesh = [&](const char* file) {
+    const fs::path scene = dir / (std::string(file) + ".toml");
+    std::ofstream(scene) << "[[surface]]\nkind = \"mesh\"\nfile = \"" << file
+                         << "\"\nreflectance = 0.5\n";
+    return tofkit::io::load_scene(scene).primitives.at(0);
+  };
+  const auto plain = mesh("plain.obj"), marked = mesh("marked.obj");
+  EXPECT_EQ(marked.vertices, plain.vertices);
+  EXPECT_EQ(marked.triangles, plain.triangles);
+  EXPECT_EQ(plain.vertices.size(), 4u);
   fs::remove_all(dir);
 }
 

@@ -96,7 +96,9 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
   std::error_code ec;
   if (!std::filesystem::is_directory(o.out, ec)) {
-    throw std::runtime_error("--out: directory '" + o.out + "' does not exist");
+    throw std::runtime_error("--out: '" + o.out + "' " +
+                             (std::filesystem::exists(o.out, ec) ? "is not a directory"
+                                                                 : "(a directory) does not exist"));
   }
   const int shots = scan_shots(config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);

@@ -3,10 +3,13 @@
 #include <fmt/format.h>
 #include <toml++/toml.h>
 
+#include <algorithm>
+#include <charconv>
 #include <cstring>
 #include <set>
 #include <sstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "tofkit/io/input_file.hpp"
@@ -170,6 +173,9 @@ toml::table parse(const fs::path& file) {
 
 void load_obj(const fs::path& file, Primitive& mesh) {
   std::string text = read_input(file, "mesh file");
+  // A UTF-8 byte-order mark (some editors write one) is not part of line 1's
+  // tag: left in, the first vertex was skipped and every face shifted.
+  if (text.starts_with("\xEF\xBB\xBF")) text.erase(0, 3);
   TextBuffer buffer(text);
   std::istream in(&buffer);
   std::string line;
@@ -189,10 +195,12 @@ void load_obj(const fs::path& file, Primitive& mesh) {
       std::vector<std::uint32_t> idx;
       std::string token;
       while (ls >> token) {
+        // The vertex index, up to a '/' (texture and normal indices follow), whole:
+        // '3x' or '3.9' had been read as 3.
+        const std::string_view index(token.data(), std::min(token.find('/'), token.size()));
         long i = 0;
-        try {
-          i = std::stol(token.substr(0, token.find('/')));
-        } catch (const std::exception&) {
+        const auto [end, error] = std::from_chars(index.data(), index.data() + index.size(), i);
+        if (error != std::errc() || end != index.data() + index.size()) {
           throw SceneError(
               fmt::format("{}:{}: bad face index '{}'", file.string(), line_no, token));
         }
@@ -315,7 +323,13 @@ void load_ply(const fs::path& file, Primitive& mesh) {
   auto read_value = [&](const std::string& type) -> double {
     if (ascii) {
       double v = 0;
-      if (!(in >> v)) throw SceneError(name + ": truncated PLY data");
+      if (!(in >> v)) {
+        if (in.eof()) throw SceneError(name + ": truncated PLY data");
+        in.clear();
+        std::string token;
+        in >> token;
+        throw SceneError(name + ": '" + token + "' in the PLY data is not a number");
+      }
       return v;
     }
     char bytes[8];
@@ -400,6 +414,9 @@ Reflectance read_reflectance(Reader& r, Problems& problems, const toml::table& t
   if (r.integer(t, prefix, "seed", seed)) {
     if (refl.kind != Reflectance::Kind::kChecker) {
       problems.add(r.where(*t.get("seed")), prefix + "seed applies to pattern = \"checker\" only");
+    }
+    if (seed < 0) {  // (TOML integers are signed: -3 had become 2^64 - 3)
+      problems.add(r.where(*t.get("seed")), prefix + "seed must be a whole number >= 0");
     }
     refl.random = true;
     refl.seed = static_cast<std::uint64_t>(seed);

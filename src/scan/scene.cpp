@@ -127,6 +127,7 @@ std::vector<std::string> Scene::validate() const {
       if (r.random) {
         check_rho(r.random_min, "random_min");
         check_rho(r.random_max, "random_max");
+        if (r.random_min > r.random_max) bad(p, "random_min must not exceed random_max");
       }
       if (p.kind != PrimitiveKind::kPlane) bad(p, "pattern is only allowed on kind = \"plane\"");
     }
