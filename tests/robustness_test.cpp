@@ -243,7 +243,7 @@ TEST_F(Robustness, SettingsThatWouldHangAreRefusedNamingTheKey) {
                 .status,
             1);
   EXPECT_EQ(run("--max-rows 6 scan --scene plate.toml --pattern spherical --azimuth 0:2:1 "
-                "--elevation 0,1 --write csv --out .")
+                "--elevation 0,1 --shots 100 --write csv --out .")
                 .status,
             0);
   // The limit is a limit, not a ban: raised, a bigger grid runs.
@@ -435,4 +435,22 @@ TEST_F(Robustness, NanOptionsEmptyItemsAndUnfitFramesAreRefused) {
       "--set laser.repetition_hz=100000 --set laser.peak_power_w=10000 emulate "
       "--format tfmini --rate 10000 --distance 1000 --reflectance 1 --shots 10 --out -",
       {"TFmini frame: distance_raw_m", "does not fit its field"});
+}
+
+// A mirror or a spinning head sets when each beam is measured; beams closer
+// in time than one measurement (its shots at the repetition rate) are samples
+// the device cannot give. 1 degree steps at 10 revolutions a second are
+// 0.278 ms apart: 1000 shots at 1 MHz (1 ms) had been scanned anyway.
+TEST_F(Robustness, BeamsFasterThanTheDeviceMeasuresAreRefused) {
+  write_plate_scene();
+  expect_refused("scan --scene plate.toml --pattern mirror --elevation -10:10:1 --out .",
+                 {"mirror: beams 0.2778 ms apart, less than one measurement (1 ms of shots)"});
+  expect_refused(
+      "scan --scene plate.toml --pattern spinning --elevation -2,2 --azimuth-step 0.1 "
+      "--rate 10 --shots 100 --out .",
+      {"spinning: beams 0.02778 ms apart", "(0.1 ms of shots)"});
+  EXPECT_EQ(run("scan --scene plate.toml --pattern mirror --elevation -10:10:1 --shots 250 "
+                "--write csv --out .")
+                .status,
+            0);
 }

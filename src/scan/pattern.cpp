@@ -219,15 +219,33 @@ BeamPattern make_pattern(const std::string& name, const PatternSettings& s, cons
   if (name == "line")
     return line_pattern({list(y), list(z), s.speed_m_per_s, s.turnaround_s}, measurement_period_s,
                         max_beams);
+  BeamPattern p;
   if (name == "mirror")
-    return mirror_pattern({list(elevation), s.revolutions, s.rate_hz, s.speed_m_per_s}, max_beams);
-  if (name == "spherical")
-    return spherical_pattern({list(azimuth), list(elevation), s.rate_hz}, max_beams);
-  if (name == "spinning")
-    return spinning_pattern({list(elevation), s.azimuth_step_deg, s.rate_hz, s.revolutions},
-                            max_beams);
-  throw std::invalid_argument("pattern: '" + name +
-                              "' is not raster, line, mirror, spherical or spinning");
+    p = mirror_pattern({list(elevation), s.revolutions, s.rate_hz, s.speed_m_per_s}, max_beams);
+  else if (name == "spherical")
+    p = spherical_pattern({list(azimuth), list(elevation), s.rate_hz}, max_beams);
+  else if (name == "spinning")
+    p = spinning_pattern({list(elevation), s.azimuth_step_deg, s.rate_hz, s.revolutions},
+                         max_beams);
+  else
+    throw std::invalid_argument("pattern: '" + name +
+                                "' is not raster, line, mirror, spherical or spinning");
+  // A mirror or a spinning head sets the beams' times; a measurement averages
+  // its shots over one output period, so beams closer in time than that are
+  // samples the device cannot give (a spinning head's lasers, one per
+  // elevation, fire together: only successive firings count).
+  for (std::size_t i = 1; i < p.beams.size(); ++i) {
+    const double gap = p.beams[i].time_s - p.beams[i - 1].time_s;
+    if (gap > 0 && gap < measurement_period_s * (1 - 1e-9)) {
+      char text[240];
+      std::snprintf(text, sizeof text,
+                    "%s: beams %.4g ms apart, less than one measurement (%.4g ms of shots): use "
+                    "fewer shots, a lower rate or a coarser angle step",
+                    name.c_str(), gap * 1e3, measurement_period_s * 1e3);
+      throw std::invalid_argument(text);
+    }
+  }
+  return p;
 }
 
 }  // namespace tofkit::scan
