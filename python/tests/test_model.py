@@ -193,6 +193,11 @@ def test_bad_inputs_raise(calibration):
         tofkit.fit_surface(records, rcond="small")
     with pytest.raises(TypeError, match="chain: expected a tofkit.Model or None, got int"):
         tofkit.fit_surface(records, chain=3)
+    # A string is not a number nor a flag ('0.1' had been read, 'False' was true).
+    with pytest.raises(ValueError, match="rcond: expected a number, got '0.1'"):
+        tofkit.fit_surface(records, rcond="0.1")
+    with pytest.raises(TypeError, match="temperature: expected True or False, got 'False'"):
+        tofkit.fit_surface(records, "poly:3", temperature="False")
     with pytest.raises(TypeError, match="config: expected a tofkit.DeviceConfig or None, got str"):
         tofkit.fit_chain(records, config="paper")
     empty_distance, _, _ = model.apply(records[:0])

@@ -158,6 +158,10 @@ def test_errors_carry_the_cli_message(cli, tmp_path):
         tofkit.scan(BLOCKS, "line", y="0:0.1:0.05", z=0, speed_m_per_s="fast")
     with pytest.raises(ValueError, match=r"shots: 0 is outside \[1, 10000000\]"):
         tofkit.scan(BLOCKS, "mirror", elevation=0, shots=0)
+    with pytest.raises(ValueError, match="speed_m_per_s: expected a number, got '0.05'"):
+        tofkit.scan(BLOCKS, "line", y="0:0.1:0.05", z=0, speed_m_per_s="0.05")
+    with pytest.raises(ValueError, match="samples: expected an integer, got '3'"):
+        tofkit.scan(BLOCKS, "raster", y=0, z=0, samples="3")
     with pytest.raises(ValueError, match="rate_hz: expected a number, got None"):
         tofkit.scan(BLOCKS, "mirror", elevation=0, rate_hz=None)
     with pytest.raises(TypeError):

@@ -35,7 +35,8 @@ def _float(value, name):
     """A real argument; anything else (a string, None, a bool) is refused by
     name. NaN and infinities pass: the C++ side checks every range."""
     try:
-        as_float = float(value)
+        # (float('0.05') would read a string: refused, as the docstring says)
+        as_float = None if isinstance(value, (str, bytes)) else float(value)
     except (TypeError, ValueError):
         as_float = None
     if as_float is None or isinstance(value, bool):
@@ -74,7 +75,7 @@ def _int(value, name, lo=-2**31, hi=2**31 - 1):
     side checks the argument's own range); anything else (a fraction, a
     string, None, 2**40) is refused by name."""
     try:
-        as_int = int(value)
+        as_int = None if isinstance(value, (str, bytes)) else int(value)
     except (TypeError, ValueError):
         as_int = None
     if as_int is None or isinstance(value, bool) or as_int != value:

@@ -104,6 +104,13 @@ def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confid
                                     str(confidence), bool(refine_walk)))
 
 
+def _flag(value, name):
+    """A yes/no argument: a bool (or NumPy's), not a string ('False' is truthy)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)
+
+
 def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=None,
                 config=None, confidence="none"):
     """Fit a correction surface over (range, amplitude[, temperature]), as
@@ -119,6 +126,6 @@ def fit_surface(records, surface="poly:4", temperature=False, rcond=None, chain=
         raise TypeError(f"chain: expected a tofkit.Model or None, got {type(chain).__name__}")
     base = chain._model if chain is not None else None
     return Model(_tofkit._fit_surface(base, _config(config), _columns(records), str(surface),
-                                      bool(temperature),
+                                      _flag(temperature, "temperature"),
                                       None if rcond is None else _float(rcond, "rcond"),
                                       str(confidence)))
