@@ -665,11 +665,23 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] double fast_lag_ns(const MeasurementSetup& m) const {
     const double threshold = config.discriminator.threshold_v;
     if (m.peak_v < threshold) return 0.0;
-    // fall_at(m, threshold) - rise_at(m, threshold), the level placed in the rows once.
-    const double l = std::clamp(threshold, m.level_begin_v, m.level_end_v);
     double rise = 0, fall = 0;
+    crossings_at(m, threshold, rise, fall);
+    return fall - rise;
+  }
+
+  /// rise_at and fall_at of one level together (on the fast path the level is
+  /// placed in the spread table's rows once for both).
+  void crossings_at(const MeasurementSetup& m, double level, double& rise, double& fall) const {
+    if (!m.fast) {
+      rise = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, level);
+      fall = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, level);
+      return;
+    }
+    const double l = std::clamp(level, m.level_begin_v, m.level_end_v);
     shapes->rise_fall_ns(m.spread, l * m.inv_row_peak_v[0], l * m.inv_row_peak_v[1], rise, fall);
-    return (m.delay_ns + fall) - (m.delay_ns + rise);
+    rise += m.delay_ns;
+    fall += m.delay_ns;
   }
 
   /// Fast path: the noise's correlation at the two crossings and the false alarms.
@@ -905,10 +917,11 @@ struct VirtualRangefinder::Impl {
     if (m.peak_v < threshold) return true;  // crossed by noise only when at all (analytic levels)
     const double half = 0.5 * m.noise_at_threshold_v;
     // The edges' times across the noise band threshold +- sigma / 2 (clamped at the peak).
-    const double rise = rise_at(m, threshold + half) - rise_at(m, threshold - half);
-    const double fall =
-        fall_at(m, threshold - half) -
-        (threshold + half >= m.level_top_v ? m.peak_time_ns : fall_at(m, threshold + half));
+    double rise_lo = 0, fall_lo = 0, rise_hi = 0, fall_hi = 0;
+    crossings_at(m, threshold - half, rise_lo, fall_lo);
+    crossings_at(m, threshold + half, rise_hi, fall_hi);
+    if (threshold + half >= m.level_top_v) fall_hi = m.peak_time_ns;
+    const double rise = rise_hi - rise_lo, fall = fall_lo - fall_hi;
     static const double r_limit = chatter_ratio_limit();
     // (NaN: a blanked edge, crossed by noise or not at all as the analytic levels give it.)
     return !(rise > r_limit * pulse.pole_time_constant_ns()) &&
