@@ -7,9 +7,10 @@
 /// with the twin's sampling steps) and name the keys to change.
 ///
 /// Documented limits (README "Errors and robustness"):
-/// - pulse template: at most kMaxTemplateSamples samples of 5 ps
-///   (12 sigma of the pulse plus 20 time constants of the receiver): a
-///   receiver bandwidth below ~8 MHz or a pulse width above ~700 ns is refused;
+/// - pulse template: at most kMaxTemplateSamples samples of 5 ps (250 ns:
+///   12 sigma of the pulse plus 20 time constants of the receiver): a
+///   receiver bandwidth below ~8 MHz is refused, and at 150 MHz a pulse
+///   width above ~46 ns;
 /// - waveform record (waveform mode): at most kMaxRecordSamples samples per
 ///   shot, from the real record length (the echo with its tilt spread, the
 ///   pulse template and the noise burn-in, at least measurement.window_ns)
