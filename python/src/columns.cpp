@@ -109,6 +109,13 @@ ColumnSet::ColumnSet(const py::tuple& columns) {
       throw py::value_error(name + ": expected a 1-D column, got " + std::to_string(a.ndim()) +
                             " dimensions");
     }
+    if ((a.dtype().kind() == 'f' && a.dtype().itemsize() != 4 && a.dtype().itemsize() != 8) ||
+        (std::string("fiu").find(a.dtype().kind()) != std::string::npos &&
+         !native_byte_order(a.dtype()))) {
+      // float16, long double or the other byte order: one copy as float64
+      // (every other numeric column is read in place).
+      a = py::array(a.attr("astype")("float64"));
+    }
     const py::dtype dtype = a.dtype();
     const char kind = dtype.kind();
     if ((kind != 'f' && kind != 'i' && kind != 'u' && kind != 'b') ||
