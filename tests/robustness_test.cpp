@@ -263,6 +263,11 @@ TEST_F(Robustness, NumbersThatDoNotFitADoubleAreErrorsWithTheirPlace) {
                  {"long.csv:3:", "tof_ns", "characters"});
   fs::remove(dir_ / "long.csv");
   expect_refused("budget --reflectance nan", {"--reflectance"});
+  // A NUL in a field is shown as \x00, and the reason follows (what() is a
+  // C string: the message had ended at the NUL).
+  write_with_cell("nul.csv", 2, 4, std::string("15.2\0", 5));
+  expect_refused("correct --model model.json --in nul.csv --out c.csv",
+                 {"nul.csv:3:", "tof_ns", "'15.2\\x00' is not a number"});
   expect_refused("measure --distance 1 --reflectance 0.5 --seed -1 --out a.csv", {"--seed -1"});
   expect_refused("measure --distance 1 --reflectance 0.5 --seed 18446744073709551616 --out a.csv",
                  {"--seed 18446744073709551616"});

@@ -187,8 +187,14 @@ class TableReader {
   [[noreturn]] void fail_field(std::string_view field, std::size_t line, std::size_t column,
                                const std::string& why) const {
     const std::size_t character = static_cast<std::size_t>(field.data() - line_) + 1;
-    const std::string shown =
-        field.size() > 40 ? std::string(field.substr(0, 40)) + "..." : std::string(field);
+    // Control bytes are shown as \xNN: a NUL had ended the message (what()
+    // is a C string) before the reason.
+    std::string shown;
+    for (const char c : field.substr(0, 40)) {
+      const auto byte = static_cast<unsigned char>(c);
+      shown += byte < 0x20 || byte == 0x7F ? fmt::format("\\x{:02X}", byte) : std::string(1, c);
+    }
+    if (field.size() > 40) shown += "...";
     throw std::runtime_error(fmt::format("{}:{}:{}: column {} ({}): '{}' {}", path_.string(), line,
                                          character, column + 1, column_name(column), shown, why));
   }
