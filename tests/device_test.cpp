@@ -763,7 +763,7 @@ TEST(Device, OneShotMeasurementIsThatShot) {
 // jitter over the noise's correlation time. The waveform mode's share of
 // shots whose first fall comes right after the rise (a width under half the
 // noise-free one) follows c; where c is not negligible the analytic mode
-// samples the noise as the waveform mode does (the same shots), and its
+// samples the noise as the waveform mode does (shots alike in distribution), and its
 // frozen-noise crossings, which cannot chatter, are kept where c is below
 // 1e-4. Before, a 20 ns pulse at 3 m gave widths of 41.4 +- 0.7 ns (analytic)
 // against 40.4 +- 6.3 ns (waveform).

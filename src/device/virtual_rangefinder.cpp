@@ -873,7 +873,7 @@ struct VirtualRangefinder::Impl {
 
   /// The fast path with its noise sampled (its edges are slower than the
   /// noise): the waveform sampler reads the echo off the pulse template
-  /// (signal_at), over the record the table's crossings bound, as the exact
+  /// (fast_signal_at), over the record the table's crossings bound, as the exact
   /// path's tables bound it.
   void sample_fast_echo(MeasurementSetup& m) const {
     const double tau = pulse.pole_time_constant_ns();
