@@ -166,6 +166,20 @@ TEST(Pipeline, FlagsNoEchoOutOfDomainAndNaN) {
   EXPECT_THROW(p.apply(in, short_out), std::invalid_argument);
 }
 
+// Finite steps whose sum overflows (an offset of 1.7e308 twice) give no
+// number: NaN and the non-finite flag, not inf (correct had written "inf",
+// which evaluate then refused).
+TEST(Pipeline, ACorrectionThatOverflowsIsNaNAndFlagged) {
+  Pipeline p;
+  p.add_step(make_offset_step(1.7e308));
+  p.add_step(make_offset_step(1.7e308));
+  std::vector<RawMeasurement> in{measurement(20, 5, 20)};
+  std::vector<Range> out(1);
+  p.apply(in, out);
+  EXPECT_TRUE(std::isnan(out[0].distance_m));
+  EXPECT_EQ(out[0].correction_flags, kCorrNonFinite);
+}
+
 // A number beyond kMaxMagnitude is a corrupt cell, not a measurement: read as
 // missing, so a 1e300 ns time of flight does not pass through as a 1.5e299 m
 // range, and a corrupt input a step reads flags its row as non-finite.

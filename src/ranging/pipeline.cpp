@@ -494,7 +494,8 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
       const std::uint32_t non_finite =
           (echo && !std::isfinite(b.distance[i])) ? kCorrNonFinite : 0u;
       const std::uint32_t outside = (echo && b.outside[i] != 0.0) ? kCorrOutOfDomain : 0u;
-      o[i].distance_m = b.distance[i];
+      // (A model whose terms overflow gives no number either: NaN, not inf.)
+      o[i].distance_m = non_finite != 0 ? kNaN : b.distance[i];
       o[i].sigma_m = sigma[i];
       o[i].correction_flags = flags | non_finite | outside;
     }
