@@ -189,6 +189,9 @@ TEST_F(Robustness, HugeCellsInAnEvaluationAreNamed) {
   expect_refused("evaluate --in cor_distance.csv",
                  {"cor_distance.csv", "distance_m = 1e+308 in data row 4", "is too large"});
   expect_refused("evaluate --in cor_truth.csv", {"distance_true_m = -1e+308 in data row 4"});
+  // A negative sigma is no expected error (its coverage had read 0 %, exit 0).
+  write_with_cell("cor_sigma.csv", 4, 12, "-0.001", "cor.csv");
+  expect_refused("evaluate --in cor_sigma.csv", {"sigma_m = -0.001 in data row 4 is negative"});
   EXPECT_EQ(run("evaluate --in cor.csv").status, 0);
 }
 

@@ -565,6 +565,11 @@ TEST(ScanPatterns, ListsAStageOrAMirrorCannotFollowAreRefused) {
   std::vector<double> even;
   for (int k = 0; k <= 200; ++k) even.push_back(-0.1 + 0.001 * k);
   EXPECT_GT(line_pattern({even, {0}, 0.05, 0.5}, 1e-3).beams.size(), 0u);
+  // A sweep shorter than one measurement holds no sample (0 beams, exit 0 before).
+  EXPECT_NE(message([] {
+              return line_pattern({{0, 1e-9}, {0}, 0.05, 0.5}, 1e-3);
+            }).find("line: a sweep lasts 4e-08 s, less than one measurement (0.001 s of shots)"),
+            std::string::npos);
   EXPECT_EQ(message([] {
               return spherical_pattern({{1e300}, {0}, 10});
             }),

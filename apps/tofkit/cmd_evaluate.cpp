@@ -99,6 +99,11 @@ void run_evaluate(const EvaluateOptions& o) {
       calib::require_magnitude(r.range.distance_m, "distance_m", i);
       calib::require_magnitude(r.record.raw.distance_raw_m, "distance_raw_m", i);
       calib::require_magnitude(r.range.sigma_m, "sigma_m", i);
+      if (r.range.sigma_m < 0) {  // (its coverage had read 0 % without a word)
+        throw std::invalid_argument(
+            fmt::format("sigma_m = {} in data row {} is negative: an expected error is >= 0",
+                        r.range.sigma_m, i + 1));
+      }
     } catch (const std::invalid_argument& e) {
       throw std::runtime_error(o.in + ": " + e.what());
     }

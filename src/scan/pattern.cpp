@@ -106,6 +106,14 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
   const double length = start - stop;
   const double v = o.stage_speed_m_per_s;
   p.sample_extent_m = v * period_s;
+  if (length / v < period_s) {  // (columns 1e-9 m apart had made 0 beams, exit 0)
+    char text[200];
+    std::snprintf(text, sizeof text,
+                  "line: a sweep lasts %.4g s, less than one measurement (%.4g s of shots): no "
+                  "sample fits; slow the stage or spread the columns",
+                  length / v, period_s);
+    throw std::invalid_argument(text);
+  }
   // At most one sample per output period of a line's sweep, and one more.
   require_beams(static_cast<double>(zs.size()) * (length / v / period_s + 1.0), max_beams, "line");
   double t_line = 0;
