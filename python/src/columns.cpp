@@ -109,18 +109,17 @@ ColumnSet::ColumnSet(const py::tuple& columns) {
       throw py::value_error(name + ": expected a 1-D column, got " + std::to_string(a.ndim()) +
                             " dimensions");
     }
-    if ((a.dtype().kind() == 'f' && a.dtype().itemsize() != 4 && a.dtype().itemsize() != 8) ||
-        (std::string("fiu").find(a.dtype().kind()) != std::string::npos &&
-         !native_byte_order(a.dtype()))) {
+    const char given = a.dtype().kind();
+    if ((given == 'f' || given == 'i' || given == 'u') &&
+        (!native_byte_order(a.dtype()) ||
+         (given == 'f' && a.dtype().itemsize() != 4 && a.dtype().itemsize() != 8))) {
       // float16, long double or the other byte order: one copy as float64
       // (every other numeric column is read in place).
       a = py::array(a.attr("astype")("float64"));
     }
     const py::dtype dtype = a.dtype();
     const char kind = dtype.kind();
-    if ((kind != 'f' && kind != 'i' && kind != 'u' && kind != 'b') ||
-        (kind == 'f' && dtype.itemsize() != 4 && dtype.itemsize() != 8) ||
-        !native_byte_order(dtype)) {
+    if (kind != 'f' && kind != 'i' && kind != 'u' && kind != 'b') {
       throw py::type_error(name + ": expected a numeric column, got dtype " +
                            py::str(static_cast<py::object>(dtype)).cast<std::string>());
     }

@@ -836,7 +836,6 @@ struct VirtualRangefinder::Impl {
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
     set_edge_correlation(m, std::isnan(rise0) ? 1.0 : pulse.noise_correlation(fall0 - rise0));
-    const double tau = pulse.pole_time_constant_ns();
     // Earliest and latest rising crossing over the levels (the first and last
     // level's without blanking, where the crossing time grows with the level).
     double first_rise = m.rise_ns[0], last_rise = m.rise_ns[kLevels - 1];
@@ -851,10 +850,9 @@ struct VirtualRangefinder::Impl {
       }
       first_rise = std::max(first_rise, m.blanking_ns);
     }
-    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
-    // Waveform record's end: past the first fall, or the whole echo when gated
-    // (crosstalk or blanking may end the first excursion before the echo).
-    m.record_end_ns = m.fall_ns[0] + m.recovery_ns + 4.0;
+    set_record(m, first_rise, last_rise, m.fall_ns[0]);
+    // Or the whole echo when gated (crosstalk or blanking may end the first
+    // excursion before the echo).
     if (gated || crosstalk_v > 0.0)
       m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
     m.sampled = mode == SimulationMode::kWaveform || !noise_frozen_at_edges(m);
@@ -876,13 +874,21 @@ struct VirtualRangefinder::Impl {
   /// (fast_signal_at), over the record the table's crossings bound, as the exact
   /// path's tables bound it.
   void sample_fast_echo(MeasurementSetup& m) const {
-    const double tau = pulse.pole_time_constant_ns();
     // (The crossings of levels above the peak read the peak's time.)
-    const double first_rise = rise_at(m, m.level_begin_v), last_rise = rise_at(m, m.level_end_v);
+    set_record(m, rise_at(m, m.level_begin_v), rise_at(m, m.level_end_v),
+               fall_at(m, m.level_begin_v));
     m.sampled = true;
-    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
-    m.record_end_ns = fall_at(m, m.level_begin_v) + m.recovery_ns + 4.0;
     set_false_alarm_window(m, m.record_begin_ns);
+  }
+
+  /// The waveform record: from before the earliest rise of any comparator
+  /// level (and the filter's settling before the latest) to past the lowest
+  /// level's fall, the amplifier's recovery included.
+  void set_record(MeasurementSetup& m, double first_rise, double last_rise,
+                  double lowest_fall) const {
+    const double tau = pulse.pole_time_constant_ns();
+    m.record_begin_ns = std::min(last_rise - 4.0 - 6.0 * tau, first_rise - 4.0);
+    m.record_end_ns = lowest_fall + m.recovery_ns + 4.0;
   }
 
   /// The fast path's noise-free echo at t (V): A g_h(t - delay) from the
