@@ -37,6 +37,9 @@ struct AppContext {
   std::optional<std::filesystem::path> config_file;  ///< --config FILE
   std::vector<std::string> overrides;                ///< --set section.key=value, in order
   std::string preset;  ///< --preset NAME (empty: the config file's, else "paper")
+  /// Exit status once the command has succeeded and its outputs are committed
+  /// (0; `validate --require-in-band` sets 3 when rows are outside their band).
+  int exit_status = 0;
 
   /// The device configuration from --preset, --config and --set (throws
   /// io::ConfigError naming file, line and key).

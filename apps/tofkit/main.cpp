@@ -84,5 +84,5 @@ int main(int argc, char** argv) {
   } catch (const std::exception& e) {
     return fail(e.what());
   }
-  return 0;
+  return ctx.exit_status;
 }

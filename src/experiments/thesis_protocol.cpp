@@ -246,6 +246,15 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
       }
       result.relative_error_by_training_distance.push_back(rms_of(at) / d);
     }
+    // The same with the best polynomial: the thesis's own correction.
+    const auto poly_residual = residuals(*result.best_polynomial, train);
+    for (const double d : options.training_distances_m) {
+      std::vector<double> at;
+      for (std::size_t i = 0; i < poly_residual.size(); ++i) {
+        if (std::abs(train.truth_m[i] - d) < 1e-12) at.push_back(poly_residual[i]);
+      }
+      result.relative_error_by_training_distance_polynomial.push_back(rms_of(at) / d);
+    }
   }
 
   // Confidence: both metrics fitted on the confidence scan's B-spline residuals.

@@ -157,6 +157,8 @@ struct ThesisProtocolResult {
   /// Section 4.8: RMS / distance of B-spline-corrected ranges per training
   /// distance (thesis: 0.0117, 0.0077, 0.0070, 0.0046 at 15, 17, 20, 22 in).
   std::vector<double> relative_error_by_training_distance;
+  /// The same with the best polynomial (the thesis's own correction).
+  std::vector<double> relative_error_by_training_distance_polynomial;
 
   std::vector<ThesisTemperatureRow> temperature;  ///< test scans taken warmer
   std::vector<ThesisGreyRow> per_grey;            ///< Fig. 4.19
