@@ -161,6 +161,54 @@ TEST(PolynomialSurface, SingularValueCutoffSetsRankAndCondition) {
   EXPECT_LT(previous_rank, exps.size());  // the largest cutoff did drop directions
 }
 
+TEST(PolynomialSurface, ThesisRecipeOnTheNormalEquationsIsRcondOnTheDesign) {
+  // Oracle: the thesis's recipe written out (Section 4.6): SVD of A^T A, S's
+  // diagonal divided by its first entry, entries below 1e-2 zeroed, then
+  // x = V S^-1 U^T A^T b. kThesisRcond on A must give the same surface.
+  const Table train = make_table(1500, cubic_truth, 0.004, 4);
+  for (const int order : {3, 4, 5, 6}) {
+    const std::size_t n = train.size();
+    const auto exps = polynomial_exponents(order, false);
+    const double rmin = *std::min_element(train.range_m.begin(), train.range_m.end());
+    const double rmax = *std::max_element(train.range_m.begin(), train.range_m.end());
+    const double amin = *std::min_element(train.amplitude.begin(), train.amplitude.end());
+    const double amax = *std::max_element(train.amplitude.begin(), train.amplitude.end());
+    Eigen::MatrixXd a(n, exps.size());
+    Eigen::VectorXd b(n);
+    for (std::size_t k = 0; k < n; ++k) {
+      const double x1 = (2 * train.range_m[k] - rmin - rmax) / (rmax - rmin);
+      const double x2 = (2 * train.amplitude[k] - amin - amax) / (amax - amin);
+      for (std::size_t c = 0; c < exps.size(); ++c)
+        a(k, c) = std::pow(x1, exps[c][0]) * std::pow(x2, exps[c][1]);
+      b(k) = train.error_m[k];
+    }
+    const Eigen::MatrixXd ata = a.transpose() * a;
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(ata, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    const Eigen::VectorXd s = svd.singularValues() / svd.singularValues()(0);
+    Eigen::VectorXd s_inv = Eigen::VectorXd::Zero(s.size());
+    std::size_t rank = 0;
+    for (Eigen::Index k = 0; k < s.size(); ++k) {
+      if (s(k) < 1e-2) continue;  // the thesis's cutoff
+      s_inv(k) = 1.0 / svd.singularValues()(k);
+      ++rank;
+    }
+    const Eigen::VectorXd x =
+        svd.matrixV() * s_inv.asDiagonal() * svd.matrixU().transpose() * (a.transpose() * b);
+    const Eigen::VectorXd reference = a * x;
+
+    PolynomialFitOptions options;
+    options.order = order;
+    options.rcond = kThesisRcond;
+    const SurfaceFitResult fit = fit_polynomial_surface(train.data(), options);
+    EXPECT_EQ(fit.rank, rank) << "order " << order;
+    const std::vector<double> value = evaluate(*fit.surface, train);
+    const double scale = reference.cwiseAbs().maxCoeff();
+    double worst = 0;
+    for (std::size_t k = 0; k < n; ++k) worst = std::max(worst, std::abs(value[k] - reference(k)));
+    EXPECT_LT(worst / scale, 1e-6) << "order " << order;
+  }
+}
+
 // Range walk: weak echoes read long (exponential in intensity) plus a range slope.
 double walk_truth(double r, double a, double /*t*/) {
   return 0.06 * std::exp(-a / 300.0) + 1e-3 * r - 0.01;

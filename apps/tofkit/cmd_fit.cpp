@@ -238,7 +238,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                  "correction surface: poly:N (thesis Section 4.6) or bspline; after --chain it "
                  "fits the chain's residual");
   CLI::Option* rcond =
-      sub.add_option("--rcond", o->rcond, "poly: relative singular-value cutoff (thesis: 1e-2)")
+      sub.add_option(
+             "--rcond", o->rcond,
+             "poly: relative cutoff on the scaled design's singular values (the thesis's 1e-2 on "
+             "A^T A's spectrum is 0.1 here)")
           ->check(InRange(0.0, 1.0))
           ->capture_default_str();
   sub.add_flag("--temperature", o->surface_temperature, "surface: add a temperature axis");

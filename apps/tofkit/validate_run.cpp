@@ -152,6 +152,44 @@ nlohmann::json validation_json(const ValidationResult& result, const std::string
           {"rows", rows}};
 }
 
+nlohmann::json validation_demo_json(const ValidationResult& result, const std::string& matrix) {
+  nlohmann::json by_preset = nlohmann::json::object();
+  for (const auto& o : result.rows)
+    if (!by_preset.contains(o.row.preset))
+      by_preset[o.row.preset] =
+          validation_summary_json(experiments::summarize_validation(result.rows, o.row.preset));
+  return {{"matrix", matrix},
+          {"summary", validation_summary_json(result.summary)},
+          {"by_preset", by_preset}};
+}
+
+std::string validation_section_html(const ValidationResult& result, const std::string& matrix) {
+  auto pct = [](double v) { return std::isfinite(v) ? fmt::format("{:.1f} %", 100 * v) : "-"; };
+  std::vector<std::string> presets;
+  for (const auto& o : result.rows)
+    if (std::find(presets.begin(), presets.end(), o.row.preset) == presets.end())
+      presets.push_back(o.row.preset);
+  std::string h =
+      "<h2>Validation matrix (<code>tofkit validate</code>)</h2>\n<p>Every row of <code>" +
+      html_escape(matrix) +
+      "</code> run on the twin: a figure of a document, the twin's value and the band. "
+      "Held-out rows were never used to choose a twin parameter. <code>tofkit validate --out "
+      "DIR</code> writes the full table and a plot per figure.</p>\n<table><tr><th>preset</th>"
+      "<th>rows</th><th>in band</th><th>outside twice the band</th><th>held out in band</th>"
+      "<th>calibration in band</th></tr>\n";
+  auto line = [&](const std::string& name, const experiments::ValidationSummary& s) {
+    h += fmt::format(
+        "<tr><td>{}</td><td>{}</td><td>{} ({})</td><td>{}</td><td>{} of {} ({})</td><td>{} of {} "
+        "({})</td></tr>\n",
+        html_escape(name), s.rows, s.in_band, pct(s.in_band_share()), s.outside_twice,
+        s.held_out_in_band, s.held_out, pct(s.held_out_in_band_share()), s.calibration_in_band,
+        s.calibration, pct(s.calibration_in_band_share()));
+  };
+  for (const auto& p : presets) line(p, experiments::summarize_validation(result.rows, p));
+  line("all", result.summary);
+  return h + "</table>\n";
+}
+
 void write_validation_outputs(const fs::path& dir, const ValidationResult& result,
                               const std::string& matrix, std::uint64_t seed, bool render) {
   io::create_output_directories(dir);

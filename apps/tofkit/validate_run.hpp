@@ -30,6 +30,13 @@ namespace tofkit::app {
 /// The summary alone (shares as fractions, null without rows).
 [[nodiscard]] nlohmann::json validation_summary_json(const experiments::ValidationSummary& s);
 
+/// The demo's entry: the matrix, the summary over every row and one per preset.
+[[nodiscard]] nlohmann::json validation_demo_json(const experiments::ValidationResult& result,
+                                                  const std::string& matrix);
+/// The demo report's section: the summary per preset, as an HTML table.
+[[nodiscard]] std::string validation_section_html(const experiments::ValidationResult& result,
+                                                  const std::string& matrix);
+
 /// validation.json, validation.csv, validation.html and plots/validation_*.{gp,dat,png} in dir.
 void write_validation_outputs(const std::filesystem::path& dir,
                               const experiments::ValidationResult& result,

@@ -185,7 +185,18 @@ ValidationResult run_validation(std::span<const ValidationRow> rows,
       o.outside_twice = !(std::isfinite(o.twin) && deviation <= 2 * row.band_width());
       if (o.error.empty() && !std::isfinite(o.twin)) o.error = "the twin gives no value";
     }
-    auto& s = result.summary;
+    result.rows.push_back(std::move(o));
+  }
+  result.summary = summarize_validation(result.rows);
+  if (options.progress) options.progress("done", 1.0);
+  return result;
+}
+
+ValidationSummary summarize_validation(std::span<const ValidationOutcome> outcomes,
+                                       std::string_view preset) {
+  ValidationSummary s;
+  for (const auto& o : outcomes) {
+    if (!preset.empty() && o.row.preset != preset) continue;
     if (!o.run) {
       ++s.not_run;
     } else if (o.row.method == ValidationMethod::kTofkit) {
@@ -195,7 +206,7 @@ ValidationResult run_validation(std::span<const ValidationRow> rows,
       ++s.rows;
       s.in_band += o.in_band;
       s.outside_twice += o.outside_twice;
-      if (row.role == ValidationRole::kHeldOut) {
+      if (o.row.role == ValidationRole::kHeldOut) {
         ++s.held_out;
         s.held_out_in_band += o.in_band;
       } else {
@@ -203,10 +214,8 @@ ValidationResult run_validation(std::span<const ValidationRow> rows,
         s.calibration_in_band += o.in_band;
       }
     }
-    result.rows.push_back(std::move(o));
   }
-  if (options.progress) options.progress("done", 1.0);
-  return result;
+  return s;
 }
 
 double ValidationSummary::in_band_share() const {

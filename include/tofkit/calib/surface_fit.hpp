@@ -24,6 +24,12 @@ struct SurfaceFitData {
   std::span<const std::uint32_t> group = {};
 };
 
+/// The thesis's cutoff (Section 4.6) as an rcond on the scaled design A: it
+/// decomposes A^T A, divides S's diagonal by its first entry and zeroes the
+/// entries below 1e-2. A^T A's singular values are A's squared, so that drops
+/// the directions with s_k / s_0 < sqrt(1e-2) = 0.1: the same pseudo-inverse.
+inline constexpr double kThesisRcond = 0.1;
+
 struct PolynomialFitOptions {
   int order = 4;  ///< total degree N: terms of (1 + r + i [+ t])^N
   /// Relative cutoff on the singular values of the scaled design A: those below

@@ -53,7 +53,7 @@ struct LineScanOptions {
   int window_points = 4;  ///< footprint traces per averaging window (the beam moves)
   double ambient_c = 20.0;
   std::vector<int> polynomial_orders{4, 5, 6};  ///< thesis Fig. 4.23
-  double rcond = 1e-2;
+  double rcond = calib::kThesisRcond;           ///< the thesis's 1e-2 on A^T A's spectrum
   calib::BSplineFitOptions bspline = line_bspline_options();
   calib::CalibratedConfidenceOptions confidence{};
   void validate() const;

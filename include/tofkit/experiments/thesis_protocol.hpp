@@ -4,10 +4,10 @@
 /// by point (N samples averaged per point) at 15, 17, 20 and 22 in for training
 /// and at 19 in for testing; correction surfaces over (measured range,
 /// intensity) fitted to the error true - measured, polynomial orders 3..6 by SVD
-/// with rcond 1e-2 (thesis) and a smoothing B-spline (the thesis's future work);
-/// held-out statistics as in Fig. 4.18; then the confidence of corrected ranges,
-/// the thesis's metric (Section 4.8) beside tofkit's calibrated one, each fitted
-/// on a separate confidence scan and judged on the test scan.
+/// with the thesis's cutoff (1e-2 on A^T A's spectrum) and a smoothing B-spline (the thesis's
+/// future work); held-out statistics as in Fig. 4.18; then the confidence of corrected ranges, the
+/// thesis's metric (Section 4.8) beside tofkit's calibrated one, each fitted on a separate
+/// confidence scan and judged on the test scan.
 
 #include <cstdint>
 #include <memory>
@@ -63,7 +63,8 @@ struct ThesisProtocolOptions {
   /// training (each a separate scan) and corrected with the same models.
   std::vector<double> test_temperature_offsets_c{5.0, 10.0};
   std::vector<int> polynomial_orders{3, 4, 5, 6};  ///< thesis Fig. 4.18
-  double rcond = 1e-2;                             ///< thesis: singular values below 1e-2 dropped
+  /// Thesis: S of A^T A divided by its first entry, below 1e-2 zeroed (calib::kThesisRcond).
+  double rcond = calib::kThesisRcond;
   /// 3 knot intervals along range (four training distances cannot support more),
   /// 10 along log intensity (the walk's curvature near the threshold), fixed
   /// smoothing: generalized cross-validation picks far too little on replicated

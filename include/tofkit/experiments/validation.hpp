@@ -128,6 +128,10 @@ struct ValidationResult {
   [[nodiscard]] std::string summary_text() const;
 };
 
+/// The summary of outcomes (those of one preset when `preset` is not empty).
+[[nodiscard]] ValidationSummary summarize_validation(std::span<const ValidationOutcome> outcomes,
+                                                     std::string_view preset = {});
+
 /// The device a preset name stands for, or nullopt when rows of that preset
 /// are not to be run. Throwing refuses the run (e.g. an unknown preset).
 using DeviceForPreset =
