@@ -18,6 +18,7 @@
 
 #include "cli_runner.hpp"
 #include "tofkit/device/device_config.hpp"
+#include "tofkit/experiments/paper_method.hpp"
 #include "tofkit/io/validation_matrix.hpp"
 
 namespace {
@@ -233,6 +234,58 @@ TEST(ValidationRunner, SharesAndBandsAreCounted) {
       rows, [](const std::string&) { return std::optional<tofkit::device::DeviceConfig>(); });
   EXPECT_EQ(none.summary.rows, 0u);
   EXPECT_EQ(none.summary.not_run, 2u);
+}
+
+// The paper's correction, fitted on measurements whose offset is exactly the
+// paper's shapes: a hinge at 6.5 ns in pulse width and a drift of 3.8 mm/C
+// above 16 C, flat below. The fit must find those numbers, and the test sets
+// (same shapes) must come out corrected to zero.
+TEST(PaperMethod, RecoversThePapersShapesAndCorrectsThem) {
+  using tofkit::ranging::Record;
+  const double slope_below = -30, slope_above = 60, drift = 3.8;  // mm/ns, mm/ns, mm/C
+  auto measured_minus_true_mm = [&](double width_ns, double sensor_c) {
+    const double g =
+        width_ns < 6.5 ? slope_below * (width_ns - 6.5) : slope_above * (width_ns - 6.5);
+    return 12.0 + g + drift * std::max(0.0, sensor_c - 16.0);
+  };
+  auto record = [&](double distance_m, double ambient_c, double width_ns, double sensor_c) {
+    Record r;
+    r.truth.distance_m = distance_m;
+    r.truth.reflectance = 0.5;
+    r.truth.ambient_c = ambient_c;
+    r.raw.shots_valid = 100;
+    r.raw.pulse_width_ns = width_ns;
+    r.raw.temperature_c = sensor_c;
+    r.raw.distance_raw_m = distance_m + 1e-3 * measured_minus_true_mm(width_ns, sensor_c);
+    return r;
+  };
+  tofkit::experiments::PaperStudyOptions options;
+  options.test_repeats = 1;
+  tofkit::experiments::PaperStudyResult study;
+  for (double w = 3.0; w <= 10.0; w += 0.25) study.calibration.push_back(record(2.355, 20, w, 26));
+  for (double t = 2; t <= 46; t += 2) study.calibration.push_back(record(2.402, t - 6, 5.0, t));
+  for (double w = 3.1; w <= 10.0; w += 0.5)
+    study.grayvalue_test.push_back(record(2.355, 20, w, 26));
+  for (double t = 3; t <= 45; t += 3)
+    study.temperature_test.push_back(record(2.402, t - 6, 5.0, t));
+  for (int d = 1; d <= 8; ++d) study.verification.push_back(record(d, 20, 4.0 + 0.5 * d, 26));
+
+  const auto m = tofkit::experiments::run_paper_method(study, options);
+  EXPECT_NEAR(m.slope_below_knee_mm_per_ns, slope_below, 1e-6);
+  EXPECT_NEAR(m.slope_above_knee_mm_per_ns, slope_above, 1e-6);
+  EXPECT_NEAR(m.temperature_slope_above_mm_per_c, drift, 1e-6);
+  EXPECT_NEAR(m.temperature_slope_below_mm_per_c, 0.0, 1e-6);
+  EXPECT_NEAR(m.grayvalue.std_mm, 0.0, 1e-6);
+  EXPECT_NEAR(m.grayvalue.accuracy_mm, 0.0, 1e-6);
+  EXPECT_EQ(m.grayvalue.rows, study.grayvalue_test.size());
+  EXPECT_NEAR(m.temperature.accuracy_mm, 0.0, 1e-6);
+  ASSERT_EQ(m.verification_rows.size(), 8u);
+  for (const auto& row : m.verification_rows) EXPECT_NEAR(row.deviation_mm, 0.0, 1e-6);
+  // Plates that stay on one side of the knee cannot place it: refused.
+  tofkit::experiments::PaperStudyResult narrow = study;
+  narrow.calibration.clear();
+  for (double w = 3.0; w <= 6.0; w += 0.25) narrow.calibration.push_back(record(2.355, 20, w, 26));
+  EXPECT_THROW((void)tofkit::experiments::run_paper_method(narrow, options), std::runtime_error);
 }
 
 class ValidateCli : public tofkit::test::CliFixture {

@@ -237,7 +237,9 @@ void write_validation_outputs(const fs::path& dir, const ValidationResult& resul
     io::PlotSpec spec;
     spec.name = "validation_" + stem_of(key.first + "_" + key.second);
     spec.title = key.first + ": " + key.second;
+    std::replace(spec.title.begin(), spec.title.end(), '_', ' ');  // gnuplot's enhanced text
     spec.x_label = numeric ? x_name : "row (see the table)";
+    std::replace(spec.x_label.begin(), spec.x_label.end(), '_', ' ');
     spec.y_label = list.front()->row.unit.empty() ? "value" : list.front()->row.unit;
     io::PlotSeries doc{"document", {}, {}, "points pt 7 ps 1.2 lc rgb 'black'", false};
     io::PlotSeries lo{"document - band", {}, {}, "points pt 2 ps 0.8 lc rgb 'gray'", false};
