@@ -47,6 +47,8 @@ void run_validate(const ValidateOptions& o, AppContext& ctx) {
   const std::filesystem::path matrix =
       o.matrix.empty() ? default_validation_matrix() : std::filesystem::path(o.matrix);
   const auto rows = io::read_validation_matrix(matrix);
+  // Outputs name the reference matrix as the checkout does (the same bytes wherever it lives).
+  const std::string name = o.matrix.empty() ? "reference/validation_matrix.csv" : o.matrix;
   const auto devices = device_selection(ctx);
   experiments::ValidationOptions options;
   options.seed = o.seed;
@@ -66,9 +68,9 @@ void run_validate(const ValidateOptions& o, AppContext& ctx) {
                              (o.only.empty() ? "" : " (--only " + o.only + ")") +
                              " with this device: rows run on the device whose preset they name");
   }
-  if (!o.out.empty()) write_validation_outputs(o.out, result, matrix.string(), o.seed, o.plots);
-  fmt::print("tofkit validate: {} on {} (seed {})\n\n{}\n{}", matrix.string(),
-             fmt::join(result.devices, ", "), o.seed, result.table(), result.summary_text());
+  if (!o.out.empty()) write_validation_outputs(o.out, result, name, o.seed, o.plots);
+  fmt::print("tofkit validate: {} on {} (seed {})\n\n{}\n{}", name, fmt::join(result.devices, ", "),
+             o.seed, result.table(), result.summary_text());
   if (!o.out.empty())
     fmt::print("wrote {} (validation.json, validation.csv, validation.html, plots/)\n", o.out);
   if (o.require_in_band && result.summary.in_band < result.summary.rows) {
