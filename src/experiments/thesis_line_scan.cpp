@@ -384,6 +384,25 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
                                       *result.confidence);
   result.checker_images = chart_images(checker_scan.images, checker_board.pixel_grey,
                                        *result.best_surface, *result.confidence);
+
+  // The same images the thesis's way: its best polynomial and its metric.
+  const LineModelRow* best_poly = nullptr;
+  for (const auto& row : result.line.rows)
+    if (row.model.starts_with("poly") && (!best_poly || row.test.rms_m < best_poly->test.rms_m))
+      best_poly = &row;
+  if (best_poly) {
+    result.best_polynomial_model = best_poly->model;
+    std::shared_ptr<const calib::CorrectionSurface> poly;
+    for (const auto& m : models)
+      if (m.model == best_poly->model) poly = m.surface;
+    const auto poly_conf_resid = residuals(*poly, conf);
+    result.thesis_confidence = calib::fit_thesis_confidence(
+        {conf.range_m, conf.amplitude, poly_conf_resid}, options.thesis_confidence);
+    result.stripe_images_thesis =
+        chart_images(test_scan.images, test_chart.pixel_grey, *poly, *result.thesis_confidence);
+    result.checker_images_thesis = chart_images(checker_scan.images, checker_board.pixel_grey,
+                                                *poly, *result.thesis_confidence);
+  }
   return result;
 }
 

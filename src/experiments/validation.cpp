@@ -231,13 +231,13 @@ double ValidationSummary::calibration_in_band_share() const {
 std::string ValidationResult::table() const {
   std::string out;
   char line[512];
-  std::snprintf(line, sizeof line, "%-34s %-18s %-9s %11s %11s %11s  %-8s %s\n", "id", "figure",
+  std::snprintf(line, sizeof line, "%-38s %-18s %-9s %11s %11s %11s  %-8s %s\n", "id", "figure",
                 "role", "document", "twin", "band +-", "in band", "method");
   out += line;
   for (const auto& o : rows) {
     if (!o.run) continue;
     const std::string verdict = o.in_band ? "yes" : (o.outside_twice ? "NO (>2x)" : "no");
-    std::snprintf(line, sizeof line, "%-34s %-18s %-9s %11s %11s %11s  %-8s %s\n", o.row.id.c_str(),
+    std::snprintf(line, sizeof line, "%-38s %-18s %-9s %11s %11s %11s  %-8s %s\n", o.row.id.c_str(),
                   o.row.figure.substr(0, 18).c_str(),
                   o.row.role == ValidationRole::kHeldOut ? "held out" : "calib.",
                   format_value(o.row.value).c_str(), format_value(o.twin).c_str(),

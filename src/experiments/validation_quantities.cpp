@@ -548,35 +548,24 @@ std::map<std::string, Quantity> build() {
         throw std::invalid_argument("no training distance at " + std::to_string(d / kInch) + " in");
       });
   auto sigma_range = [](QuantityContext& c, const Parameters& p, M m, bool max) {
-    const std::string chart = text(p, "chart", "stripes");
-    if (m == M::kDocument) {
-      // The thesis's metric (Section 4.8) on the point-by-point test scan.
-      double lo = ranging::kNaN, hi = ranging::kNaN;
-      for (const auto& r : c.runs().thesis().test_rows) {
-        if (!std::isfinite(r.sigma_thesis_m)) continue;
-        lo = std::isnan(lo) ? r.sigma_thesis_m : std::min(lo, r.sigma_thesis_m);
-        hi = std::isnan(hi) ? r.sigma_thesis_m : std::max(hi, r.sigma_thesis_m);
-      }
-      return (max ? hi : lo) / kInch;
-    }
-    const auto& im = chart == "checker" ? c.runs().line_scan().checker_images
-                                        : c.runs().line_scan().stripe_images;
+    const bool checker = text(p, "chart", "stripes") == "checker";
+    const auto& line = c.runs().line_scan();
+    // Document: the thesis's metric on its best polynomial; tofkit: its calibrated sigma on
+    // the best model (Figs. 4.32-4.33).
+    const auto& im = m == M::kDocument
+                         ? (checker ? line.checker_images_thesis : line.stripe_images_thesis)
+                         : (checker ? line.checker_images : line.stripe_images);
     return (max ? im.sigma_max_m : im.sigma_min_m) / kInch;
   };
   auto sigma_check = [](const ValidationRow& row) {
     check_one_of(row, "chart", {"stripes", "checker"});
-    if (row.method == ValidationMethod::kDocument &&
-        text(row.parameters, "chart", "stripes") == "checker")
-      throw ValidationMatrixError(row.line, "method",
-                                  "row " + row.id +
-                                      ": the thesis's metric is computed on the stripe chart "
-                                      "only; the checkerboard has method = tofkit");
   };
   add(
       {"thesis.confidence.sigma_min_in",
        "in",
-       "smallest expected error of the confidence image; document: the thesis's metric on the "
-       "stripe chart's point scan, tofkit: its calibrated sigma on the line-scan image",
+       "smallest expected error of a line-scan confidence image (chart=stripes or checker); "
+       "document: the thesis's metric on its best polynomial, tofkit: its calibrated sigma on "
+       "the best model",
        {"chart"},
        {"chart"},
        kBoth},

@@ -56,6 +56,8 @@ struct LineScanOptions {
   double rcond = calib::kThesisRcond;           ///< the thesis's 1e-2 on A^T A's spectrum
   calib::BSplineFitOptions bspline = line_bspline_options();
   calib::CalibratedConfidenceOptions confidence{};
+  /// The thesis's own metric (Section 4.8), fitted on its best polynomial's residuals.
+  calib::ThesisConfidenceOptions thesis_confidence{};
   void validate() const;
   /// B-spline over (range, log intensity): 3 intervals along range, 8 along intensity.
   [[nodiscard]] static calib::BSplineFitOptions line_bspline_options();
@@ -107,6 +109,13 @@ struct LineScanResult {
   std::string best_model;
   std::shared_ptr<const calib::CorrectionSurface> best_surface;
   std::shared_ptr<const calib::ConfidenceModel> confidence;
+  /// The thesis's way (Section 4.8): its best polynomial (lowest RMS on the
+  /// stripe test scan among orders 4-6) corrects, and E^2 fitted as a
+  /// polynomial of intensity on the confidence scans' residuals of that
+  /// polynomial gives sigma; the images of both charts with it (Figs. 4.32-4.33).
+  std::string best_polynomial_model;
+  std::shared_ptr<const calib::ConfidenceModel> thesis_confidence;
+  ChartImages stripe_images_thesis, checker_images_thesis;
 
   [[nodiscard]] std::vector<Finding> findings() const;
   /// "line_models", "checker_models", "per_grey", "coverage".
