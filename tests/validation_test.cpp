@@ -371,6 +371,23 @@ TEST_F(ValidateCli, BadMatricesExitOneNamingLineAndColumn) {
   EXPECT_NE(read("stderr.txt").find("unknown quantity 'paper.snr'"), std::string::npos);
 }
 
+TEST_F(ValidateCli, AnExperimentThatRefusesLeavesItsRowsWithTheReasonNotAFailure) {
+  // No plate echoes with a 100 V threshold: the paper's method cannot be fitted.
+  const auto r =
+      run("--preset paper --set discriminator.threshold_v=100 validate --only paper.fig7 --out out "
+          "--no-plots");
+  ASSERT_EQ(r.status, 0) << read("stderr.txt");
+  const auto j = nlohmann::json::parse(read("out/validation.json"));
+  for (const auto& row : j["rows"]) {
+    if (!row["run"].get<bool>()) continue;
+    EXPECT_TRUE(row["twin"].is_null()) << row["id"];  // not 0
+    EXPECT_FALSE(row["in_band"].get<bool>()) << row["id"];
+    if (row["method"] == "document")
+      EXPECT_NE(row["error"].get<std::string>().find("paper method"), std::string::npos);
+  }
+  EXPECT_EQ(j["summary"]["in_band"].get<int>(), 0);
+}
+
 TEST_F(ValidateCli, FindsTheReferenceMatrixByItself) {
   const auto r = run("validate --only paper.fig3 --out out --no-plots");
   ASSERT_EQ(r.status, 0) << read("stderr.txt");

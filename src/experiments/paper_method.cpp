@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -79,10 +80,12 @@ PaperMethodResult run_paper_method(const PaperStudyResult& study,
   const auto below =
       std::count_if(width.begin(), width.end(), [&](double w) { return w < options.knee_ns; });
   if (below < 3 || static_cast<std::size_t>(below) + 3 > width.size()) {
-    throw std::runtime_error("paper method: the plates at " +
-                             std::to_string(options.grayvalue_distance_m) +
-                             " m leave fewer than 3 echoes on a side of the " +
-                             std::to_string(options.knee_ns) + " ns knee");
+    char why[200];
+    std::snprintf(why, sizeof why,
+                  "paper method: the plates at %g m leave fewer than 3 echoes on a side of the "
+                  "%g ns knee",
+                  options.grayvalue_distance_m, options.knee_ns);
+    throw std::runtime_error(why);
   }
   calib::HingeFitOptions hinge;
   hinge.robust.loss = calib::RobustLoss::kNone;  // the paper: plain least squares

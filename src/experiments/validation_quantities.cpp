@@ -50,61 +50,74 @@ struct QuantityContext::Runs {
     kMemory
   };
 
+  /// Experiments that threw, by name: their rows get the same message without a rerun.
+  std::map<std::string, std::string> failed;
+
+  /// Runs `compute` into `slot` once; a failure is remembered and rethrown.
+  template <typename T, typename F>
+  const T& once(std::optional<T>& slot, const char* name, F&& compute) {
+    if (slot) return *slot;
+    if (const auto it = failed.find(name); it != failed.end()) throw std::runtime_error(it->second);
+    try {
+      slot.emplace(compute());
+    } catch (const std::exception& e) {
+      const std::string what = e.what();
+      failed[name] = what.starts_with(name) ? what : std::string(name) + ": " + what;
+      throw std::runtime_error(failed[name]);
+    }
+    return *slot;
+  }
+
   const device::VirtualRangefinder& device() {
-    if (!device_) device_.emplace(config);
-    return *device_;
+    return once(device_, "device", [&] { return device::VirtualRangefinder(config); });
   }
   const PaperStudyResult& paper_study() {
-    if (!paper_study_) {
+    return once(paper_study_, "paper study", [&] {
       PaperStudyOptions o;
       o.seed = seed;
-      paper_study_ = run_paper_study(config, o, paper::kTable2);
-    }
-    return *paper_study_;
+      return run_paper_study(config, o, paper::kTable2);
+    });
   }
   const PaperMethodResult& paper_method() {
-    if (!paper_method_) paper_method_ = run_paper_method(paper_study());
-    return *paper_method_;
+    return once(paper_method_, "paper method", [&] { return run_paper_method(paper_study()); });
   }
   const ThesisProtocolResult& thesis() {
-    if (!thesis_) thesis_ = run_thesis_protocol(device(), {}, derive_seed(seed, kThesis));
-    return *thesis_;
+    return once(thesis_, "thesis protocol",
+                [&] { return run_thesis_protocol(device(), {}, derive_seed(seed, kThesis)); });
   }
   const LineScanResult& line_scan() {
-    if (!line_scan_) line_scan_ = run_line_scan(device(), {}, derive_seed(seed, kLine));
-    return *line_scan_;
+    return once(line_scan_, "line scan",
+                [&] { return run_line_scan(device(), {}, derive_seed(seed, kLine)); });
   }
   const SamplingResult& sampling() {
-    if (!sampling_) sampling_ = run_sampling(device(), {}, derive_seed(seed, kSampling));
-    return *sampling_;
+    return once(sampling_, "sampling",
+                [&] { return run_sampling(device(), {}, derive_seed(seed, kSampling)); });
   }
   const ReflectanceResult& reflectance() {
-    if (!reflectance_)
-      reflectance_ = run_reflectance(device(), {}, derive_seed(seed, kReflectance));
-    return *reflectance_;
+    return once(reflectance_, "reflectance",
+                [&] { return run_reflectance(device(), {}, derive_seed(seed, kReflectance)); });
   }
   const WarmupResult& warmup() {
-    if (!warmup_) warmup_ = run_warmup(device(), {}, derive_seed(seed, kWarmup));
-    return *warmup_;
+    return once(warmup_, "warm-up",
+                [&] { return run_warmup(device(), {}, derive_seed(seed, kWarmup)); });
   }
   const TemperatureResult& temperature() {
-    if (!temperature_)
-      temperature_ = run_temperature(device(), {}, derive_seed(seed, kTemperature));
-    return *temperature_;
+    return once(temperature_, "temperature",
+                [&] { return run_temperature(device(), {}, derive_seed(seed, kTemperature)); });
   }
   const AngleResult& angle() {
-    if (!angle_) angle_ = run_angle(device(), {}, derive_seed(seed, kAngle));
-    return *angle_;
+    return once(angle_, "angle",
+                [&] { return run_angle(device(), {}, derive_seed(seed, kAngle)); });
   }
   const MemoryScanResult& memory() {
-    if (!memory_) memory_ = run_memory_scans(device(), {}, derive_seed(seed, kMemory));
-    return *memory_;
+    return once(memory_, "memory scans",
+                [&] { return run_memory_scans(device(), {}, derive_seed(seed, kMemory)); });
   }
 };
 
 QuantityContext::QuantityContext(device::DeviceConfig config, std::uint64_t seed)
     : runs_(std::make_unique<Runs>(
-          Runs{std::move(config), seed, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}})) {}
+          Runs{std::move(config), seed, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}, {}})) {}
 QuantityContext::~QuantityContext() = default;
 
 namespace {
@@ -178,6 +191,11 @@ const VerificationRow& table2_row(const std::vector<VerificationRow>& rows, doub
   for (const auto& r : rows)
     if (std::abs(r.actual_m - distance_m) < 0.05) return r;
   throw std::invalid_argument("no Table 2 row at " + std::to_string(distance_m) + " m");
+}
+
+/// A figure of a test set, NaN when no row of it was measured (not 0).
+double rows_or_nan(const AccuracyFigures& f, double AccuracyFigures::*field) {
+  return f.rows == 0 ? ranging::kNaN : f.*field;
 }
 
 const LineTable& line_table(QuantityContext::Runs& r, const Parameters& p) {
@@ -313,7 +331,7 @@ std::map<std::string, Quantity> build() {
        {},
        kBoth},
       [paper_figures](QuantityContext& c, const Parameters&, M m) {
-        return paper_figures(c, m, true).std_mm;
+        return rows_or_nan(paper_figures(c, m, true), &AccuracyFigures::std_mm);
       });
   add({"paper.grayvalue.accuracy_mm",
        "mm",
@@ -322,7 +340,7 @@ std::map<std::string, Quantity> build() {
        {},
        kBoth},
       [paper_figures](QuantityContext& c, const Parameters&, M m) {
-        return paper_figures(c, m, true).accuracy_mm;
+        return rows_or_nan(paper_figures(c, m, true), &AccuracyFigures::accuracy_mm);
       });
   add(
       {"paper.temperature.slope_mm_per_c",
@@ -346,7 +364,7 @@ std::map<std::string, Quantity> build() {
        {},
        kBoth},
       [paper_figures](QuantityContext& c, const Parameters&, M m) {
-        return paper_figures(c, m, false).std_mm;
+        return rows_or_nan(paper_figures(c, m, false), &AccuracyFigures::std_mm);
       });
   add({"paper.temperature.accuracy_mm",
        "mm",
@@ -355,7 +373,7 @@ std::map<std::string, Quantity> build() {
        {},
        kBoth},
       [paper_figures](QuantityContext& c, const Parameters&, M m) {
-        return paper_figures(c, m, false).accuracy_mm;
+        return rows_or_nan(paper_figures(c, m, false), &AccuracyFigures::accuracy_mm);
       });
   add({"paper.table2.deviation_mm",
        "mm",
