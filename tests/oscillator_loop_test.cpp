@@ -71,8 +71,8 @@ TEST(OscillatorLoop, WeakReturnsAreSlowerAndTooWeakStopsTheLoop) {
     ASSERT_TRUE(s.saturated) << rho;
     EXPECT_LT(s.on_detect_ns + s.off_detect_ns, last_latency) << rho;
   }
-  // Far enough, grey 0's swing no longer lifts above the threshold: no echo.
-  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(0));
+  // Far enough, black's (grey 255) swing no longer lifts above the threshold: no echo.
+  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(255));
   EXPECT_FALSE(loop.state(far, {}).oscillates);
   const auto m = loop.measure(far, {}, 1, 0);
   EXPECT_FALSE(m.has_echo());
@@ -97,7 +97,7 @@ TEST(OscillatorLoop, PeriodsAreTheThesisFig32) {
 TEST(OscillatorLoop, ResolutionIsOneClockCountOverTheGate) {
   const auto c = device::accurange_preset();
   const device::OscillatorLoop loop(c);
-  const auto target = device::Target::plate(0.508, experiments::grey_reflectance(204));
+  const auto target = device::Target::plate(0.508, experiments::grey_reflectance(51));
   const auto s = loop.state(target, {});
   for (const int shots : {8, 64, 2048}) {
     const double gate_ns = c.oscillator.gate_fraction * shots / c.link.laser.repetition_hz * 1e9;
