@@ -174,6 +174,14 @@ TEST(OscillatorLoop, KeysAreValidatedByName) {
   ASSERT_EQ(messages.size(), 1u);
   EXPECT_NE(messages[0].find("oscillator.enabled"), std::string::npos) << messages[0];
   EXPECT_THROW(device::VirtualRangefinder{c}, std::invalid_argument);
+  // The loop has no sampled-waveform evaluation: asking for one is refused.
+  try {
+    const device::VirtualRangefinder waveform(device::accurange_preset(),
+                                              device::SimulationMode::kWaveform);
+    ADD_FAILURE() << "waveform mode accepted for the loop";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("oscillator.enabled"), std::string::npos) << e.what();
+  }
   // The paper device keeps the pulsed principle.
   EXPECT_FALSE(device::DeviceConfig{}.oscillator.enabled);
 }
