@@ -111,10 +111,11 @@ TEST(AccurangePreset, AnalyticAndWaveformModesAgree) {
 }
 
 TEST(GreyChart, MapsLevelsToDocumentedReflectances) {
-  EXPECT_NEAR(grey_reflectance(0), 0.030, 1e-12);
-  EXPECT_NEAR(grey_reflectance(255), 0.930, 1e-12);
-  EXPECT_NEAR(grey_reflectance(153), 0.03 + 0.9 * std::pow(0.6, 2.2), 1e-12);
-  for (int g = 1; g <= 255; ++g) EXPECT_GT(grey_reflectance(g), grey_reflectance(g - 1));
+  // The thesis's numbering: 0 = white ... 255 = black.
+  EXPECT_NEAR(grey_reflectance(0), 0.930, 1e-12);
+  EXPECT_NEAR(grey_reflectance(255), 0.030, 1e-12);
+  EXPECT_NEAR(grey_reflectance(102), 0.03 + 0.9 * std::pow(0.6, 2.2), 1e-12);
+  for (int g = 1; g <= 255; ++g) EXPECT_LT(grey_reflectance(g), grey_reflectance(g - 1));
   EXPECT_THROW((void)grey_reflectance(256), std::invalid_argument);
   EXPECT_THROW((void)grey_reflectance(-1), std::invalid_argument);
 }
@@ -328,23 +329,23 @@ TEST(Reflectance, DarkReadsLongBrightSaturatesAndReadsShortLineNearOne) {
   for (std::size_t k = 0; k < distances.size(); ++k) {
     const double inches = m_to_inches(distances[k]);
     if (inches < 15 - 1e-9 || inches > 22 + 1e-9) continue;  // the thesis's working distances
-    // Walk: the error falls monotonically with grey level.
+    // Walk: the error rises monotonically with grey level (0 = white ... 255 = black).
     for (std::size_t g = 1; g < o.grey_levels.size(); ++g) {
-      EXPECT_LT(point(g, k).mean_error_m, point(g - 1, k).mean_error_m) << inches << " in";
+      EXPECT_GT(point(g, k).mean_error_m, point(g - 1, k).mean_error_m) << inches << " in";
     }
-    EXPECT_GT(point(5, k).saturated_share, 0.99) << inches << " in";  // grey 255
-    EXPECT_EQ(point(0, k).saturated_share, 0.0);
-    EXPECT_EQ(point(0, k).echo_share, 1.0);
+    EXPECT_GT(point(0, k).saturated_share, 0.99) << inches << " in";  // grey 0, white
+    EXPECT_EQ(point(5, k).saturated_share, 0.0);
+    EXPECT_EQ(point(5, k).echo_share, 1.0);
   }
   // At 20 in the unit reads about an inch short over the greys (the thesis's fit
   // r = 0.9804 T - 0.6732 in: 1.065 in at 20 in; the vendor zero of the preset);
   // relative to that mean, dark reads long and the saturated white short.
   double mean_20 = 0;
-  std::vector<double> light_20;
+  std::vector<double> unsaturated_20;
   for (const auto& p : r.points) {
     if (std::abs(p.distance_m - o.rms_distance_m) > 1e-9) continue;
     mean_20 += p.mean_error_m / double(o.grey_levels.size());
-    if (p.grey >= o.light_grey_min) light_20.push_back(p.mean_error_m);
+    if (p.grey >= o.unsaturated_grey_min) unsaturated_20.push_back(p.mean_error_m);
   }
   EXPECT_LT(m_to_inches(mean_20), -0.7);
   EXPECT_GT(m_to_inches(mean_20), -1.4);
@@ -353,9 +354,9 @@ TEST(Reflectance, DarkReadsLongBrightSaturatesAndReadsShortLineNearOne) {
   // Thesis: RMS 1.07 in over all greys at 20 in: an inch.
   EXPECT_GT(m_to_inches(r.rms_all_m), 0.7);
   EXPECT_LT(m_to_inches(r.rms_all_m), 1.6);
-  // The light greys (>= 102) lie within about a quarter inch of each other (thesis:
-  // 0.23 in for grey >= 102; read here as their spread, the offset being common).
-  EXPECT_LT(m_to_inches(sample_stats(light_20).sd), 0.45);
+  // The unsaturated greys (>= 102) lie within about a quarter inch of each other
+  // (thesis: 0.23 in for grey >= 102; read here as their spread, the offset being common).
+  EXPECT_LT(m_to_inches(sample_stats(unsaturated_20).sd), 0.45);
   // Mean range linear in true range, slope near 1 (thesis 0.9804).
   EXPECT_NEAR(r.line.slope, 1.0, 0.15);
   EXPECT_LT(r.line.residual_sd, 0.1 * (distances.back() - distances.front()));
@@ -386,10 +387,10 @@ TEST(Angle, ErrorGrowsWithAngleFastestForDarkGreys) {
     EXPECT_GT(r.growth[g].slope_mm_per_deg, 0.0);
   }
   // Thesis Section 4.4: roughly linear below ~60 deg for the lighter greys (102 and
-  // up): a line over 0-60 deg leaves at most a quarter of the error's change (the
-  // cos(phi) amplitude loss alone leaves 13 %). (On the loop the saturated greys'
-  // error grows fastest: less overdrive, slower rise.)
-  for (std::size_t g = 2; g < r.growth.size(); ++g) {
+  // lighter, 0 = white): a line over 0-60 deg leaves at most a quarter of the error's
+  // change (the cos(phi) amplitude loss alone leaves 13 %). (On the loop the saturated
+  // greys' error grows fastest: less overdrive, slower rise.)
+  for (std::size_t g = 0; g + 2 < r.growth.size(); ++g) {
     std::vector<double> x, y;
     for (std::size_t a = 0; a < na; ++a) {
       const auto& p = r.points[g * na + a];
@@ -403,12 +404,12 @@ TEST(Angle, ErrorGrowsWithAngleFastestForDarkGreys) {
       worst = std::max(worst, std::abs(y[k] - (line.intercept + line.slope * x[k])));
     EXPECT_LT(worst, 0.25 * std::abs(y.back() - y.front())) << r.growth[g].grey;
   }
-  // Dark greys become unusable at large angles.
+  // Dark greys (255 = black) become unusable at large angles.
   for (std::size_t g = 1; g < r.growth.size(); ++g) {
-    EXPECT_GE(r.growth[g].max_usable_angle_deg, r.growth[g - 1].max_usable_angle_deg) << g;
+    EXPECT_LE(r.growth[g].max_usable_angle_deg, r.growth[g - 1].max_usable_angle_deg) << g;
   }
-  EXPECT_LT(r.growth[0].max_usable_angle_deg, 70.0);
-  EXPECT_GE(r.growth[5].max_usable_angle_deg, 80.0);
+  EXPECT_LT(r.growth[5].max_usable_angle_deg, 70.0);
+  EXPECT_GE(r.growth[0].max_usable_angle_deg, 80.0);
 }
 
 TEST(Characterization, ReproducibleFromTheSeedAndOptionsValidated) {

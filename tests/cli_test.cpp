@@ -151,6 +151,38 @@ TEST_F(CliTest, MeasureIsByteIdenticalAcrossThreadCounts) {
   }
 }
 
+// The self-oscillating loop has no sampled-waveform evaluation: --mode waveform
+// on it is refused (exit 1, naming the option and where oscillator.enabled came
+// from), not run as a copy of the analytic mode; nothing is written.
+TEST_F(CliTest, WaveformModeIsRefusedForTheLoop) {
+  for (const std::string& args :
+       {std::string("--preset accurange measure --distance 0.5 --reflectance 0.5 --mode waveform "
+                    "--out a.csv"),
+        std::string("--preset paper --set oscillator.enabled=true measure --distance 0.5 "
+                    "--reflectance 0.5 --mode waveform --out a.csv")}) {
+    const auto r = run(args);
+    EXPECT_EQ(r.status, 1) << args;
+    EXPECT_NE(r.err.find("--mode waveform"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("oscillator.enabled"), std::string::npos) << r.err;
+    EXPECT_FALSE(std::filesystem::exists(dir_ / "a.csv")) << args;
+  }
+  EXPECT_NE(run("--preset accurange measure --distance 0.5 --reflectance 0.5 --mode waveform "
+                "--out a.csv")
+                .err.find("preset 'accurange'"),
+            std::string::npos);
+  EXPECT_NE(run("--preset paper --set oscillator.enabled=true measure --distance 0.5 "
+                "--reflectance 0.5 --mode waveform --out a.csv")
+                .err.find("--set oscillator.enabled=true"),
+            std::string::npos);
+  // The analytic mode runs on the loop, and waveform on the pulsed paper device.
+  EXPECT_EQ(run("--preset accurange measure --distance 0.5 --reflectance 0.5 --out a.csv").status,
+            0);
+  EXPECT_EQ(run("--preset paper measure --distance 1 --reflectance 0.5 --mode waveform --count 2 "
+                "--out b.csv")
+                .status,
+            0);
+}
+
 TEST_F(CliTest, ConfigDumpLoadsBackToTheSameDump) {
   const auto first = run("--preset accurange --set measurement.shots=77 config --dump");
   ASSERT_EQ(first.status, 0) << first.err;

@@ -41,7 +41,10 @@ std::vector<Case> cases() {
 
 TEST(DeviceFastPath, CrossingsMatchTheExactPathOverAmplitudeAndTilt) {
   for (const char* name : {"paper", "accurange"}) {
-    const DeviceConfig cfg = preset(name);
+    // The pulsed core's paths: on the accurange preset its receiver with the
+    // pulsed core (the loop has no sampled-waveform evaluation to compare).
+    DeviceConfig cfg = preset(name);
+    cfg.oscillator.enabled = false;
     SCOPED_TRACE(name);
     const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
     const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);

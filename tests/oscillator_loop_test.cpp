@@ -71,8 +71,8 @@ TEST(OscillatorLoop, WeakReturnsAreSlowerAndTooWeakStopsTheLoop) {
     ASSERT_TRUE(s.saturated) << rho;
     EXPECT_LT(s.on_detect_ns + s.off_detect_ns, last_latency) << rho;
   }
-  // Far enough, grey 0's swing no longer lifts above the threshold: no echo.
-  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(0));
+  // Far enough, black's (grey 255) swing no longer lifts above the threshold: no echo.
+  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(255));
   EXPECT_FALSE(loop.state(far, {}).oscillates);
   const auto m = loop.measure(far, {}, 1, 0);
   EXPECT_FALSE(m.has_echo());
@@ -97,7 +97,7 @@ TEST(OscillatorLoop, PeriodsAreTheThesisFig32) {
 TEST(OscillatorLoop, ResolutionIsOneClockCountOverTheGate) {
   const auto c = device::accurange_preset();
   const device::OscillatorLoop loop(c);
-  const auto target = device::Target::plate(0.508, experiments::grey_reflectance(204));
+  const auto target = device::Target::plate(0.508, experiments::grey_reflectance(51));
   const auto s = loop.state(target, {});
   for (const int shots : {8, 64, 2048}) {
     const double gate_ns = c.oscillator.gate_fraction * shots / c.link.laser.repetition_hz * 1e9;
@@ -174,6 +174,61 @@ TEST(OscillatorLoop, KeysAreValidatedByName) {
   ASSERT_EQ(messages.size(), 1u);
   EXPECT_NE(messages[0].find("oscillator.enabled"), std::string::npos) << messages[0];
   EXPECT_THROW(device::VirtualRangefinder{c}, std::invalid_argument);
+  // The loop has no sampled-waveform evaluation: asking for one is refused.
+  try {
+    const device::VirtualRangefinder waveform(device::accurange_preset(),
+                                              device::SimulationMode::kWaveform);
+    ADD_FAILURE() << "waveform mode accepted for the loop";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("oscillator.enabled"), std::string::npos) << e.what();
+  }
   // The paper device keeps the pulsed principle.
   EXPECT_FALSE(device::DeviceConfig{}.oscillator.enabled);
+}
+
+TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
+  // oscillator.duty_wander moves the AC-coupled baseline by d x swing on both
+  // edges: the period moves by d swing (1 / rise slope - 1 / fall slope), so the
+  // range (c/4 of the period) by that much. Oracle: that closed form from the
+  // noise-free state's slopes, for small d, against the spread of outputs taken
+  // seconds apart; outputs of one acquisition (one session time) share the draw.
+  auto c = device::accurange_preset();
+  c.oscillator.duty_wander = 0.01;
+  c.oscillator.flicker_delay_ps = 0;
+  const device::OscillatorLoop loop(c);
+  const double c4 = 0.25 * c_air_m_per_ns(c, c.measurement.reference_temperature_c);
+  const int shots = 4096;  // counts finer than 3 um: the wander dominates
+  std::vector<double> sd_of;
+  for (const int grey : {255, 153, 0}) {
+    const auto target = device::Target::plate(0.4826, experiments::grey_reflectance(grey));
+    const auto s = loop.state(target, {});
+    ASSERT_TRUE(s.oscillates) << grey;
+    const double expected_sd_m =
+        c4 * c.oscillator.duty_wander * s.swing_v *
+        std::abs(1.0 / s.rise_slope_v_per_ns - 1.0 / s.fall_slope_v_per_ns);
+    double sum = 0, sum2 = 0;
+    const int n = 400;
+    for (int i = 0; i < n; ++i) {
+      device::Conditions cond;
+      cond.session_time_s = 2.0 * i;  // points seconds apart
+      const double r =
+          loop.measure(target, cond, 5, static_cast<std::uint64_t>(i), shots).distance_raw_m;
+      sum += r;
+      sum2 += r * r;
+    }
+    const double sd = std::sqrt(sum2 / n - (sum / n) * (sum / n));
+    if (expected_sd_m > 20e-6) {
+      EXPECT_NEAR(sd, expected_sd_m, 0.2 * expected_sd_m) << grey;
+    }
+    sd_of.push_back(sd);
+    // One acquisition (one session time) shares the draw: two outputs differ by
+    // the count and jitter alone.
+    device::Conditions same;
+    same.session_time_s = 7.0;
+    const double a = loop.measure(target, same, 5, 1000, shots).distance_raw_m;
+    const double b = loop.measure(target, same, 5, 1001, shots).distance_raw_m;
+    EXPECT_LT(std::abs(a - b), std::max(0.2 * expected_sd_m, 50e-6)) << grey;
+  }
+  // Black's slow rise turns the wander into far more range than a mid grey's.
+  EXPECT_GT(sd_of[0], 3.0 * sd_of[1]);
 }

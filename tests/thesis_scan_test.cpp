@@ -214,12 +214,12 @@ TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
   }
   // Fig. 4.24 and Section 4.4: the unit reads short overall (positive bias) and the
   // walk makes dark greys read long and saturating ones short, so the darkest
-  // grey's raw error is the smallest and the brightest's the largest; every grey
-  // improves.
+  // grey's (255) raw error is the smallest and the brightest's (0) the largest;
+  // every grey improves.
   ASSERT_EQ(r.per_grey.size(), 6u);
   for (const auto& row : r.per_grey) {
-    EXPECT_GE(row.raw_rms_m, r.per_grey.front().raw_rms_m) << row.grey;
-    EXPECT_LE(row.raw_rms_m, r.per_grey.back().raw_rms_m) << row.grey;
+    EXPECT_LE(row.raw_rms_m, r.per_grey.front().raw_rms_m) << row.grey;
+    EXPECT_GE(row.raw_rms_m, r.per_grey.back().raw_rms_m) << row.grey;
   }
   for (const auto& row : r.per_grey) EXPECT_LT(row.best_rms_m, row.raw_rms_m);
   // Figs. 4.32-4.33: +-2 sigma coverage of each confidence image in 90-98 %.

@@ -37,6 +37,18 @@ device::SimulationMode simulation_mode(const std::string& mode) {
   return mode == "waveform" ? device::SimulationMode::kWaveform : device::SimulationMode::kAnalytic;
 }
 
+device::SimulationMode simulation_mode(const std::string& mode, const AppContext& ctx,
+                                       const device::DeviceConfig& config) {
+  const auto m = simulation_mode(mode);
+  if (m == device::SimulationMode::kWaveform && config.oscillator.enabled) {
+    throw std::invalid_argument(
+        "--mode waveform: " + origin_of(ctx.load_config_traced(), "oscillator.enabled") +
+        " measures by the self-oscillating loop (oscillator.enabled = true), which has no "
+        "sampled-waveform evaluation; use --mode analytic");
+  }
+  return m;
+}
+
 void require_output_directory(const std::filesystem::path& path, const std::string& option) {
   const std::filesystem::path directory =
       path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();

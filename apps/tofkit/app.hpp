@@ -91,6 +91,13 @@ void require_output_directory(const std::filesystem::path& path, const std::stri
 /// The --mode option's value (CLI11 checks it is analytic or waveform).
 [[nodiscard]] device::SimulationMode simulation_mode(const std::string& mode);
 
+/// The --mode option's value for `config`: throws std::invalid_argument naming
+/// --mode and where oscillator.enabled came from (e.g. "preset 'accurange'") when
+/// waveform is asked of the self-oscillating loop, which has no sampled-waveform
+/// evaluation (it would repeat the analytic one and check nothing).
+[[nodiscard]] device::SimulationMode simulation_mode(const std::string& mode, const AppContext& ctx,
+                                                     const device::DeviceConfig& config);
+
 /// Where a config key's value came from, for messages: "--set key=value",
 /// "dev.toml:7 (key)" or "preset 'paper'".
 [[nodiscard]] std::string origin_of(const io::LoadedDeviceConfig& loaded, const std::string& key);

@@ -166,7 +166,7 @@ void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
       parse_plate_grid(o.distances, o.reflectances, o.angles, o.temperatures));
   const device::DeviceConfig config = ctx.load_config();
   const std::uint64_t total = points.size() * static_cast<std::uint64_t>(o.count);
-  const device::VirtualRangefinder rangefinder(config, simulation_mode(o.mode));
+  const device::VirtualRangefinder rangefinder(config, simulation_mode(o.mode, ctx, config));
   const auto source = [&](std::uint64_t first, std::span<ranging::RawMeasurement> out) {
     tbb::parallel_for(std::size_t{0}, out.size(), [&](std::size_t k) {
       const std::uint64_t i = first + k;
@@ -183,12 +183,13 @@ void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
 // value a frame cannot carry stops the command before any output.
 void emulate_scene(const EmulateOptions& o, const AppContext& ctx) {
   const device::DeviceConfig config = ctx.load_config();
+  const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   const scan::Scene scene = io::load_scene(o.scan.scene);
   const int shots = scan_shots(config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
   const auto start = std::chrono::steady_clock::now();
   const scan::ScanResult result =
-      run_scene_scan(o.scan, scene, pattern, config, simulation_mode(o.mode), shots, o.seed);
+      run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed);
   const double scan_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

@@ -81,6 +81,7 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
       widest_spread_ns = std::max(widest_spread_ns, device::plate_echo_spread_ns(config, d, angle));
     }
   }
+  const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   if (o.mode == "waveform") {
     const auto violations = device::check_waveform_limits(config, widest_spread_ns);
     if (!violations.empty()) {
@@ -95,7 +96,6 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   // (thread-count independent).
   const std::vector<experiments::PlannedMeasurement> plan =
       experiments::plate_grid_plan(grid, max_rows);
-  const auto mode = simulation_mode(o.mode);
   const auto start = std::chrono::steady_clock::now();
   const device::VirtualRangefinder rangefinder(config, mode);
   const std::vector<ranging::Record> records = experiments::run(rangefinder, plan, o.seed);

@@ -91,6 +91,7 @@ nlohmann::json sidecar(const std::string& file, const char* quantity, const char
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
+  const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   const scan::Scene scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
@@ -104,7 +105,6 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
 
   const auto start = std::chrono::steady_clock::now();
-  const auto mode = simulation_mode(o.mode);
   scan::ScanResult result =
       run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
   if (pipeline) scan::apply_pipeline(*pipeline, result);

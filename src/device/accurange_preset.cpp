@@ -43,14 +43,14 @@ DeviceConfig accurange_preset() {
   rx.nep_w_per_sqrt_hz = 2.0e-14;  // same amplifier class as the paper's (Table 1)
   rx.dark_current_na = 0.5;        // typical Si APD, as the paper preset
   // Assumption: sets the echo scale. The loop sees a step of optical power (the
-  // laser stays on), so the full transimpedance gain applies: a grey-0 chart
-  // (rho 0.03) at 19 in gives 0.094 V, 4.7 times the threshold: its swing above the
-  // AC-coupled baseline still crosses the threshold out to 29 in (the thesis's
+  // laser stays on), so the full transimpedance gain applies: a grey-255 (black,
+  // thesis numbering) chart (rho 0.03) at 19 in gives 0.094 V, 4.7 times the threshold: its swing
+  // above the AC-coupled baseline still crosses the threshold out to 29 in (the thesis's
   // reflectance study: six greys at 10-30 in), and the loop stops beyond that and
-  // at large angles ("grey 0 unusable").
+  // at large angles (the darkest greys unusable).
   rx.transimpedance_kohm = 5.4;
-  // Assumption: clips above 1 V, so grey 255 (rho 0.93) saturates out to 22 in and
-  // grey 204 (rho 0.58) inside about 20 in (thesis: "very bright targets saturate";
+  // Assumption: clips above 1 V, so grey 0 (white, rho 0.93) saturates out to 22 in
+  // and grey 51 (rho 0.58) inside about 20 in (thesis: "very bright targets saturate";
   // in the loop a saturated return rises ever faster while it falls from the clip
   // level, so it reads short).
   rx.saturation_v = 1.0;

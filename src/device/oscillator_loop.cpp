@@ -18,6 +18,10 @@ namespace {
 using physics::kPi;
 // Salt that keeps the loop's draws apart from the pulsed core's blocks.
 constexpr std::uint32_t kLoopBlock = 0x4F534331u;  // "OSC1"
+// The duty's slow wander holds for about a second: consecutive outputs of one
+// acquisition (Fig. 4.4's samples; an acquisition not given its time in the
+// session shares one draw) share it, points of a scan taken seconds apart do not.
+constexpr double kDutyWanderCorrelationS = 1.0;
 
 /// The pulsed core's counter-based draws (Random123 Philox4x32-10).
 std::array<std::uint32_t, 4> philox(std::uint64_t seed, std::uint64_t stream, std::uint32_t index,
@@ -72,7 +76,8 @@ double OscillatorLoop::tof_to_distance_m(double tof_ns) const {
   return 0.5 * tof_ns * c_nominal_m_per_ns_;
 }
 
-LoopState OscillatorLoop::state(const Target& target, const Conditions& cond) const {
+LoopState OscillatorLoop::state(const Target& target, const Conditions& cond,
+                                double duty_offset) const {
   const auto& link = config_.link;
   const auto& rx = link.receiver;
   const auto& th = config_.thermal;
@@ -132,7 +137,7 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond) co
   // strong ones, without a kink at the onset of saturation.
   s.swing_v = rx.saturation_v * std::tanh(s.amplitude_v / rx.saturation_v);
   s.saturated = s.amplitude_v > rx.saturation_v;
-  const double level = osc.coupling_duty * s.swing_v + threshold;
+  const double level = (osc.coupling_duty + duty_offset) * s.swing_v + threshold;
   if (!(s.swing_v > level)) return s;  // too weak: the loop cannot oscillate
   const auto on = crossing(steps, true, 0.0, level, rx.saturation_v, tau_ns_);
   // The falling edge starts from the limited swing; while returns are still
@@ -159,6 +164,7 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond) co
   s.noise_v = noise_a * rx.transimpedance_kohm * 1e3 * power_scale;
   s.rise_slope_v_per_ns = (on.second - level) / tau_ns_;
   const double fall_slope = (level - off.second) / tau_ns_;
+  s.fall_slope_v_per_ns = fall_slope;
   const double sigma_on = s.noise_v / s.rise_slope_v_per_ns;
   const double sigma_off = s.noise_v / fall_slope;
   const double overdrive = s.saturated ? osc.overdrive_jitter_ps_per_neper * 1e-3 *
@@ -218,11 +224,23 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   const int n = shots > 0 ? shots : cfg.measurement.shots;
   const double window_ms = 1e3 * n / laser.repetition_hz;
   const double gate_ns = osc.gate_fraction * window_ms * 1e6;
-  const auto s = state(target, cond);
   const auto r1 = philox(seed, stream, 0, kLoopBlock);
   const auto r2 = philox(seed, stream, 0, kLoopBlock + 1);
   const auto z1 = normal_pair(r1[2], r1[3]);
   const auto z2 = normal_pair(r2[0], r2[1]);
+  // The duty's slow wander at this output's time in its session (the run's seed
+  // fixes the octaves' phases) moves the AC-coupled baseline,
+  // so the comparator's level, on both edges: the rise comes later by about
+  // dv / rise slope, the fall earlier by dv / fall slope.
+  double duty_offset = 0;
+  if (osc.duty_wander > 0) {
+    const double bucket = std::floor(cond.session_time_s / kDutyWanderCorrelationS);
+    const auto p =
+        philox(seed, static_cast<std::uint64_t>(std::max(bucket, 0.0)), 0, kLoopBlock + 3);
+    // The delays' asymmetry has a finite range: the draw stops at 2.5 rms.
+    duty_offset = osc.duty_wander * std::clamp(normal_pair(p[0], p[1])[0], -2.5, 2.5);
+  }
+  const auto s = state(target, cond, duty_offset);
 
   ranging::RawMeasurement out;
   const double internal_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);

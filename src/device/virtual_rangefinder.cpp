@@ -1415,6 +1415,13 @@ VirtualRangefinder::VirtualRangefinder(DeviceConfig config, SimulationMode mode)
     for (const auto& e : errors) message += "\n  " + e;
     throw std::invalid_argument(message);
   }
+  if (config.oscillator.enabled && mode == SimulationMode::kWaveform) {
+    // The loop's crossings are closed-form step responses: a "waveform" run would
+    // repeat the analytic one and check nothing.
+    throw std::invalid_argument(
+        "oscillator.enabled = true (the self-oscillating loop) has no sampled-waveform "
+        "evaluation; use the analytic mode");
+  }
   if (config.oscillator.enabled) oscillator_ = std::make_unique<const OscillatorLoop>(config);
   impl_ = std::make_unique<Impl>(std::move(config), mode);
 }

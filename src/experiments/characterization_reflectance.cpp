@@ -49,9 +49,10 @@ ReflectanceResult run_reflectance(const device::VirtualRangefinder& device,
 
   std::size_t i = 0;
   std::vector<double> amplitude(per);
-  double ss_all = 0, ss_light = 0;
-  std::size_t n_all = 0, n_light = 0;
-  int darkest = 256, brightest = -1;
+  double ss_all = 0, ss_unsaturated = 0;
+  std::size_t n_all = 0, n_unsaturated = 0;
+  // Thesis numbering: 0 = white ... 255 = black.
+  int darkest = -1, brightest = 256;
   for (const int g : options.grey_levels) {
     for (const double d : distances) {
       ReflectancePoint p;
@@ -77,16 +78,16 @@ ReflectanceResult run_reflectance(const device::VirtualRangefinder& device,
           if (!std::isfinite(e)) continue;
           ss_all += e * e;
           ++n_all;
-          if (g >= options.light_grey_min) {
-            ss_light += e * e;
-            ++n_light;
+          if (g >= options.unsaturated_grey_min) {
+            ss_unsaturated += e * e;
+            ++n_unsaturated;
           }
         }
-        if (g < darkest) {
+        if (g > darkest) {
           darkest = g;
           result.darkest_error_m = s.mean;
         }
-        if (g > brightest) {
+        if (g < brightest) {
           brightest = g;
           result.brightest_error_m = s.mean;
         }
@@ -96,7 +97,8 @@ ReflectanceResult run_reflectance(const device::VirtualRangefinder& device,
     }
   }
   if (n_all) result.rms_all_m = std::sqrt(ss_all / static_cast<double>(n_all));
-  if (n_light) result.rms_light_m = std::sqrt(ss_light / static_cast<double>(n_light));
+  if (n_unsaturated)
+    result.rms_unsaturated_m = std::sqrt(ss_unsaturated / static_cast<double>(n_unsaturated));
 
   std::vector<double> truth(result.records.size()), measured(result.records.size());
   for (std::size_t k = 0; k < result.records.size(); ++k) {
@@ -112,7 +114,7 @@ std::vector<Finding> ReflectanceResult::findings() const {
   return {{"line_slope", line.slope, ""},
           {"line_intercept_in", m_to_inches(line.intercept), "in"},
           {"rms_all_greys_in", m_to_inches(rms_all_m), "in"},
-          {"rms_light_greys_in", m_to_inches(rms_light_m), "in"},
+          {"rms_greys_102_up_in", m_to_inches(rms_unsaturated_m), "in"},
           {"darkest_grey_error_mm", darkest_error_m * 1e3, "mm"},
           {"brightest_grey_error_mm", brightest_error_m * 1e3, "mm"}};
 }
@@ -130,7 +132,9 @@ ResultTable ReflectanceResult::table() const {
 }
 
 std::string ReflectanceResult::summary() const {
-  std::string out = "reflectance x distance: mean error measured - true [mm] (S: saturated)\n";
+  std::string out =
+      "reflectance x distance (grey 0 = white ... 255 = black, as the thesis): mean error "
+      "measured - true [mm] (S: saturated)\n";
   const auto distances = options.distances();
   out += "  grey  rho  ";
   char cell[64];
@@ -161,7 +165,8 @@ std::string ReflectanceResult::summary() const {
                 "  RMS at %.0f in: all greys %.4f in (thesis 1.0693), grey >= %d %.4f in "
                 "(thesis 0.2281)\n",
                 line.slope, m_to_inches(line.intercept), m_to_inches(options.rms_distance_m),
-                m_to_inches(rms_all_m), options.light_grey_min, m_to_inches(rms_light_m));
+                m_to_inches(rms_all_m), options.unsaturated_grey_min,
+                m_to_inches(rms_unsaturated_m));
   return out + text;
 }
 

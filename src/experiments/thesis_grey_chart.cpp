@@ -11,7 +11,8 @@ double grey_reflectance(int grey) {
     throw std::invalid_argument("grey level " + std::to_string(grey) + " is outside 0..255");
   }
   constexpr double kBlack = 0.03, kSpan = 0.90, kGamma = 2.2;
-  return kBlack + kSpan * std::pow(static_cast<double>(grey) / 255.0, kGamma);
+  // The thesis numbers its chart 0 = white ... 255 = black.
+  return kBlack + kSpan * std::pow(static_cast<double>(255 - grey) / 255.0, kGamma);
 }
 
 }  // namespace tofkit::experiments

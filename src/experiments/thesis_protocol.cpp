@@ -53,6 +53,8 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
             0.05 * rho, 1.0);
         const double d_point =
             d + o.point_distance_sd_mm * 1e-3 * point_normal(chart_seed, index, 1);
+        // Points are taken point_period_s apart (move, settle, sample).
+        c.session_time_s = static_cast<double>(index) * o.point_period_s;
         // The truth is the chart's: the stripe's nominal distance and grey.
         plan.push_back(
             {{device::Target::plate(d_point, rho_point), c, shots}, {d, rho, 0.0, c.ambient_c}});
@@ -146,6 +148,7 @@ void ThesisProtocolOptions::validate() const {
   if (!(reflectance_variation_rel >= 0 && reflectance_variation_rel < 0.5))
     fail("reflectance_variation_rel must be in [0, 0.5)");
   if (!(point_distance_sd_mm >= 0)) fail("point_distance_sd_mm must be >= 0");
+  if (!(point_period_s >= 0 && point_period_s <= 3600)) fail("point_period_s must be in [0, 3600]");
   if (polynomial_orders.empty()) fail("polynomial_orders is empty");
   for (const double t : test_temperature_offsets_c) {
     if (!(std::abs(t) <= 60.0)) fail("test_temperature_offsets_c must be within +-60 C");

@@ -130,6 +130,10 @@ struct OscillatorConfig {
   double coupling_duty = 0.5;        ///< AC-coupled baseline as a share of the swing (duty)
   double overdrive_jitter_ps_per_neper = 0.0;  ///< extra edge jitter per neper of overdrive
   double flicker_delay_ps = 0.0;               ///< rms of the loop delay's slow wander per output
+  /// rms of the slow wander of the loop's duty per output (share): the AC-coupled
+  /// baseline, at the duty share of the swing, moves with it, and both edges turn
+  /// that into time through their slopes (a weak return's slow rise the most)
+  double duty_wander = 0.0;
 };
 
 /// A complete device.

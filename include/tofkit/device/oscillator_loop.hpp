@@ -24,7 +24,14 @@
 ///  - noise per edge: receiver noise (paper Eq. 8 terms) over the slope at each
 ///    crossing; each period's jitter is independent, so the mean period of M
 ///    periods carries sigma_T / sqrt(M); a slow wander of the loop delay
-///    (oscillator.flicker_delay_ps) does not average within an output;
+///    (oscillator.flicker_delay_ps) does not average within an output, nor does
+///    a slow wander of the loop's duty (oscillator.duty_wander: the laser
+///    driver's turn-on and turn-off delays drift apart and back): the AC-coupled
+///    baseline sits at the duty share of the swing, so it moves the comparator's
+///    level on both edges by dv = d_duty x swing, delaying the rise by dv / rise
+///    slope and advancing the fall by dv / fall slope. A weak return (slow rise,
+///    the level near its top) turns it into much more time than a strong one:
+///    noise that depends on intensity;
 ///  - the interface board counts its clock (oscillator.count_clock_mhz, 80 MHz)
 ///    from the first loop edge in its gate to the last (reciprocal counting, both
 ///    ends asynchronous to the clock), the gate being oscillator.gate_fraction
@@ -63,6 +70,7 @@ struct LoopState {
   double comparator_high_ns = 0;  ///< comparator output high per period (reported width)
   double noise_v = 0;             ///< receiver noise (1 sigma) at the threshold level
   double rise_slope_v_per_ns = 0;
+  double fall_slope_v_per_ns = 0;  ///< magnitude of the falling edge's slope at the level
 };
 
 class OscillatorLoop {
@@ -72,8 +80,10 @@ class OscillatorLoop {
 
   [[nodiscard]] const DeviceConfig& config() const { return config_; }
 
-  /// Noise-free loop on a target (thermal drift and warm-up included).
-  [[nodiscard]] LoopState state(const Target& target, const Conditions& conditions) const;
+  /// Noise-free loop on a target (thermal drift and warm-up included), with the
+  /// loop's duty (hence the AC-coupled baseline) raised by duty_offset.
+  [[nodiscard]] LoopState state(const Target& target, const Conditions& conditions,
+                                double duty_offset = 0.0) const;
 
   /// The receiver's view as the pulsed core reports it (for EchoMemory's strength).
   [[nodiscard]] EchoShape echo(const Target& target, const Conditions& conditions) const;

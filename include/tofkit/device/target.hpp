@@ -44,6 +44,10 @@ struct Conditions {
   double ambient_c = 20.0;              ///< ambient (air) temperature
   double minutes_since_power_on = 1e9;  ///< electronics warm-up (large: warmed up)
   double ms_since_laser_on = 1e9;       ///< laser turn-on transient (large: settled)
+  /// Time of the output within its acquisition session (s): slow wander that an
+  /// acquisition's consecutive outputs share but points taken apart do not
+  /// (the loop's duty wander) follows it.
+  double session_time_s = 0.0;
 };
 
 }  // namespace tofkit::device

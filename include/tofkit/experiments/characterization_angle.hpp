@@ -2,7 +2,8 @@
 /// \file Incidence angle (thesis Section 4.4): the grey chart tilted against the
 /// beam. The echo weakens as cos(angle) (Lambertian) and spreads over the
 /// footprint's depth, so the error grows with angle, roughly linearly below
-/// about 60 deg for the lighter greys; greys 0 and 51 become unusable.
+/// about 60 deg for the lighter greys (thesis numbering: 0 = white ... 255 =
+/// black); the thesis names greys 0 and 51 unusable at large angles.
 
 #include <cstdint>
 #include <string>

@@ -23,8 +23,8 @@ namespace tofkit::experiments {
 struct MixedPixelOptions {
   double near_distance_m = inches_to_m(19.0);       ///< the step's top surface
   double step_height_m = inches_to_m(1.0);          ///< far surface = near + step. Assumption
-  double near_reflectance = grey_reflectance(153);  ///< Assumption: same mid-grey finish
-  double far_reflectance = grey_reflectance(153);
+  double near_reflectance = grey_reflectance(102);  ///< Assumption: same mid-grey finish
+  double far_reflectance = grey_reflectance(102);
   double scan_half_width_mm = 4.0;  ///< beam centre from -4 mm (on near) to +4 mm (on far)
   double step_mm = 0.5;             ///< thesis: 0.5 mm steps
   int samples_per_step = 500;       ///< thesis: 500 samples per step

@@ -3,7 +3,8 @@
 /// (0, 51, ..., 255) at 10-30 in. The mean range is linear in the true range
 /// (thesis: r = 0.9804 T - 0.6732 in); dark targets read long (their weak
 /// echoes cross the threshold late: walk), very bright ones saturate and read
-/// short. Thesis RMS at 20 in: 0.2281 in for grey >= 102, 1.0693 in over all.
+/// short. Thesis RMS at 20 in: 0.2281 in for grey >= 102 (its numbering, 0 =
+/// white: the four darker greys, below saturation), 1.0693 in over all.
 
 #include <cstdint>
 #include <string>
@@ -22,7 +23,7 @@ struct ReflectanceOptions {
   int shots = 0;  ///< per sample; 0: the device's
   double ambient_c = 20.0;
   double rms_distance_m = inches_to_m(20.0);  ///< where the RMS per grey group is reported
-  int light_grey_min = 102;                   ///< thesis: "grey >= 102"
+  int unsaturated_grey_min = 102;             ///< thesis: "grey >= 102" (0 = white)
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
   /// The distances used (the default grid when distances_m is empty).
@@ -46,7 +47,7 @@ struct ReflectanceResult {
   std::vector<ReflectancePoint> points;
   LineFit line;  ///< measured vs true range over every sample with an echo (metres)
   double rms_all_m = ranging::kNaN;          ///< at rms_distance_m, about the truth, all greys
-  double rms_light_m = ranging::kNaN;        ///< same, grey >= light_grey_min
+  double rms_unsaturated_m = ranging::kNaN;  ///< same, grey >= unsaturated_grey_min
   double darkest_error_m = ranging::kNaN;    ///< mean error of the darkest grey at rms distance
   double brightest_error_m = ranging::kNaN;  ///< of the brightest
   [[nodiscard]] std::vector<Finding> findings() const;

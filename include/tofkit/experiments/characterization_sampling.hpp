@@ -17,8 +17,8 @@
 namespace tofkit::experiments {
 
 struct SamplingOptions {
-  double distance_m = inches_to_m(20.0);       ///< thesis Fig. 4.4: 20 in
-  double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
+  double distance_m = inches_to_m(20.0);      ///< thesis Fig. 4.4: 20 in
+  double reflectance = grey_reflectance(51);  ///< Assumption: a light grey target (0 = white)
   double ambient_c = 20.0;
   int min_exponent = 3;   ///< 2^3 = 8 shots: 39,062.5 samples/s (first row of Fig. 4.4)
   int max_exponent = 11;  ///< 2^11 = 2048 shots: 152.6 samples/s (last row)

@@ -18,7 +18,7 @@ struct TemperatureOptions {
   std::vector<double> distances_m{inches_to_m(15), inches_to_m(17), inches_to_m(20),
                                   inches_to_m(22)};           ///< the thesis's training distances
   std::vector<double> ambient_c{10, 15, 20, 25, 30, 35, 40};  ///< Assumption: climate chamber
-  double reflectance = grey_reflectance(153);                 ///< Assumption: a mid-grey target
+  double reflectance = grey_reflectance(102);                 ///< Assumption: a mid-grey target
   int samples_per_point = 50;
   int shots = 0;  ///< per sample; 0: the device's
   /// Throws std::invalid_argument naming the bad field.

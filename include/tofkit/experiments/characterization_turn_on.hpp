@@ -15,8 +15,8 @@
 namespace tofkit::experiments {
 
 struct TurnOnOptions {
-  double distance_m = inches_to_m(19.0);       ///< as the warm-up run
-  double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
+  double distance_m = inches_to_m(19.0);      ///< as the warm-up run
+  double reflectance = grey_reflectance(51);  ///< Assumption: a light grey target (0 = white)
   double ambient_c = 20.0;
   double duration_ms = 500.0;     ///< record length after switch-on
   int shots = 0;                  ///< per sample; 0: the device's

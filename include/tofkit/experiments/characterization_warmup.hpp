@@ -15,12 +15,12 @@
 namespace tofkit::experiments {
 
 struct WarmupOptions {
-  double distance_m = inches_to_m(19.0);       ///< thesis: 19 in
-  double reflectance = grey_reflectance(204);  ///< Assumption: a light grey target
-  double ambient_c = 20.0;                     ///< laboratory
-  int duration_min = 120;                      ///< thesis: 2 h
-  int samples_per_minute = 500;                ///< thesis: 500 samples each minute
-  int shots = 0;                               ///< per sample; 0: the device's
+  double distance_m = inches_to_m(19.0);      ///< thesis: 19 in
+  double reflectance = grey_reflectance(51);  ///< Assumption: a light grey target (0 = white)
+  double ambient_c = 20.0;                    ///< laboratory
+  int duration_min = 120;                     ///< thesis: 2 h
+  int samples_per_minute = 500;               ///< thesis: 500 samples each minute
+  int shots = 0;                              ///< per sample; 0: the device's
   int final_window_min = 30;   ///< the settled value is the mean of the last 30 minutes
   double tolerance_mm = 0.25;  ///< settled once every later minute mean stays this close
                                ///< (0.01 in, the thesis's reporting resolution)

@@ -35,8 +35,8 @@ struct MemoryScanOptions {
   /// The step-edge calibration scene: one block from this height up.
   double calibration_edge_m = -0.02;
   double transition_distance_m = 0.4826;  ///< 19 in
-  int transition_from_grey = 128;         ///< mid grey (below)
-  int transition_to_grey = 0;             ///< black (above the horizon)
+  int transition_from_grey = 128;         ///< mid grey (below; thesis numbering, 0 = white)
+  int transition_to_grey = 255;           ///< black (above the horizon)
   double elevation_min_deg = -20, elevation_max_deg = 20, elevation_step_deg = 0.25;
   double revolutions_per_s = 5;  ///< 139 us per 0.25 deg column
   int revolutions = 40;

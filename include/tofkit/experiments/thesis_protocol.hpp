@@ -57,6 +57,9 @@ struct ThesisProtocolOptions {
   /// from the nominal one by this (1 sigma), unknown to the fit. Assumption.
   double point_distance_sd_mm = 0.15;
   double ambient_c = 20.0;  ///< warmed-up device (thesis: after the 25-35 min warm-up)
+  /// Time from one chart point to the next: the XY stages move, settle and the
+  /// samples are taken. Assumption: 2 s (thesis: point-by-point is the slow mode).
+  double point_period_s = 2.0;
   /// The thesis's own explanation of its corrected residual (Section 4.4): the
   /// temperature was not constant between scans, and the range falls 0.25-0.60 in
   /// per 10 C. The test scan is repeated this many degrees warmer than the
