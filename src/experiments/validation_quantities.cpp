@@ -423,16 +423,16 @@ std::map<std::string, Quantity> build() {
   add(
       {"thesis.reflectance.rms_in",
        "in",
-       "RMS error about the truth at 20 in over the greys >= 102 (group=light) or all six "
+       "RMS error about the truth at 20 in over the greys >= 102 (group=grey102up) or all six "
        "(group=all), Fig. 4.9",
        {"group"},
        {"group"}},
       [](QuantityContext& c, const Parameters& p, M) {
         const auto& r = c.runs().reflectance();
-        return (text(p, "group", "") == "light" ? r.rms_light_m : r.rms_all_m) / kInch;
+        return (text(p, "group", "") == "grey102up" ? r.rms_unsaturated_m : r.rms_all_m) / kInch;
       },
       [](const ValidationRow& row) {
-        check_one_of(row, "group", {"light", "all"});
+        check_one_of(row, "group", {"grey102up", "all"});
       });
   add({"thesis.reflectance.slope",
        "",
