@@ -1,0 +1,142 @@
+// Hostile input, round 3 (issue 32): one test per class of input that got
+// past the guards. Each case must exit 1 with a message naming the key, file,
+// row or option at fault and leave its directory as it was; fits must finish
+// in seconds. Held-out variants (other keys, commands, layouts) beside each.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <sstream>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "cli_runner.hpp"
+#include "tofkit/device/device_config.hpp"
+
+namespace fs = std::filesystem;
+using tofkit::test::CliResult;
+
+namespace {
+
+class Hostile : public tofkit::test::CliFixture {
+ protected:
+  Hostile() : CliFixture("tofkit_hostile3_") {}
+
+  // Stdout discarded; stderr outside the directory under test.
+  CliResult run(const std::string& args) const {
+    return tofkit::test::run_tofkit(dir_, args, "/dev/null", scratch() / "stderr.txt");
+  }
+
+  fs::path scratch() const {
+    fs::path p = dir_;
+    p += "_scratch";
+    fs::create_directories(p);
+    return p;
+  }
+
+  // Every entry with its type, size, mtime and content hash.
+  std::map<std::string, std::string> snapshot() const {
+    std::map<std::string, std::string> entries;
+    for (const auto& e : fs::recursive_directory_iterator(dir_)) {
+      struct stat info {};
+      ::lstat(e.path().c_str(), &info);
+      std::string state = std::to_string(info.st_mode);
+      if (S_ISREG(info.st_mode)) {
+        state += " " + std::to_string(info.st_size) + " " + std::to_string(info.st_mtim.tv_sec) +
+                 "." + std::to_string(info.st_mtim.tv_nsec) + " " +
+                 std::to_string(std::hash<std::string>{}(tofkit::test::read_file(e.path())));
+      }
+      entries[fs::relative(e.path(), dir_).string()] = state;
+    }
+    return entries;
+  }
+
+  // Status 1, a message with every needle, the directory untouched.
+  void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
+    const auto before = snapshot();
+    const CliResult r = run(args);
+    EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
+    EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
+    for (const auto& needle : needles) {
+      EXPECT_NE(r.err.find(needle), std::string::npos)
+          << args << "\nmessage lacks '" << needle << "':\n"
+          << r.err;
+    }
+    EXPECT_EQ(snapshot(), before) << args << ": the directory changed";
+  }
+
+  // Seconds a run takes.
+  static double seconds_of(const std::function<void()>& f) {
+    const auto t0 = std::chrono::steady_clock::now();
+    f();
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+};
+
+}  // namespace
+
+// Class 1 and 8: a subnormal or absurdly small value of a positive physical
+// key passed "> 0" and then crashed the device's setup (1e-300 ns pulse) or
+// overflowed (a 1e-310 C sensor step wrote temperature_c = inf). Every key
+// refuses a subnormal; every key with a positive lower bound refuses 1e-300.
+TEST(HostileConfig, EveryKeyRefusesSubnormalsAndValuesBelowItsPhysicalBound) {
+  tofkit::device::DeviceConfig config;
+  for (const auto& f : tofkit::device::config_fields(config)) {
+    if (!std::holds_alternative<double*>(f.value)) continue;
+    for (const double tiny : {5e-324, 1e-310, 1e-300, -1e-310}) {
+      const bool below = tiny < f.min || (f.min_nonzero > 0 && std::abs(tiny) < f.min_nonzero) ||
+                         std::fpclassify(tiny) == FP_SUBNORMAL;
+      if (!below) continue;
+      tofkit::device::DeviceConfig c;
+      for (const auto& g : tofkit::device::config_fields(c)) {
+        if (g.key == f.key) *std::get<double*>(g.value) = tiny;
+      }
+      const auto messages = tofkit::device::validate(c);
+      ASSERT_FALSE(messages.empty()) << f.key << " = " << tiny << " accepted";
+      EXPECT_EQ(messages[0].rfind(f.key + " = ", 0), 0u) << messages[0];
+    }
+    // "Not > 0": a key whose range starts above 0 starts at a physical value.
+    EXPECT_TRUE(f.min == 0 || std::abs(f.min) >= 1e-12) << f.key << " min " << f.min;
+    EXPECT_TRUE(f.min_nonzero == 0 || f.min_nonzero >= 1e-30) << f.key;
+  }
+}
+
+// Held out: every key at its smallest valid value (and 1e-300) through the
+// CLI: a measurement with finite columns, or exit 1 naming the key; never a
+// crash, an inf or a nan.
+TEST_F(Hostile, EveryKeyAtItsSmallestValueMeasuresOrIsRefusedByName) {
+  tofkit::device::DeviceConfig config;
+  for (const auto& f : tofkit::device::config_fields(config)) {
+    if (!std::holds_alternative<double*>(f.value)) continue;
+    std::vector<double> values = {f.min, 1e-300};
+    if (f.min_nonzero > 0) values.push_back(f.min_nonzero);
+    for (const double v : values) {
+      std::ostringstream set;
+      set.precision(17);
+      set << f.key << "=" << v;
+      const CliResult r =
+          run("--set " + set.str() +
+              " measure --distance 1,5 --reflectance 0.1,0.9 --shots 4 --out a.csv");
+      ASSERT_TRUE(r.status == 0 || r.status == 1) << set.str() << ": status " << r.status;
+      if (r.status == 1) {
+        EXPECT_NE(r.err.find(f.key), std::string::npos) << set.str() << "\n" << r.err;
+        continue;
+      }
+      const std::string csv = read("a.csv");
+      EXPECT_EQ(csv.find("inf"), std::string::npos) << set.str() << "\n" << csv;
+      EXPECT_EQ(csv.find("nan"), std::string::npos) << set.str() << "\n" << csv;
+    }
+  }
+  expect_refused(
+      "--set laser.pulse_width_ns=1e-300 scan --scene none.toml --pattern spherical --azimuth 0 "
+      "--elevation 0 --out o",
+      {"laser.pulse_width_ns"});
+  expect_refused("--set receiver.saturation_v=1e-310 plan --single-distance --bench",
+                 {"receiver.saturation_v"});
+}
