@@ -11,6 +11,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <variant>
@@ -139,4 +140,47 @@ TEST_F(Hostile, EveryKeyAtItsSmallestValueMeasuresOrIsRefusedByName) {
       {"laser.pulse_width_ns"});
   expect_refused("--set receiver.saturation_v=1e-310 plan --single-distance --bench",
                  {"receiver.saturation_v"});
+}
+
+// Class 2: a B-spline model whose domain is wider than its knots was loaded;
+// correct clamped inputs to the domain and evaluated the basis past the last
+// knot (coefficients read out of bounds: a segfault at 1e100, a 3.3 m range
+// "corrected" to 18.9 m at 100). Every axis, either end, with and without the
+// temperature axis: refused at load naming the axis.
+TEST_F(Hostile, ModelsWhoseDomainExceedsTheirKnotsAreRefusedAtLoad) {
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.05,0.2,0.5,0.9 --temperature 10,25,40 "
+                "--out cal.csv")
+                .status,
+            0);
+  for (const std::string& temperature : {std::string(""), std::string(" --temperature")}) {
+    ASSERT_EQ(run("fit --in cal.csv --surface bspline --knots 4x4" +
+                  std::string(temperature.empty() ? "" : "x3") + temperature + " --out m.json")
+                  .status,
+              0)
+        << temperature;
+    const nlohmann::json model = nlohmann::json::parse(read("m.json"));
+    ASSERT_EQ(run("correct --model m.json --in cal.csv --out ok.csv").status, 0);
+    fs::remove(dir_ / "ok.csv");
+    const auto& domain = model["steps"][0]["surface"]["domain"];
+    for (const auto& [axis, interval] : domain.items()) {
+      for (int end = 0; end < 2; ++end) {
+        for (const double factor : {1.5, 1e100}) {
+          nlohmann::json bad = model;
+          double& v = bad["steps"][0]["surface"]["domain"][axis][end].get_ref<double&>();
+          const double span = interval[1].get<double>() - interval[0].get<double>();
+          v += (end == 0 ? -1.0 : 1.0) * span * (factor == 1.5 ? 0.5 : factor);
+          if (end == 0 && axis == "amplitude" && !(v > 0)) v = interval[0].get<double>() * 0.5;
+          write("bad.json", bad.dump());
+          expect_refused("correct --model bad.json --in cal.csv --out out.csv",
+                         {"bad.json",
+                          "BSplineSurface: " +
+                              std::string(axis == "range_m"     ? "range"
+                                          : axis == "amplitude" ? "amplitude"
+                                                                : "temperature") +
+                              " domain",
+                          "exceeds the axis knots"});
+        }
+      }
+    }
+  }
 }
