@@ -2,11 +2,18 @@
 // past the guards. Each case must exit 1 with a message naming the key, file,
 // row or option at fault and leave its directory as it was; fits must finish
 // in seconds. Held-out variants (other keys, commands, layouts) beside each.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/ioctl.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
+#include <termios.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
+#include <csignal>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -14,6 +21,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <variant>
 #include <vector>
 
@@ -183,4 +191,156 @@ TEST_F(Hostile, ModelsWhoseDomainExceedsTheirKnotsAreRefusedAtLoad) {
       }
     }
   }
+}
+
+// Classes 10 and 11: stream wrote --out with a bare fopen: over its --model
+// (also through a symbolic link), and an existing file was truncated before
+// the stream failed. It now writes through the one writer like every command.
+TEST_F(Hostile, StreamWritesThroughTheOneWriter) {
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.1,0.9 --temperature 10,25,40 "
+                "--out cal.csv")
+                .status,
+            0);
+  ASSERT_EQ(run("fit --in cal.csv --chain offset,grayvalue --out model.json").status, 0);
+  const CliResult bytes =
+      tofkit::test::run_tofkit(dir_,
+                               "emulate --format native --distance 2 --reflectance 0.5 --count 20 "
+                               "--shots 10 --out -",
+                               "nat.bin", scratch() / "e.txt");
+  ASSERT_EQ(bytes.status, 0) << bytes.err;
+  expect_refused("stream --format native --in nat.bin --model model.json --out model.json",
+                 {"model.json", "input"});
+  fs::create_symlink("model.json", dir_ / "link.json");
+  expect_refused("stream --format native --in nat.bin --model model.json --out link.json",
+                 {"link.json", "symbolic link"});
+  expect_refused("stream --format native --in nat.bin --out nat.bin", {"nat.bin", "input"});
+  write("keep.csv", "precious\n");
+  expect_refused("stream --format native --in /proc/self/mem --out keep.csv", {"/proc/self/mem"});
+  expect_refused("stream --format native --in nat.bin --model nope.json --out keep.csv",
+                 {"nope.json"});
+  expect_refused("stream --format native --in nat.bin --out ''", {"--out"});
+  EXPECT_EQ(read("keep.csv"), "precious\n");
+  // Held out: a good stream replaces the file whole; no temporary stays.
+  const CliResult good =
+      run("stream --format native --in nat.bin --model model.json --out keep.csv");
+  ASSERT_EQ(good.status, 0) << good.err;
+  EXPECT_EQ(read("keep.csv").rfind("sequence,time_s,", 0), 0u);
+  for (const auto& e : fs::directory_iterator(dir_)) {
+    EXPECT_EQ(e.path().filename().string().find(".tmp."), std::string::npos) << e.path();
+  }
+}
+
+// Class 12: SIGTERM during demo --out newdir/sub left the directories it had
+// created; the writer's handler removes them (empty) with the temporaries.
+TEST_F(Hostile, SignalsRemoveTheDirectoriesACommandCreated) {
+  for (const int delay_ms : {150, 400}) {
+    for (const int sig : {SIGTERM, SIGINT}) {
+      const std::string command = "cd '" + dir_.string() +
+                                  "' && exec '" TOFKIT_BINARY
+                                  "' demo --no-plots --out newdir/sub >/dev/null 2>&1";
+      const pid_t pid = ::fork();
+      ASSERT_GE(pid, 0);
+      if (pid == 0) {
+        ::signal(SIGINT, SIG_DFL);
+        ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+        ::_exit(127);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
+      ::kill(pid, sig);
+      int status = 0;
+      ::waitpid(pid, &status, 0);
+      ASSERT_TRUE(WIFSIGNALED(status)) << "demo finished before the signal at " << delay_ms;
+      EXPECT_FALSE(fs::exists(dir_ / "newdir")) << "after signal " << sig << " at " << delay_ms;
+      fs::remove_all(dir_ / "newdir");
+    }
+  }
+  // Held out: a directory that existed before stays, only the new part goes.
+  fs::create_directories(dir_ / "old");
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const std::string command = "cd '" + dir_.string() +
+                                "' && exec '" TOFKIT_BINARY
+                                "' demo --no-plots --out old/a/b >/dev/null 2>&1";
+    ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  ::kill(pid, SIGTERM);
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  EXPECT_TRUE(fs::is_directory(dir_ / "old"));
+  EXPECT_FALSE(fs::exists(dir_ / "old" / "a"));
+}
+
+// Class 15: stream --in - on a terminal set it raw for good (after exit the
+// shell had -icanon -echo -isig), and Ctrl-C arrived as byte 0x03. Run on a
+// new pseudo-terminal as its controlling terminal: Ctrl-C ends it (exit 0,
+// "interrupted") and the terminal's settings are as before; likewise when the
+// stream fails (its --out refused) or ends by --count.
+TEST_F(Hostile, StreamOnATerminalRestoresItAndStopsOnCtrlC) {
+  struct Case {
+    std::string args;
+    bool ctrl_c;
+    int status;
+  };
+  write("keep.csv", "x\n");
+  fs::create_symlink("keep.csv", dir_ / "link.csv");
+  for (const Case& c : {Case{"--out o.csv", true, 0}, Case{"--out link.csv", false, 1},
+                        Case{"--out - --count 1", true, 0}}) {
+    const int master = ::posix_openpt(O_RDWR | O_NOCTTY);
+    ASSERT_GE(master, 0);
+    ASSERT_EQ(::grantpt(master), 0);
+    ASSERT_EQ(::unlockpt(master), 0);
+    const std::string slave_path = ::ptsname(master);
+    const int slave = ::open(slave_path.c_str(), O_RDWR | O_NOCTTY);
+    ASSERT_GE(slave, 0);
+    termios before{};
+    ASSERT_EQ(::tcgetattr(slave, &before), 0);
+    const std::string out = (scratch() / "tty_err.txt").string();
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+      ::setsid();
+      ::ioctl(slave, TIOCSCTTY, 0);
+      ::dup2(slave, 0);
+      const int err = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0600);
+      ::dup2(err, 2);
+      const int null = ::open("/dev/null", O_WRONLY);
+      ::dup2(null, 1);
+      if (::chdir(dir_.c_str()) != 0) ::_exit(126);
+      const std::string command =
+          "exec '" TOFKIT_BINARY "' stream --format native --in - " + c.args;
+      ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    int status = 0;
+    pid_t done = 0;
+    if (c.ctrl_c) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+      EXPECT_EQ(::waitpid(pid, &status, WNOHANG), 0) << c.args << ": ended by itself";
+      ASSERT_EQ(::write(master, "\x03", 1), 1);
+    }
+    for (int i = 0; i < 300 && done == 0; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      done = ::waitpid(pid, &status, WNOHANG);
+    }
+    if (done == 0) {
+      ::kill(pid, SIGKILL);
+      ::waitpid(pid, &status, 0);
+      ADD_FAILURE() << c.args << ": Ctrl-C did not end the stream";
+    } else {
+      EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == c.status)
+          << c.args << ": status " << status << "\n"
+          << tofkit::test::read_file(out);
+    }
+    termios after{};
+    ASSERT_EQ(::tcgetattr(slave, &after), 0);
+    EXPECT_EQ(after.c_lflag, before.c_lflag) << c.args << ": local modes not restored";
+    EXPECT_EQ(after.c_iflag, before.c_iflag) << c.args;
+    EXPECT_EQ(after.c_oflag, before.c_oflag) << c.args;
+    ::close(slave);
+    ::close(master);
+  }
+  EXPECT_EQ(read("keep.csv"), "x\n");
 }
