@@ -344,3 +344,46 @@ TEST_F(Hostile, StreamOnATerminalRestoresItAndStopsOnCtrlC) {
   }
   EXPECT_EQ(read("keep.csv"), "x\n");
 }
+
+// Class 13: --firmware '/' or 'out/' wrote the hidden files /.json and /.h
+// (exit 0); '' silently wrote none. A stem that names no file is refused.
+// Also: emulate --out '' fell back to a pseudo-terminal.
+TEST_F(Hostile, OutputStemsAndPathsThatNameNoFileAreRefused) {
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.1,0.9 --out cal.csv").status, 0);
+  fs::create_directories(dir_ / "out");
+  for (const std::string stem : {"out/", "''", ".", "out/..", "out/.", "/"}) {
+    expect_refused("fit --in cal.csv --chain offset,grayvalue --firmware " + stem + " --out m.json",
+                   {"--firmware", "not a file stem"});
+  }
+  expect_refused("emulate --format native --distance 1 --reflectance 0.5 --out ''", {"--out"});
+  // Held out: a real stem writes both files.
+  ASSERT_EQ(run("fit --in cal.csv --chain offset,grayvalue --firmware out/c --out m.json").status,
+            0);
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "c.json"));
+  EXPECT_TRUE(fs::exists(dir_ / "out" / "c.h"));
+}
+
+// Class 14: evaluate on rows without a distance_m printed a table of nan with
+// exit 0 (a missing distance_true_m was already refused).
+TEST_F(Hostile, EvaluateWithoutCorrectedDistancesIsRefused) {
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.1,0.9 --out cal.csv").status, 0);
+  expect_refused("evaluate --in cal.csv", {"cal.csv", "distance_m"});
+  ASSERT_EQ(run("fit --in cal.csv --chain offset --out m.json").status, 0);
+  ASSERT_EQ(run("correct --model m.json --in cal.csv --out cor.csv").status, 0);
+  // Held out: the distance_m column there but empty on every row; --json too.
+  std::istringstream in(read("cor.csv"));
+  std::string line, text;
+  std::getline(in, line);
+  text = line + "\n";
+  while (std::getline(in, line)) {
+    std::vector<std::string> cells;
+    std::stringstream cs(line);
+    for (std::string c; std::getline(cs, c, ',');) cells.push_back(c);
+    cells[11] = "";
+    for (std::size_t k = 0; k < cells.size(); ++k) text += (k ? "," : "") + cells[k];
+    text += "\n";
+  }
+  write("empty.csv", text);
+  expect_refused("evaluate --in empty.csv --json", {"empty.csv", "no row has a distance_m"});
+  EXPECT_EQ(run("evaluate --in cor.csv").status, 0);
+}
