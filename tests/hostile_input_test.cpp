@@ -387,3 +387,56 @@ TEST_F(Hostile, EvaluateWithoutCorrectedDistancesIsRefused) {
   expect_refused("evaluate --in empty.csv --json", {"empty.csv", "no row has a distance_m"});
   EXPECT_EQ(run("evaluate --in cor.csv").status, 0);
 }
+
+// Class 4: fit --surface bspline --temperature (automatic knots) on the
+// README's 180-row calibration ran over 600 s, --knots 50x50 on 288 rows
+// likewise: the knot search tries only grids sized to the data and the
+// solve's cost, and a given grid beyond the limit is refused naming --knots.
+TEST_F(Hostile, BSplineFitsAreBoundedInTime) {
+  ASSERT_EQ(run("measure --distance 1:8:0.5 --reflectance 0.02,0.1,0.5,0.9 --temperature "
+                "10,25,40 --out calib.csv")
+                .status,
+            0);
+  CliResult r;
+  const double seconds = seconds_of(
+      [&] { r = run("fit --in calib.csv --surface bspline --temperature --out m.json"); });
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_LT(seconds, 60.0) << "a bounded fit took " << seconds << " s";
+  const nlohmann::json model = nlohmann::json::parse(read("m.json"));
+  const auto& surface = model["steps"][0]["surface"];
+  // Sane: a few millimetres on its own data, within the coefficient limit.
+  EXPECT_LT(model["steps"][0]["fit"]["residual_rms_m"].get<double>(), 0.01) << model.dump();
+  EXPECT_LE(surface["coefficients"].size(), 400u);
+  fs::remove(dir_ / "m.json");
+  expect_refused("fit --in calib.csv --surface bspline --knots 50x50 --out m.json",
+                 {"--knots 50x50", "coefficients"});
+  expect_refused(
+      "fit --in calib.csv --surface bspline --temperature --knots 20x20x5 --smoothing 0.01 --out "
+      "m.json",
+      {"--knots 20x20x5", "coefficients"});
+}
+
+// Class 9: --smoothing VALUE with automatic knots was replaced by the
+// cross-validated choice (0, 1, 1e100 and auto gave the same model). The
+// value is kept (the knots chosen for it); one past the limit is refused.
+TEST_F(Hostile, BSplineSmoothingIsHonouredWithAutomaticKnots) {
+  ASSERT_EQ(run("measure --distance 1:8:0.5 --reflectance 0.02,0.1,0.5,0.9 --out calib.csv").status,
+            0);
+  std::map<std::string, std::string> models;
+  for (const std::string s : {"0", "1", "auto"}) {
+    const CliResult r = run("fit --in calib.csv --surface bspline --confidence none --smoothing " +
+                            s + " --out s.json");
+    ASSERT_EQ(r.status, 0) << r.err;
+    const nlohmann::json j = nlohmann::json::parse(read("s.json"));
+    const double used = j["steps"][0]["surface"]["fit"]["smoothing"].get<double>();
+    if (s != "auto") EXPECT_EQ(used, std::stod(s)) << s;
+    models[s] = read("s.json");
+    fs::remove(dir_ / "s.json");
+  }
+  EXPECT_NE(models["0"], models["1"]);
+  EXPECT_NE(models["1"], models["auto"]);
+  expect_refused("fit --in calib.csv --surface bspline --smoothing 1e100 --out s.json",
+                 {"--smoothing 1e100"});
+  expect_refused("fit --in calib.csv --surface bspline --knots 4x4 --smoothing 1e300 --out s.json",
+                 {"--smoothing 1e300"});
+}

@@ -119,9 +119,29 @@ calib::BSplineFitOptions bspline_options(const FitOptions& o) {
       throw std::invalid_argument("--smoothing " + o.smoothing +
                                   ": expected auto or a finite number >= 0");
     }
+    if (v > calib::kMaxBSplineSmoothing) {
+      throw std::invalid_argument("--smoothing " + o.smoothing +
+                                  ": at most 1e6 (relative to the data term; beyond it the fit is "
+                                  "the penalty's planes to rounding)");
+    }
     b.smoothing = v;
+    b.keep_smoothing = true;  // with --knots auto: the knots are chosen for this smoothing
   }
   b.validate();
+  if (!b.choose_intervals_by_gcv) {
+    // Bounded in time: the solve's cost grows with the cube of the coefficients.
+    std::size_t coefficients = static_cast<std::size_t>(b.intervals_range + 3) *
+                               static_cast<std::size_t>(b.intervals_amplitude + 3);
+    if (b.use_temperature) coefficients *= static_cast<std::size_t>(b.intervals_temperature + 3);
+    const std::size_t limit = calib::bspline_coefficient_limit(b.choose_smoothing_by_gcv);
+    if (coefficients > limit) {
+      throw std::invalid_argument(
+          "--knots " + o.knots + ": " + std::to_string(coefficients) +
+          " coefficients, more than the " + std::to_string(limit) + " a fit with " +
+          (b.choose_smoothing_by_gcv ? "--smoothing auto" : "a given --smoothing") +
+          " solves in bounded time; give fewer knot intervals");
+    }
+  }
   return b;
 }
 
