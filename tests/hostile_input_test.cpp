@@ -440,3 +440,70 @@ TEST_F(Hostile, BSplineSmoothingIsHonouredWithAutomaticKnots) {
   expect_refused("fit --in calib.csv --surface bspline --knots 4x4 --smoothing 1e300 --out s.json",
                  {"--smoothing 1e300"});
 }
+
+namespace {
+
+// `source` with column `column` of data row `row` (1-based; 0: every row) set to `value`.
+std::string with_cells(const std::string& source, std::size_t row, std::size_t column,
+                       const std::string& value) {
+  std::istringstream in(source);
+  std::string line, out;
+  for (std::size_t i = 0; std::getline(in, line); ++i) {
+    if (i > 0 && (row == 0 || i == row)) {
+      std::vector<std::string> cells;
+      std::stringstream s(line);
+      for (std::string c; std::getline(s, c, ',');) cells.push_back(c);
+      cells[column] = value;
+      line.clear();
+      for (std::size_t k = 0; k < cells.size(); ++k) line += (k ? "," : "") + cells[k];
+    }
+    out += line + "\n";
+  }
+  return out;
+}
+
+}  // namespace
+
+// Class 5: one distance_true_m = -1 made a walk chain's fit take 143 s (exit
+// 0, 160 mm RMS), a constant amplitude column over 120 s, and one 4.3e9 ns
+// pulse width gave NaN BICs and 68 mm RMS with exit 0. Impossible cells and
+// degenerate columns are refused before fitting, naming the row or column.
+TEST_F(Hostile, ImpossibleOrDegenerateTruthIsRefusedBeforeFitting) {
+  ASSERT_EQ(run("measure --distance 1:8:1 --reflectance 0.02,0.1,0.5,0.9 --temperature 10,25,40 "
+                "--out cal.csv")
+                .status,
+            0);
+  const std::string cal = read("cal.csv");
+  // Columns: distance_true_m 0, pulse_width_ns 6, amplitude 7, temperature_c 8.
+  write("neg_truth.csv", with_cells(cal, 4, 0, "-1"));
+  write("wide.csv", with_cells(cal, 4, 6, "4.3e9"));
+  write("neg_width.csv", with_cells(cal, 4, 6, "-2"));
+  write("neg_amplitude.csv", with_cells(cal, 4, 7, "-0.5"));
+  write("cold.csv", with_cells(cal, 4, 8, "-300"));
+  write("flat_amplitude.csv", with_cells(cal, 0, 7, "1"));
+  struct Case {
+    std::string file, model;
+    std::vector<std::string> needles;
+  };
+  const std::vector<Case> cases = {
+      {"neg_truth.csv", "--chain offset,walk,temperature", {"distance_true_m = -1 in data row 4"}},
+      {"neg_truth.csv", "--chain offset,grayvalue", {"distance_true_m = -1 in data row 4"}},
+      {"neg_truth.csv", "--surface bspline", {"distance_true_m = -1 in data row 4"}},
+      {"wide.csv", "--chain offset,grayvalue", {"pulse_width_ns = 4.3e+09 in data row 4"}},
+      {"wide.csv", "--chain offset,walk", {"pulse_width_ns = 4.3e+09 in data row 4"}},
+      {"neg_width.csv", "--surface bspline --intensity pulse-width", {"pulse_width_ns = -2"}},
+      {"neg_amplitude.csv", "--chain offset,walk", {"amplitude = -0.5 in data row 4"}},
+      {"cold.csv", "--chain offset,temperature", {"temperature_c = -300 in data row 4"}},
+      {"flat_amplitude.csv", "--chain offset,walk,temperature", {"amplitude", "distinct"}},
+  };
+  for (const Case& c : cases) {
+    const double seconds = seconds_of(
+        [&] { expect_refused("fit --in " + c.file + " " + c.model + " --out m.json", c.needles); });
+    EXPECT_LT(seconds, 10.0) << c.file << " " << c.model;
+  }
+  // evaluate reads the truth too.
+  ASSERT_EQ(run("fit --in cal.csv --chain offset --out m.json").status, 0);
+  ASSERT_EQ(run("correct --model m.json --in cal.csv --out cor.csv").status, 0);
+  write("cor_neg.csv", with_cells(read("cor.csv"), 3, 0, "-2"));
+  expect_refused("evaluate --in cor_neg.csv", {"distance_true_m = -2 in data row 3"});
+}

@@ -16,6 +16,7 @@
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/plate_grid.hpp"
 #include "tofkit/io/config_file.hpp"
+#include "tofkit/io/input_file.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
@@ -78,7 +79,14 @@ py::array measure(const device::DeviceConfig& config, const experiments::PlateGr
   if (mode_name != "analytic" && mode_name != "waveform") {
     throw std::invalid_argument("mode: '" + mode_name + "' is not analytic or waveform");
   }
-  const auto plan = experiments::plate_grid_plan(grid);
+  // The CLI's row limit (--max-rows): a grid past it is a ValueError, not an
+  // allocation that aborts the interpreter (1e7 rows had, under 4 GB).
+  std::vector<experiments::PlannedMeasurement> plan;
+  try {
+    plan = experiments::plate_grid_plan(grid, static_cast<double>(io::resource_limits().max_rows));
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(std::string(e.what()) + " (the row limit of the CLI's --max-rows)");
+  }
   const auto mode = mode_name == "waveform" ? device::SimulationMode::kWaveform
                                             : device::SimulationMode::kAnalytic;
   const device::VirtualRangefinder rangefinder(config, mode);
