@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sys/ioctl.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <termios.h>
@@ -506,4 +507,76 @@ TEST_F(Hostile, ImpossibleOrDegenerateTruthIsRefusedBeforeFitting) {
   ASSERT_EQ(run("correct --model m.json --in cal.csv --out cor.csv").status, 0);
   write("cor_neg.csv", with_cells(read("cor.csv"), 3, 0, "-2"));
   expect_refused("evaluate --in cor_neg.csv", {"distance_true_m = -2 in data row 3"});
+}
+
+namespace {
+
+// Peak resident memory (bytes) of `tofkit <args>` run in `dir`, and its status.
+std::pair<double, int> peak_memory_of(const fs::path& dir, const std::string& args) {
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const std::string command =
+        "cd '" + dir.string() + "' && exec '" TOFKIT_BINARY "' " + args + " >/dev/null 2>/dev/null";
+    ::execl("/bin/sh", "sh", "-c", command.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  int status = 0;
+  struct rusage usage {};
+  ::wait4(pid, &status, 0, &usage);
+  return {static_cast<double>(usage.ru_maxrss) * 1024.0,
+          WIFEXITED(status) ? WEXITSTATUS(status) : -1};
+}
+
+// A binary PLY of `n` vertices with the given per-vertex properties (each a
+// uchar, value 2) and one face (0, 1, 2) with the given index type and values.
+std::string ply(std::size_t n, const std::vector<std::string>& properties,
+                const std::string& index_type = "int") {
+  std::string text =
+      "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(n) + "\n";
+  for (const auto& p : properties) text += "property uchar " + p + "\n";
+  text += "element face 1\nproperty list uchar " + index_type + " vertex_indices\nend_header\n";
+  text.append(n * properties.size(), '\x02');
+  text.push_back('\x03');
+  for (const float i : {0.0f, 1.5f, 2.0f}) {
+    if (index_type == "float") {
+      text.append(reinterpret_cast<const char*>(&i), 4);
+    } else {
+      const auto k = static_cast<std::int32_t>(i);
+      text.append(reinterpret_cast<const char*>(&k), 4);
+    }
+  }
+  return text;
+}
+
+}  // namespace
+
+// Class 6: a 100 MB binary PLY of 1e8 one-byte vertices took 3.25 GB before
+// being refused. A vertex must have x, y and z, and the mesh may take at most
+// a small multiple of the file; a float face index 1.5 had been truncated.
+TEST_F(Hostile, MeshReadersUseMemoryBoundedByTheirInput) {
+  const auto scene = [&](const std::string& mesh) {
+    write("scene.toml",
+          "[[surface]]\nkind = \"mesh\"\nfile = \"" + mesh + "\"\nreflectance = 0.5\n");
+  };
+  const std::string scan =
+      "scan --scene scene.toml --pattern spherical --azimuth 0 --elevation 0 "
+      "--write csv --out o";
+  write("x_only.ply", ply(20'000'000, {"x"}));
+  scene("x_only.ply");
+  const auto [x_only_bytes, x_only_status] = peak_memory_of(dir_, scan);
+  EXPECT_EQ(x_only_status, 1);
+  EXPECT_LT(x_only_bytes, 3.0 * 20e6 + 64e6) << "peak " << x_only_bytes / 1e6 << " MB";
+  expect_refused(scan, {"x_only.ply", "no property 'y'"});
+  // Held out: three one-byte coordinates (the smallest vertex): 8x the file at
+  // most, plus the file itself and the program.
+  const std::size_t n = 3'000'000;
+  write("xyz.ply", ply(n, {"x", "y", "z"}));
+  scene("xyz.ply");
+  const auto [xyz_bytes, xyz_status] = peak_memory_of(dir_, scan);
+  EXPECT_EQ(xyz_status, 1);  // (all its vertices are one point)
+  EXPECT_LT(xyz_bytes, 9.0 * 3.0 * static_cast<double>(n) + 64e6)
+      << "peak " << xyz_bytes / 1e6 << " MB for a " << 3 * n / 1e6 << " MB file";
+  write("index.ply", ply(3, {"x", "y", "z"}, "float"));
+  scene("index.ply");
+  expect_refused(scan, {"index.ply", "bad face index 1.5"});
 }

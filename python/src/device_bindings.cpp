@@ -85,7 +85,9 @@ py::array measure(const device::DeviceConfig& config, const experiments::PlateGr
   try {
     plan = experiments::plate_grid_plan(grid, static_cast<double>(io::resource_limits().max_rows));
   } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(std::string(e.what()) + " (the row limit of the CLI's --max-rows)");
+    const std::string what = e.what();
+    if (what.find(" rows, more than ") == std::string::npos) throw;
+    throw std::invalid_argument(what + " (the row limit of the CLI's --max-rows)");
   }
   const auto mode = mode_name == "waveform" ? device::SimulationMode::kWaveform
                                             : device::SimulationMode::kAnalytic;

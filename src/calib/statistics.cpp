@@ -59,6 +59,14 @@ std::string pct(double value) {
 }  // namespace
 
 void require_magnitude(double v, const char* column, std::size_t index) {
+  if (std::isfinite(v) && std::fabs(v) > kMaxMagnitude) {
+    char buffer[160];
+    std::snprintf(
+        buffer, sizeof buffer,
+        "%s = %.6g in data row %zu is too large (|value| must be below %.0e: a corrupt cell)",
+        column, v, index + 1, kMaxMagnitude);
+    throw std::invalid_argument(buffer);
+  }
   // The columns with a physical range: a value outside it is impossible, and
   // fitted it had cost a fit minutes (one distance_true_m = -1 made a walk
   // chain's bootstrap take 143 s) or its sense (a 4.3e9 ns pulse width, NaN
@@ -82,14 +90,6 @@ void require_magnitude(double v, const char* column, std::size_t index) {
                     v, index + 1, range.why);
       throw std::invalid_argument(buffer);
     }
-  }
-  if (std::isfinite(v) && std::fabs(v) > kMaxMagnitude) {
-    char buffer[160];
-    std::snprintf(
-        buffer, sizeof buffer,
-        "%s = %.6g in data row %zu is too large (|value| must be below %.0e: a corrupt cell)",
-        column, v, index + 1, kMaxMagnitude);
-    throw std::invalid_argument(buffer);
   }
 }
 
