@@ -68,8 +68,14 @@ def test_model_with_a_domain_wider_than_its_knots_is_refused(tmp_path, cli):
 # Class 3: 1e7 distances aborted the interpreter under a 4 GB limit; the
 # CLI's row limit applies (ValueError), and under the limit no abort.
 def test_measure_applies_the_row_limit():
-    with pytest.raises(ValueError, match="more than 1e\\+06.*--max-rows"):
-        tofkit.measure(np.ones(10**7) * 2, 0.5, shots=5)
+    # In a child under a 4 GB address-space limit, as the reproducer ran it.
+    child = _in_child(
+        "import resource\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (4_000_000_000, 4_000_000_000))\n"
+        "try:\n    tofkit.measure(np.ones(10**7) * 2, 0.5, shots=5)\n"
+        "except (ValueError, MemoryError) as e:\n    print(type(e).__name__, e)")
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.startswith("ValueError") and "--max-rows" in child.stdout, child.stdout
     with pytest.raises(ValueError, match="rows"):
         tofkit.measure(np.linspace(1, 2, 1000), [0.1] * 1001, shots=1)
 
@@ -116,3 +122,46 @@ def test_wrong_kinds_are_refused_by_name(tmp_path, cli):
     # Held out: in-range integers of any width, and the raw array itself, apply.
     distance, _, _ = model.apply({**columns, "flags": raw["flags"].astype(np.int64)})
     assert np.allclose(distance, model.apply(raw)[0], equal_nan=True)
+
+
+# Held out for class 2: every model kind checks its internal consistency at
+# load (array lengths, monotone knots, finite values), in Python and the CLI.
+def test_every_model_kind_is_checked_at_load(tmp_path, cli):
+    cal = tmp_path / "cal.csv"
+    cli("measure", "--distance", "1:8:1", "--reflectance", "0.02,0.1,0.5,0.9", "--temperature",
+        "10,25,40", "--out", cal)
+    models = {}
+    for name, spec in [("chain", ["--chain", "offset,grayvalue,temperature"]),
+                       ("poly", ["--surface", "poly:3"]),
+                       ("bspline", ["--surface", "bspline", "--knots", "4x4"])]:
+        models[name] = tmp_path / f"{name}.json"
+        cli("fit", "--in", cal, *spec, "--out", models[name])
+
+    def gray(j):
+        return j["steps"][1]["function"]
+
+    def surface(j):
+        return j["steps"][0]["surface"]
+
+    mutations = [
+        ("chain", lambda j: gray(j)["knots"].reverse()),                     # not ascending
+        ("chain", lambda j: gray(j)["slopes"].append(0.1)),                  # lengths differ
+        ("chain", lambda j: gray(j).__setitem__("slope0", float("nan"))),
+        ("poly", lambda j: surface(j)["coefficients"].pop()),                # lengths differ
+        ("poly", lambda j: surface(j)["domain"]["range_m"].reverse()),      # min > max
+        ("bspline", lambda j: surface(j)["coefficients"].pop()),
+        ("bspline", lambda j: surface(j)["axes"]["range_m"]["knots"].reverse()),
+        ("bspline", lambda j: surface(j)["domain"]["amplitude"].__setitem__(1, 1e100)),
+        ("chain", lambda j: j["confidence"]["coefficients"].pop()),
+    ]
+    for k, (name, mutate) in enumerate(mutations):
+        model = json.loads(models[name].read_text())
+        mutate(model)
+        bad = tmp_path / f"bad{k}.json"
+        bad.write_text(json.dumps(model).replace("NaN", "1e999"))
+        with pytest.raises(ValueError, match=f"bad{k}.json"):
+            tofkit.Model.load(bad)
+        out = tmp_path / f"out{k}.csv"
+        run = cli("correct", "--model", bad, "--in", cal, "--out", out, check=False)
+        assert run.returncode == 1 and f"bad{k}.json" in run.stderr, (k, run.stderr)
+        assert not out.exists()
