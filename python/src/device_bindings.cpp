@@ -5,6 +5,7 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <optional>
@@ -192,6 +193,17 @@ void bind_device(py::module_& m) {
       .def_readwrite("count", &experiments::PlateGrid::count)
       .def_readwrite("shots", &experiments::PlateGrid::shots);
 
+  m.def(
+      "set_max_rows",
+      [](std::uint64_t rows) {
+        if (rows < 1) throw std::invalid_argument("max_rows: must be at least 1");
+        const std::uint64_t before = io::resource_limits().max_rows;
+        io::resource_limits().max_rows = rows;
+        return before;
+      },
+      py::arg("rows"),
+      "The row limit of measure(), read_raw() and scan lists, as the CLI's --max-rows (default "
+      "1e6); returns the previous one.");
   m.def("_measure", &measure, py::arg("config"), py::arg("grid"), py::arg("seed"), py::arg("mode"));
   m.def("_link_budget", &link_budget, py::arg("config"), py::arg("distance_m"),
         py::arg("reflectance"), py::arg("angle_deg"), py::arg("temperature_c"));

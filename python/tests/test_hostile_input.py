@@ -165,3 +165,15 @@ def test_every_model_kind_is_checked_at_load(tmp_path, cli):
         run = cli("correct", "--model", bad, "--in", cal, "--out", out, check=False)
         assert run.returncode == 1 and f"bad{k}.json" in run.stderr, (k, run.stderr)
         assert not out.exists()
+
+
+def test_the_row_limit_can_be_set_as_with_max_rows():
+    before = tofkit.set_max_rows(10)
+    try:
+        with pytest.raises(ValueError, match="more than 10 "):
+            tofkit.measure(np.linspace(1, 2, 11), 0.5, shots=1)
+        assert len(tofkit.measure(np.linspace(1, 2, 10), 0.5, shots=1)) == 10
+    finally:
+        assert tofkit.set_max_rows(before) == 10
+    with pytest.raises(ValueError, match="max_rows"):
+        tofkit.set_max_rows(0)
