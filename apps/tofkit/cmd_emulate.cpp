@@ -246,9 +246,10 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
                  "share of bytes with one flipped bit (bytes only; values unchanged)")
       ->check(InRange(0.0, 1.0))
       ->capture_default_str();
-  sub.add_option("--out", o->out, "'-' for stdout (default: a new pseudo-terminal)");
-  sub.callback([o, &ctx, plate_options, scene_options] {
-    if (!o->out.empty() && o->out != "-") {
+  CLI::Option* out =
+      sub.add_option("--out", o->out, "'-' for stdout (default: a new pseudo-terminal)");
+  sub.callback([o, &ctx, plate_options, scene_options, out] {
+    if (out->count() > 0 && o->out != "-") {  // '' too: not a silent pseudo-terminal
       throw std::invalid_argument(
           "--out: only '-' (stdout); without --out a pseudo-terminal is made");
     }

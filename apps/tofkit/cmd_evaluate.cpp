@@ -119,6 +119,13 @@ void run_evaluate(const EvaluateOptions& o) {
   if (with_truth == 0) {
     throw std::runtime_error(o.in + ": no row has a distance_true_m; evaluate needs the truth");
   }
+  std::size_t with_distance = 0;
+  for (double d : distance) with_distance += std::isfinite(d) ? 1 : 0;
+  if (with_distance == 0) {
+    throw std::runtime_error(o.in +
+                             ": no row has a distance_m; evaluate needs corrected rows (tofkit "
+                             "correct writes them)");
+  }
   const calib::Evaluation ev = calib::evaluate({truth, distance, raw, sigma, amplitude, key});
   if (o.json) {
     nlohmann::json j = {

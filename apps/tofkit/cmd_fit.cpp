@@ -39,6 +39,7 @@ struct FitOptions {
   bool confidence_fraction_given = false;
   int confidence_folds = 5;
   std::string firmware;  // stem: writes STEM.json and STEM.h
+  bool firmware_given = false;
   bool rcond_given = false;
   std::string knots = "auto";      // bspline: "auto" (GCV) or RxA[xT] knot intervals
   std::string smoothing = "auto";  // bspline: "auto" (GCV) or a penalty weight
@@ -118,9 +119,29 @@ calib::BSplineFitOptions bspline_options(const FitOptions& o) {
       throw std::invalid_argument("--smoothing " + o.smoothing +
                                   ": expected auto or a finite number >= 0");
     }
+    if (v > calib::kMaxBSplineSmoothing) {
+      throw std::invalid_argument("--smoothing " + o.smoothing +
+                                  ": at most 1e6 (relative to the data term; beyond it the fit is "
+                                  "the penalty's planes to rounding)");
+    }
     b.smoothing = v;
+    b.keep_smoothing = true;  // with --knots auto: the knots are chosen for this smoothing
   }
   b.validate();
+  if (!b.choose_intervals_by_gcv) {
+    // Bounded in time: the solve's cost grows with the cube of the coefficients.
+    std::size_t coefficients = static_cast<std::size_t>(b.intervals_range + 3) *
+                               static_cast<std::size_t>(b.intervals_amplitude + 3);
+    if (b.use_temperature) coefficients *= static_cast<std::size_t>(b.intervals_temperature + 3);
+    const std::size_t limit = calib::bspline_coefficient_limit(b.choose_smoothing_by_gcv);
+    if (coefficients > limit) {
+      throw std::invalid_argument(
+          "--knots " + o.knots + ": " + std::to_string(coefficients) +
+          " coefficients, more than the " + std::to_string(limit) + " a fit with " +
+          (b.choose_smoothing_by_gcv ? "--smoothing auto" : "a given --smoothing") +
+          " solves in bounded time; give fewer knot intervals");
+    }
+  }
   return b;
 }
 
@@ -189,7 +210,19 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   if (o.tdc_periodic) options.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
   options.time_to_distance = checked_time_to_distance(ctx);
   require_output_directory(o.out, "--out");
-  if (!o.firmware.empty()) require_output_directory(o.firmware + ".json", "--firmware");
+  if (o.firmware_given) {
+    // A stem names files (STEM.json, STEM.h): not empty, not a directory ('/',
+    // 'out/', '.'), which would have made the hidden files '/.json' and '/.h'.
+    const std::filesystem::path stem(o.firmware);
+    const std::string name = stem.filename().string();
+    if (o.firmware.empty() || name.empty() || name == "." || name == "..") {
+      throw std::runtime_error(fmt::format(
+          "--firmware '{}': not a file stem (give one like out/chain for out/chain.json and "
+          "out/chain.h)",
+          o.firmware));
+    }
+    require_output_directory(o.firmware + ".json", "--firmware");
+  }
 
   const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
   calib::ModelFitResult fit;
@@ -282,9 +315,11 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                  "one per group)")
       ->check(InRange(2, 50))
       ->capture_default_str();
-  sub.add_option("--firmware", o->firmware,
-                 "also export the chain in fixed point: STEM.json and STEM.h (C header)");
-  sub.callback([o, rcond, confidence, fraction, &ctx] {
+  CLI::Option* firmware =
+      sub.add_option("--firmware", o->firmware,
+                     "also export the chain in fixed point: STEM.json and STEM.h (C header)");
+  sub.callback([o, rcond, confidence, fraction, firmware, &ctx] {
+    o->firmware_given = firmware->count() > 0;
     o->rcond_given = rcond->count() > 0;
     o->confidence_given = confidence->count() > 0;
     o->confidence_fraction_given = fraction->count() > 0;

@@ -3,9 +3,12 @@
 // rows as they arrive. Columns: sequence, time_s, (RPLIDAR: scan_angle_deg,
 // scan_start), the raw CSV columns (truth columns empty), with --model the
 // corrected columns, and link_status (LinkStatus bits). Ctrl-C ends cleanly.
+// A file --out goes through the one writer (io::write_file_atomically): it
+// appears, complete, when the stream ends (Ctrl-C included); a failing stream
+// keeps an existing file, and an input (--in, --model) is never written over.
+// `--out -` writes the rows to stdout as they arrive.
 
 #include <fmt/format.h>
-#include <sys/stat.h>
 
 #include <atomic>
 #include <chrono>
@@ -13,12 +16,15 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <iostream>
 #include <memory>
 #include <optional>
+#include <ostream>
 #include <string>
 #include <vector>
 
 #include "app.hpp"
+#include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/byte_source.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/raw_csv.hpp"
@@ -52,8 +58,8 @@ void append_number(fmt::memory_buffer& b, double v) {
 
 class RowWriter {
  public:
-  RowWriter(std::FILE* file, link::Format format, bool corrected)
-      : file_(file), format_(format), corrected_(corrected) {
+  RowWriter(std::ostream& out, link::Format format, bool corrected)
+      : out_(out), format_(format), corrected_(corrected) {
     fmt::memory_buffer b;
     fmt::format_to(std::back_inserter(b), "sequence,time_s");
     if (format_ == link::Format::kRplidar)
@@ -98,92 +104,77 @@ class RowWriter {
 
  private:
   void put(const fmt::memory_buffer& b) {
-    if (std::fwrite(b.data(), 1, b.size(), file_) != b.size() || std::fflush(file_) != 0) {
-      throw std::runtime_error("writing the output failed");
-    }
+    out_.write(b.data(), static_cast<std::streamsize>(b.size()));
+    out_.flush();  // rows as they arrive (stdout); a failed write ends the stream
+    if (!out_) throw std::runtime_error("writing the output failed");
   }
-  std::FILE* file_;
+  std::ostream& out_;
   link::Format format_;
   bool corrected_;
 };
 
-// The output must not be the input or a device node ("-" is stdout).
-void check_output(const StreamOptions& o) {
-  if (o.out == "-") return;
-  require_output_directory(o.out, "--out");
-  struct stat out_stat {};
-  if (::stat(o.out.c_str(), &out_stat) == 0) {
-    if (!S_ISREG(out_stat.st_mode)) {
-      throw std::runtime_error(fmt::format("--out {}: exists and is not a regular file", o.out));
-    }
-    struct stat in_stat {};
-    if (o.in != "-" && ::stat(o.in.c_str(), &in_stat) == 0 && in_stat.st_dev == out_stat.st_dev &&
-        in_stat.st_ino == out_stat.st_ino) {
-      throw std::runtime_error(fmt::format("--out {}: is the input", o.out));
-    }
-  }
-}
-
 void run_stream(const StreamOptions& o) {
   const link::Format format = link::format_from_name(o.format);
-  check_output(o);
+  if (o.in.empty()) throw std::runtime_error("--in: empty path (a device, file, or - for stdin)");
+  if (o.out.empty()) throw std::runtime_error("--out: empty path (a file, or - for stdout)");
   std::optional<ranging::Pipeline> pipeline;
-  if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
-  io::ByteSource source(o.in, o.baud);
+  if (!o.model.empty()) pipeline = io::load_pipeline(o.model);  // an input of the command
+  if (o.in != "-") io::note_input(o.in);
+  io::ByteSource source(o.in, o.baud);  // restores a terminal's settings when it goes
   link::DecoderOptions options;
   options.lwnx_distance_output = o.lwnx_distance_output;
   options.tfmini_temperature = !o.tfmini_no_temperature;
   auto decoder = link::make_decoder(format, options);
 
-  std::FILE* file = stdout;
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> owned(nullptr, &std::fclose);
-  if (o.out != "-") {
-    owned.reset(std::fopen(o.out.c_str(), "w"));
-    if (!owned) throw std::runtime_error(fmt::format("--out {}: cannot be written", o.out));
-    file = owned.get();
-  }
-  RowWriter writer(file, format, pipeline.has_value());
-
-  std::signal(SIGINT, on_stream_signal);
-  std::signal(SIGTERM, on_stream_signal);
-  std::signal(SIGPIPE, SIG_IGN);
-
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<std::uint8_t> buffer(1 << 16);
-  std::vector<link::Frame> frames;
-  std::vector<double> time_s;
-  std::vector<ranging::RawMeasurement> raw;
-  std::vector<ranging::Range> ranges;
   std::uint64_t rows = 0;
   bool ended = false;
-  const auto emit = [&] {
-    if (o.count > 0 && rows + frames.size() > o.count) frames.resize(o.count - rows);
-    if (frames.empty()) return;
-    // Device time where the format carries it, else the host's arrival time.
-    const double arrival_s =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    time_s.assign(frames.size(), arrival_s);
-    raw.resize(frames.size());
-    for (std::size_t i = 0; i < frames.size(); ++i) {
-      if (!std::isnan(frames[i].device_time_s)) time_s[i] = frames[i].device_time_s;
-      raw[i] = frames[i].raw;
+  const auto stream_rows = [&](std::ostream& out) {
+    RowWriter writer(out, format, pipeline.has_value());
+
+    std::signal(SIGINT, on_stream_signal);
+    std::signal(SIGTERM, on_stream_signal);
+    std::signal(SIGPIPE, SIG_IGN);
+
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<std::uint8_t> buffer(1 << 16);
+    std::vector<link::Frame> frames;
+    std::vector<double> time_s;
+    std::vector<ranging::RawMeasurement> raw;
+    std::vector<ranging::Range> ranges;
+    const auto emit = [&] {
+      if (o.count > 0 && rows + frames.size() > o.count) frames.resize(o.count - rows);
+      if (frames.empty()) return;
+      // Device time where the format carries it, else the host's arrival time.
+      const double arrival_s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      time_s.assign(frames.size(), arrival_s);
+      raw.resize(frames.size());
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        if (!std::isnan(frames[i].device_time_s)) time_s[i] = frames[i].device_time_s;
+        raw[i] = frames[i].raw;
+      }
+      ranges.resize(frames.size());
+      if (pipeline) pipeline->apply(raw, ranges);
+      writer.rows(frames, time_s, ranges);
+      rows += frames.size();
+      frames.clear();
+    };
+    while (!g_stop && !ended && (o.count == 0 || rows < o.count)) {
+      std::size_t got = 0;
+      const auto status = source.read(buffer, 100, got);
+      if (status == io::ByteSource::Status::kEnd) ended = true;
+      if (got > 0) decoder->feed({buffer.data(), got}, frames);
+      emit();
     }
-    ranges.resize(frames.size());
-    if (pipeline) pipeline->apply(raw, ranges);
-    writer.rows(frames, time_s, ranges);
-    rows += frames.size();
-    frames.clear();
+    if (ended) {
+      decoder->finish(frames);
+      emit();
+    }
   };
-  while (!g_stop && !ended && (o.count == 0 || rows < o.count)) {
-    std::size_t got = 0;
-    const auto status = source.read(buffer, 100, got);
-    if (status == io::ByteSource::Status::kEnd) ended = true;
-    if (got > 0) decoder->feed({buffer.data(), got}, frames);
-    emit();
-  }
-  if (ended) {
-    decoder->finish(frames);
-    emit();
+  if (o.out == "-") {
+    stream_rows(std::cout);
+  } else {
+    io::write_file_atomically(o.out, stream_rows);
   }
   const auto& c = decoder->counters();
   fmt::print(stderr, "tofkit stream: {} rows ({}){} -> {}\n", rows,

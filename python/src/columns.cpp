@@ -87,6 +87,25 @@ void read_column(const Column& c, std::size_t begin, std::size_t n, char* dst,
   }
 }
 
+/// A count or bit-set column holds integers in [0, 2^32 - 1] (NaN: missing);
+/// a negative, fractional or larger value is refused by name (-1 had read
+/// as 0, 2**40 as 2**32 - 1).
+void require_uint32(const py::array& a, const std::string& name) {
+  const char kind = a.dtype().kind();
+  if (kind == 'b' || (kind == 'u' && a.dtype().itemsize() <= 4)) return;
+  const py::array_t<double> values = py::array_t<double, py::array::forcecast>::ensure(a);
+  if (!values) throw py::type_error(name + ": expected a numeric column");
+  const auto v = values.unchecked<1>();
+  for (py::ssize_t i = 0; i < v.shape(0); ++i) {
+    const double x = v(i);
+    if (std::isnan(x)) continue;
+    if (!(x >= 0 && x <= 4294967295.0 && x == std::floor(x))) {
+      throw py::value_error(name + ": " + py::repr(py::float_(x)).cast<std::string>() + " in row " +
+                            std::to_string(i) + " is not an integer in [0, 2**32 - 1]");
+    }
+  }
+}
+
 template <typename Dst>
 void fill(Dst value, std::size_t n, char* dst, std::size_t dst_stride) {
   for (std::size_t i = 0; i < n; ++i) std::memcpy(dst + i * dst_stride, &value, sizeof(Dst));
@@ -130,6 +149,7 @@ ColumnSet::ColumnSet(const py::tuple& columns) {
     }
     rows_ = n;
     have_rows = true;
+    if (k == kShotsValid || k == kFlags) require_uint32(a, name);
     columns_[k] = Column{static_cast<const char*>(a.data()), a.strides(0), kind, dtype.itemsize()};
     arrays_.push_back(std::move(a));
   }

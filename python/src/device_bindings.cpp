@@ -5,6 +5,7 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <optional>
@@ -16,6 +17,7 @@
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/plate_grid.hpp"
 #include "tofkit/io/config_file.hpp"
+#include "tofkit/io/input_file.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
@@ -78,7 +80,16 @@ py::array measure(const device::DeviceConfig& config, const experiments::PlateGr
   if (mode_name != "analytic" && mode_name != "waveform") {
     throw std::invalid_argument("mode: '" + mode_name + "' is not analytic or waveform");
   }
-  const auto plan = experiments::plate_grid_plan(grid);
+  // The CLI's row limit (--max-rows): a grid past it is a ValueError, not an
+  // allocation that aborts the interpreter (1e7 rows had, under 4 GB).
+  std::vector<experiments::PlannedMeasurement> plan;
+  try {
+    plan = experiments::plate_grid_plan(grid, static_cast<double>(io::resource_limits().max_rows));
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    if (what.find(" rows, more than ") == std::string::npos) throw;
+    throw std::invalid_argument(what + " (the row limit of the CLI's --max-rows)");
+  }
   const auto mode = mode_name == "waveform" ? device::SimulationMode::kWaveform
                                             : device::SimulationMode::kAnalytic;
   const device::VirtualRangefinder rangefinder(config, mode);
@@ -182,6 +193,17 @@ void bind_device(py::module_& m) {
       .def_readwrite("count", &experiments::PlateGrid::count)
       .def_readwrite("shots", &experiments::PlateGrid::shots);
 
+  m.def(
+      "set_max_rows",
+      [](std::uint64_t rows) {
+        if (rows < 1) throw std::invalid_argument("max_rows: must be at least 1");
+        const std::uint64_t before = io::resource_limits().max_rows;
+        io::resource_limits().max_rows = rows;
+        return before;
+      },
+      py::arg("rows"),
+      "The row limit of measure(), read_raw() and scan lists, as the CLI's --max-rows (default "
+      "1e6); returns the previous one.");
   m.def("_measure", &measure, py::arg("config"), py::arg("grid"), py::arg("seed"), py::arg("mode"));
   m.def("_link_budget", &link_budget, py::arg("config"), py::arg("distance_m"),
         py::arg("reflectance"), py::arg("angle_deg"), py::arg("temperature_c"));

@@ -65,7 +65,9 @@ std::vector<double> value_list(const py::object& value, const std::string& name,
   if (py::isinstance<py::str>(value)) {
     return io::parse_value_list(value.cast<std::string>(), name);
   }
-  const auto values = py::array_t<double, py::array::forcecast>::ensure(value);
+  // c_style: a strided or reversed view is copied in order (its data() is not
+  // the values one after another).
+  const auto values = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(value);
   if (!values || values.ndim() > 1) {
     throw std::invalid_argument(name +
                                 ": expected a number, a 1-D list or a string \"a,b,c\" / "

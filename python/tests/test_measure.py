@@ -72,7 +72,7 @@ def test_seed_selects_the_run():
     (dict(distance_m=1, reflectance=0.1, mode=None), "mode: 'None' is not analytic or waveform"),
     (dict(distance_m=[], reflectance=0.1), "distance_m: no values"),
     (dict(distance_m=np.full(10001, 1.0), reflectance=np.full(10001, 0.5)),
-     "the grid has 1.0002e+08 rows, more than 1e+08"),
+     "the grid has 1.0002e+08 rows, more than 1e+06 (the row limit of the CLI's --max-rows)"),
 ])
 def test_bad_arguments_raise_value_error(kwargs, message):
     with pytest.raises(ValueError) as error:

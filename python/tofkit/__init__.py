@@ -15,7 +15,7 @@ Errors in keys, files or values raise ValueError (FileNotFoundError for a
 missing file) with the command-line tool's message.
 """
 
-from ._tofkit import RANGE_DTYPE, RAW_DTYPE, RECORD_DTYPE, read_raw
+from ._tofkit import RANGE_DTYPE, RAW_DTYPE, RECORD_DTYPE, read_raw, set_max_rows
 from .device import DeviceConfig, link_budget, measure
 from .model import Model, fit_chain, fit_surface
 from .scanning import BEAM_DTYPE, POINT_COLUMNS, ScanResult, scan
@@ -41,4 +41,5 @@ __all__ = [
     "measure",
     "read_raw",
     "scan",
+    "set_max_rows",
 ]

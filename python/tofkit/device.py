@@ -15,7 +15,11 @@ the CLI's --preset, --config and --set (``set``: a dict {"receiver.bandwidth_mhz
 
 
 def _values(x, name):
-    values = np.atleast_1d(np.asarray(x, dtype=np.float64))
+    given = np.atleast_1d(np.asarray(x))
+    if given.dtype.kind not in "iuf":
+        # (np.asarray(..., float64) would read "2" and True as numbers)
+        raise ValueError(f"{name}: expected numbers, got {given.dtype} values")
+    values = given.astype(np.float64)
     if values.ndim != 1:
         raise ValueError(f"{name}: expected a number or a 1-D list")
     return [float(v) for v in values]

@@ -101,7 +101,7 @@ def fit_chain(records, steps="offset,grayvalue,temperature", config=None, confid
     if isinstance(steps, (list, tuple)):
         steps = ",".join(str(step) for step in steps)
     return Model(_tofkit._fit_chain(_columns(records), str(steps), _config(config),
-                                    str(confidence), bool(refine_walk)))
+                                    str(confidence), _flag(refine_walk, "refine_walk")))
 
 
 def _flag(value, name):

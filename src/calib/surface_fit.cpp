@@ -439,8 +439,10 @@ void BSplineFitOptions::validate() const {
   check(intervals_range, "intervals_range");
   check(intervals_amplitude, "intervals_amplitude");
   if (use_temperature) check(intervals_temperature, "intervals_temperature");
-  if (!(smoothing >= 0) || !std::isfinite(smoothing)) {
-    throw std::invalid_argument("BSplineFitOptions.smoothing must be finite and >= 0");
+  // Relative to the data term: beyond 1e6 the fit is the penalty's null space
+  // (planes) to rounding, and the normal equations stop being positive definite.
+  if (!(smoothing >= 0) || !(smoothing <= kMaxBSplineSmoothing)) {
+    throw std::invalid_argument("BSplineFitOptions.smoothing must be in [0, 1e6]");
   }
   for (int k = 0; k < 3; ++k) {
     if (!(axis_weight[k] > 0) || !std::isfinite(axis_weight[k])) {
@@ -828,7 +830,9 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
   // No row-count requirement: the second-difference penalty determines every
   // coefficient the data leave free (its null space, planes, needs only the
   // spread checked above).
-  const bool choose_smoothing = options.choose_smoothing_by_gcv || options.choose_intervals_by_gcv;
+  const bool choose_smoothing = options.choose_smoothing_by_gcv ||
+                                (options.choose_intervals_by_gcv && !options.keep_smoothing);
+  const std::size_t coefficient_limit = bspline_coefficient_limit(choose_smoothing);
   const std::vector<Fold> folds = make_folds(c);
   const double ones[3] = {1, 1, 1};
   GridFit best;
@@ -856,11 +860,28 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
         options.use_temperature ? ladder(2, {2, 3, 5}) : std::vector<int>{1}};
     const auto try_grid = [&](const AxisChoice* choice) {
       set_axes(choice);
-      GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
+      GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones,
+                                choose_smoothing, false);
       if (fit.score < best.score * (1.0 - 1e-9)) {
         best = std::move(fit);
         std::copy_n(choice, 3, chosen);
       }
+    };
+    // Grids sized to the data and to the solve's cost: at most
+    // kMaxBSplineCoefficientsPerRow per row and the coefficient limit (a
+    // 15 x 15 x 8 grid of 180 rows had taken over 600 s); the smallest grid
+    // is always tried.
+    const std::size_t grid_limit = std::min<std::size_t>(
+        coefficient_limit,
+        static_cast<std::size_t>(kMaxBSplineCoefficientsPerRow * static_cast<double>(c.rows)));
+    const auto within_limit = [&](const AxisChoice* choice) {
+      std::size_t coefficients = 1;
+      for (int k = 0; k < dims; ++k)
+        coefficients *= static_cast<std::size_t>(choice[k].intervals + 3);
+      const bool smallest = choice[0].intervals == counts[0].front() &&
+                            choice[1].intervals == counts[1].front() &&
+                            choice[2].intervals == counts[2].front();
+      return smallest || coefficients <= grid_limit;
     };
     for (int ir : counts[0]) {
       for (int ia : counts[1]) {
@@ -868,7 +889,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
           const AxisChoice choice[3] = {{ir, KnotPlacement::uniform},
                                         {ia, KnotPlacement::uniform},
                                         {it, KnotPlacement::uniform}};
-          try_grid(choice);
+          if (within_limit(choice)) try_grid(choice);
         }
       }
     }
@@ -879,14 +900,15 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
           if (make_axis(k, n, KnotPlacement::quantile).is_uniform(0.1)) continue;
           AxisChoice choice[3] = {kept[0], kept[1], kept[2]};
           choice[k] = {n, KnotPlacement::quantile};
-          try_grid(choice);
+          if (within_limit(choice)) try_grid(choice);
         }
       }
     }
     if (!std::isfinite(best.score)) {
       for (int k = 0; k < 3; ++k) chosen[k] = {counts[k].front(), KnotPlacement::uniform};
       set_axes(chosen);
-      best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, true, false);
+      best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, choose_smoothing,
+                         false);
     }
     set_axes(chosen);
     best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true);
@@ -895,6 +917,17 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
     chosen[1] = {options.intervals_amplitude, options.knot_placement[1]};
     chosen[2] = {options.intervals_temperature, options.knot_placement[2]};
     set_axes(chosen);
+    const Grid grid = make_grid(p, dims);
+    if (grid.parameters > coefficient_limit) {
+      std::string intervals = std::to_string(options.intervals_range) + " x " +
+                              std::to_string(options.intervals_amplitude);
+      if (dims == 3) intervals += " x " + std::to_string(options.intervals_temperature);
+      throw std::invalid_argument(
+          who + ": " + intervals + " knot intervals make " + std::to_string(grid.parameters) +
+          " coefficients, more than the " + std::to_string(coefficient_limit) + " a fit with " +
+          (choose_smoothing ? "cross-validated" : "fixed") +
+          " smoothing solves in bounded time; use fewer knot intervals");
+    }
     best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing,
                        choose_smoothing ? ones : options.axis_weight, choose_smoothing, true);
   }

@@ -22,25 +22,31 @@ std::string number_text(double value) {
   return std::string(buffer, result.ptr);
 }
 
-// Helpers that bind one struct member to a dotted key with its valid range.
-ConfigField field(std::string key, double* value, double min, double max, bool min_exclusive,
-                  std::string description) {
-  return ConfigField{std::move(key), value, min, max, min_exclusive, std::move(description)};
+// Helpers that bind one struct member to a dotted key with its valid range
+// [min, max]. A positive physical quantity has a physically meaningful
+// smallest value, never "> 0": a subnormal pulse width or sensor step passes
+// "> 0" and then overflows the physics (a 1e-300 ns pulse crashed the setup).
+ConfigField field(std::string key, double* value, double min, double max, std::string description) {
+  return ConfigField{std::move(key), value, min, max, 0.0, std::move(description)};
 }
 ConfigField field(std::string key, int* value, double min, double max, std::string description) {
-  return ConfigField{std::move(key), value, min, max, false, std::move(description)};
+  return ConfigField{std::move(key), value, min, max, 0.0, std::move(description)};
 }
 ConfigField field(std::string key, bool* value, std::string description) {
-  return ConfigField{std::move(key), value, 0.0, 1.0, false, std::move(description)};
+  return ConfigField{std::move(key), value, 0.0, 1.0, 0.0, std::move(description)};
+}
+// A quantity where 0 means "none" (a continuous sensor, no noise floor): 0 or
+// [min_nonzero, max].
+ConfigField field_or_off(std::string key, double* value, double min_nonzero, double max,
+                         std::string description) {
+  return ConfigField{std::move(key), value, 0.0, max, min_nonzero, std::move(description)};
 }
 
-// Inclusive lower bound / exclusive lower bound shorthands.
-constexpr bool kOpen = true;     // (min, max]
-constexpr bool kClosed = false;  // [min, max]
+}  // namespace
 
 std::string range_text(const ConfigField& f) {
-  std::string text = f.min_exclusive ? "(" : "[";
-  text += number_text(f.min);
+  std::string text = f.min_nonzero > 0 ? number_text(f.min) + " or [" : "[";
+  text += number_text(f.min_nonzero > 0 ? f.min_nonzero : f.min);
   text += ", ";
   text += number_text(f.max);
   text += ']';
@@ -49,11 +55,14 @@ std::string range_text(const ConfigField& f) {
 
 bool in_range(const ConfigField& f, double v) {
   if (!std::isfinite(v)) return false;
-  if (f.min_exclusive ? !(v > f.min) : !(v >= f.min)) return false;
-  return v <= f.max;
+  // No key takes a subnormal: it is no measurable quantity, and its reciprocal
+  // overflows.
+  if (v != 0 && std::fpclassify(v) == FP_SUBNORMAL) return false;
+  if (!(v >= f.min) || !(v <= f.max)) return false;
+  return v == 0 || !(std::abs(v) < f.min_nonzero);
 }
 
-}  // namespace
+namespace {}  // namespace
 
 std::vector<ConfigField> config_fields(DeviceConfig& config) {
   auto& laser = config.link.laser;
@@ -65,100 +74,99 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
   auto& m = config.measurement;
   return {
       // laser: the pulsed emitter, paper Table 1
-      field("laser.wavelength_nm", &laser.wavelength_nm, 200, 2000, kClosed,
-            "emitted wavelength, Table 1"),
-      field("laser.peak_power_w", &laser.peak_power_w, 0, 1e4, kOpen,
+      field("laser.wavelength_nm", &laser.wavelength_nm, 200, 2000, "emitted wavelength, Table 1"),
+      field("laser.peak_power_w", &laser.peak_power_w, 1e-6, 1e4,
             "transmitted peak power Pt, Table 1"),
-      field("laser.pulse_width_ns", &laser.pulse_width_ns, 0, 1000, kOpen,
+      field("laser.pulse_width_ns", &laser.pulse_width_ns, 0.01, 1000,
             "emitted pulse FWHM: Table 1's 0.1 % duty cycle at 1 MHz"),
-      field("laser.repetition_hz", &laser.repetition_hz, 0, 1e9, kOpen,
+      field("laser.repetition_hz", &laser.repetition_hz, 1, 1e9,
             "pulse repetition frequency, Table 1"),
-      field("laser.transmit_efficiency", &laser.transmit_efficiency, 0, 1, kOpen,
+      field("laser.transmit_efficiency", &laser.transmit_efficiency, 1e-6, 1,
             "transmitting optics efficiency Tt, Table 1"),
-      field("laser.beam_divergence_mrad", &laser.beam_divergence_mrad, 0, 1000, kOpen,
+      field("laser.beam_divergence_mrad", &laser.beam_divergence_mrad, 1e-3, 1000,
             "full-angle divergence after collimation. Assumption"),
-      field("laser.exit_beam_diameter_mm", &laser.exit_beam_diameter_mm, 0, 1000, kOpen,
+      field("laser.exit_beam_diameter_mm", &laser.exit_beam_diameter_mm, 1e-3, 1000,
             "collimated beam diameter at the exit. Assumption"),
-      field("laser.power_temp_coeff_per_c", &laser.power_temp_coeff_per_c, -0.1, 0.1, kClosed,
+      field("laser.power_temp_coeff_per_c", &laser.power_temp_coeff_per_c, -0.1, 0.1,
             "relative change of Pt per degree (driver-regulated diode). Assumption"),
-      field("laser.turn_on_bias_mm", &laser.turn_on_bias_mm, -1000, 1000, kClosed,
+      field("laser.turn_on_bias_mm", &laser.turn_on_bias_mm, -1000, 1000,
             "range bias of the first shot after laser switch-on (thermal chirp). Assumption"),
-      field("laser.turn_on_time_constant_ms", &laser.turn_on_time_constant_ms, 0, 1e7, kOpen,
+      field("laser.turn_on_time_constant_ms", &laser.turn_on_time_constant_ms, 1e-6, 1e7,
             "decay time of the turn-on bias. Assumption"),
 
       // receiver: optics, APD, transimpedance amplifier
-      field("receiver.aperture_diameter_mm", &rx.aperture_diameter_mm, 0, 1000, kOpen,
+      field("receiver.aperture_diameter_mm", &rx.aperture_diameter_mm, 1e-3, 1000,
             "receiving aperture diameter, Table 1"),
-      field("receiver.optics_efficiency", &rx.optics_efficiency, 0, 1, kOpen,
+      field("receiver.optics_efficiency", &rx.optics_efficiency, 1e-6, 1,
             "receiving optics efficiency Tr, Table 1"),
-      field("receiver.field_of_view_rad", &rx.field_of_view_rad, 0, kHalfPiRad, kOpen,
+      field("receiver.field_of_view_rad", &rx.field_of_view_rad, 1e-6, kHalfPiRad,
             "receiving field angle theta_r, Table 1"),
-      field("receiver.filter_bandwidth_nm", &rx.filter_bandwidth_nm, 0, 1000, kOpen,
+      field("receiver.filter_bandwidth_nm", &rx.filter_bandwidth_nm, 1e-3, 1000,
             "optical filter bandwidth, Table 1"),
-      field("receiver.bandwidth_mhz", &rx.bandwidth_mhz, 0, 1e5, kOpen,
+      field("receiver.bandwidth_mhz", &rx.bandwidth_mhz, 1e-3, 1e5,
             "electrical -3 dB bandwidth B, Table 1"),
-      field("receiver.responsivity_a_per_w", &rx.responsivity_a_per_w, 0, 2, kOpen,
+      field("receiver.responsivity_a_per_w", &rx.responsivity_a_per_w, 1e-6, 2,
             "unity-gain responsivity; Table 1's 58 A/W read as 0.58 A/W x gain 100"),
-      field("receiver.apd_gain", &rx.apd_gain, 1, 1e4, kClosed,
+      field("receiver.apd_gain", &rx.apd_gain, 1, 1e4,
             "APD multiplication M at the nominal temperature"),
-      field("receiver.excess_noise_factor", &rx.excess_noise_factor, 1, 100, kClosed,
+      field("receiver.excess_noise_factor", &rx.excess_noise_factor, 1, 100,
             "APD excess noise factor F; Table 1's noise figure 3"),
-      field("receiver.nep_w_per_sqrt_hz", &rx.nep_w_per_sqrt_hz, 0, 1e-6, kClosed,
-            "noise-equivalent power, Table 1 (2e-14 W/sqrt(Hz))"),
-      field("receiver.dark_current_na", &rx.dark_current_na, 0, 1e6, kClosed,
+      field_or_off("receiver.nep_w_per_sqrt_hz", &rx.nep_w_per_sqrt_hz, 1e-20, 1e-6,
+                   "noise-equivalent power, Table 1 (2e-14 W/sqrt(Hz))"),
+      field("receiver.dark_current_na", &rx.dark_current_na, 0, 1e6,
             "primary (unmultiplied) dark current. Assumption: typical Si APD"),
-      field("receiver.transimpedance_kohm", &rx.transimpedance_kohm, 0, 1e6, kOpen,
+      field("receiver.transimpedance_kohm", &rx.transimpedance_kohm, 1e-6, 1e6,
             "gain converting APD current to volts at the comparator (TIA + post-amp). Assumption"),
-      field("receiver.saturation_v", &rx.saturation_v, 0, 100, kOpen,
+      field("receiver.saturation_v", &rx.saturation_v, 1e-6, 100,
             "amplifier output clip level. Assumption: saturation starts at the 6.5 ns echo width"),
-      field("receiver.recovery_ns_per_neper", &rx.recovery_ns_per_neper, 0, 1000, kClosed,
+      field("receiver.recovery_ns_per_neper", &rx.recovery_ns_per_neper, 0, 1000,
             "extra clipped time per e-fold of overdrive (charge storage). Assumption"),
-      field("receiver.amplitude_noise_rel", &rx.amplitude_noise_rel, 0, 1, kClosed,
+      field("receiver.amplitude_noise_rel", &rx.amplitude_noise_rel, 0, 1,
             "relative noise of the amplitude (peak) reading"),
-      field("receiver.nominal_temperature_c", &rx.nominal_temperature_c, -60, 150, kClosed,
+      field("receiver.nominal_temperature_c", &rx.nominal_temperature_c, -60, 150,
             "temperature at which apd_gain holds"),
       field("receiver.breakdown_temp_coeff_v_per_c", &rx.breakdown_temp_coeff_v_per_c, 0, 10,
-            kClosed, "Si APD breakdown voltage drift (about 0.65 V/C)"),
-      field("receiver.bias_margin_v", &rx.bias_margin_v, 0, 1000, kOpen,
+            "Si APD breakdown voltage drift (about 0.65 V/C)"),
+      field("receiver.bias_margin_v", &rx.bias_margin_v, 1e-3, 1000,
             "V_br - V_bias at the nominal temperature (sets dM/dT at fixed bias)"),
       field("receiver.bias_temperature_compensated", &rx.bias_temperature_compensated,
             "APD bias tracks the breakdown voltage, holding M nearly constant (paper's design)"),
       field("receiver.bias_tracking_error_v_per_c", &rx.bias_tracking_error_v_per_c, -10, 10,
-            kClosed, "residual of the APD bias loop: margin changes by -error per C. Assumption"),
-      field("receiver.amplitude_clip_v", &rx.amplitude_clip_v, 0, 1000, kOpen,
+            "residual of the APD bias loop: margin changes by -error per C. Assumption"),
+      field("receiver.amplitude_clip_v", &rx.amplitude_clip_v, 1e-6, 1000,
             "ceiling of the amplitude (peak) reading, where its stage clips. Assumption"),
-      field("receiver.crosstalk_v", &rx.crosstalk_v, 0, 1000, kClosed,
+      field("receiver.crosstalk_v", &rx.crosstalk_v, 0, 1000,
             "emitter-receiver optical crosstalk: its peak at the comparator (a pulse at zero "
             "range; follows laser power and APD gain). 0: none"),
-      field("receiver.axis_offset_mm", &rx.axis_offset_mm, 0, 1000, kClosed,
+      field("receiver.axis_offset_mm", &rx.axis_offset_mm, 0, 1000,
             "emitter-receiver axis offset (biaxial optics; sets the near blind zone). Assumption"),
 
       // environment: sunlight, atmosphere, air
       field("environment.solar_irradiance_w_per_m2_um", &env.solar_irradiance_w_per_m2_um, 0, 3000,
-            kClosed, "solar spectral irradiance H: 0 indoors; Table 1: 748.5 at 905 nm"),
-      field("environment.sun_angle_deg", &env.sun_angle_deg, 0, 90, kClosed,
+            "solar spectral irradiance H: 0 indoors; Table 1: 748.5 at 905 nm"),
+      field("environment.sun_angle_deg", &env.sun_angle_deg, 0, 90,
             "angle between sun and target normal theta, Table 1"),
       field("environment.sky_radiance_w_per_m2_sr_um", &env.sky_radiance_w_per_m2_sr_um, 0, 1e4,
-            kClosed, "sky spectral radiance N (Eq. 9); the paper's case has none"),
-      field("environment.atmospheric_transmission", &env.atmospheric_transmission, 0, 1, kOpen,
+            "sky spectral radiance N (Eq. 9); the paper's case has none"),
+      field("environment.atmospheric_transmission", &env.atmospheric_transmission, 1e-6, 1,
             "one-way atmospheric transmission Ta, Table 1"),
-      field("environment.pressure_hpa", &env.pressure_hpa, 100, 1200, kClosed,
+      field("environment.pressure_hpa", &env.pressure_hpa, 100, 1200,
             "air pressure, for the group index of air"),
-      field("environment.relative_humidity_pct", &env.relative_humidity_pct, 0, 100, kClosed,
+      field("environment.relative_humidity_pct", &env.relative_humidity_pct, 0, 100,
             "relative humidity, for the group index of air"),
       field("environment.eq9_as_printed", &env.eq9_as_printed,
             "background by Eq. 9 as printed (rho twice; reproduces the paper's Fig. 3)"),
 
       // discriminator, TDC
-      field("discriminator.threshold_v", &disc.threshold_v, 0, 100, kOpen,
+      field("discriminator.threshold_v", &disc.threshold_v, 1e-9, 100,
             "comparator threshold. Assumption: rho = 0.1 echoes fade out past 8 m (paper: 8.08 m)"),
-      field("discriminator.blanking_ns", &disc.blanking_ns, 0, 1e5, kClosed,
+      field("discriminator.blanking_ns", &disc.blanking_ns, 0, 1e5,
             "comparator blanked this long after emission: earlier crossings ignored. 0: none"),
-      field("tdc.lsb_ps", &tdc.lsb_ps, 0, 1e6, kOpen,
+      field("tdc.lsb_ps", &tdc.lsb_ps, 1e-3, 1e6,
             "fine interpolator LSB (FPGA carry-chain TDC). Assumption"),
-      field("tdc.coarse_clock_mhz", &tdc.coarse_clock_mhz, 0, 1e5, kOpen,
+      field("tdc.coarse_clock_mhz", &tdc.coarse_clock_mhz, 1e-3, 1e5,
             "coarse counter clock. Assumption"),
-      field("tdc.inl_lsb", &tdc.inl_lsb, 0, 1000, kClosed,
+      field("tdc.inl_lsb", &tdc.inl_lsb, 0, 1000,
             "peak integral nonlinearity of the interpolator (code-density style table), LSB. "
             "Assumption"),
       field("tdc.code_density_hits", &tdc.code_density_hits, 0, 1e8,
@@ -166,80 +174,80 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "table leaves only their counting error. 0: uncorrected (tdc.inl_lsb stays)"),
       field("tdc.laser_sync", &tdc.laser_sync,
             "laser fires on a TDC clock edge (fixed phase: INL stays); false: asynchronous"),
-      field("tdc.bin_tempco_ppm_per_c", &tdc.bin_tempco_ppm_per_c, -1e5, 1e5, kClosed,
+      field("tdc.bin_tempco_ppm_per_c", &tdc.bin_tempco_ppm_per_c, -1e5, 1e5,
             "fine-bin width change per C of the timing board. Assumption"),
 
       // thermal: delay drift, sensor, warm-up
-      field("thermal.delay_tempco_ps_per_c", &th.delay_tempco_ps_per_c, -1e4, 1e4, kClosed,
+      field("thermal.delay_tempco_ps_per_c", &th.delay_tempco_ps_per_c, -1e4, 1e4,
             "trigger + receive-chain delay drift per C of the timing board. Assumption"),
-      field("thermal.heater_setpoint_c", &th.heater_setpoint_c, -100, 200, kClosed,
+      field("thermal.heater_setpoint_c", &th.heater_setpoint_c, -100, 200,
             "timing-board heater setpoint (paper Fig. 8: flat below 16 C). Assumption"),
-      field("thermal.heater_loop_gain", &th.heater_loop_gain, 0, 1e6, kClosed,
+      field("thermal.heater_loop_gain", &th.heater_loop_gain, 0, 1e6,
             "proportional heater loop gain (board follows 1/(1+gain) below setpoint)"),
-      field("thermal.heater_max_rise_c", &th.heater_max_rise_c, 0, 200, kClosed,
+      field("thermal.heater_max_rise_c", &th.heater_max_rise_c, 0, 200,
             "most the heater lifts the timing board above the enclosure"),
-      field("thermal.self_heating_c", &th.self_heating_c, 0, 100, kClosed,
+      field("thermal.self_heating_c", &th.self_heating_c, 0, 100,
             "steady-state internal rise above ambient. Assumption"),
-      field("thermal.warmup_time_constant_min", &th.warmup_time_constant_min, 0, 1e4, kOpen,
+      field("thermal.warmup_time_constant_min", &th.warmup_time_constant_min, 1e-6, 1e4,
             "internal temperature time constant after power-on (thesis: 25-35 min). Assumption"),
       field("thermal.warmup_delay_coeff_mm_per_c", &th.warmup_delay_coeff_mm_per_c, -1000, 1000,
-            kClosed, "extra delay drift while the board warms up. Assumption"),
-      field("thermal.sensor_lag_min", &th.sensor_lag_min, 0, 1e4, kClosed,
+            "extra delay drift while the board warms up. Assumption"),
+      field("thermal.sensor_lag_min", &th.sensor_lag_min, 0, 1e4,
             "extra time constant of the enclosure sensor behind the die. Assumption"),
-      field("thermal.sensor_resolution_c", &th.sensor_resolution_c, 0, 10, kClosed,
-            "temperature sensor LSB (0: continuous)"),
-      field("thermal.sensor_noise_c", &th.sensor_noise_c, 0, 10, kClosed,
+      field_or_off("thermal.sensor_resolution_c", &th.sensor_resolution_c, 1e-6, 10,
+                   "temperature sensor LSB (0: continuous)"),
+      field("thermal.sensor_noise_c", &th.sensor_noise_c, 0, 10,
             "temperature sensor noise (1 sigma)"),
 
       // measurement: timing and averaging
       field("measurement.shots", &m.shots, 1, kMaxShots, "shots averaged per output"),
-      field("measurement.fixed_delay_ns", &m.fixed_delay_ns, 0, 1e4, kClosed,
+      field("measurement.fixed_delay_ns", &m.fixed_delay_ns, 0, 1e4,
             "trigger-to-emission plus receive-chain delay at the nominal temperature. Assumption"),
-      field("measurement.power_on_offset_ps", &m.power_on_offset_ps, 0, 1e6, kClosed,
+      field("measurement.power_on_offset_ps", &m.power_on_offset_ps, 0, 1e6,
             "1 sigma delay offset drawn at each power-on (a run's seed). Assumption"),
-      field("measurement.flicker_delay_ps", &m.flicker_delay_ps, 0, 1e6, kClosed,
+      field("measurement.flicker_delay_ps", &m.flicker_delay_ps, 0, 1e6,
             "rms of a slow 1/f delay wander (averaging floor). Assumption"),
-      field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6, kClosed,
+      field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6,
             "false-stop rejection: drop stops this far from the median stop (0: off). Assumption"),
-      field("measurement.window_ns", &m.window_ns, 0, 1e5, kOpen,
+      field("measurement.window_ns", &m.window_ns, 0.01, 1e5,
             "waveform-mode record length around the echo"),
-      field("measurement.sample_period_ps", &m.sample_period_ps, 0, 1e6, kOpen,
+      field("measurement.sample_period_ps", &m.sample_period_ps, 1e-3, 1e6,
             "waveform-mode sampling period (at most: 6 per receiver pole time constant)"),
-      field("measurement.reference_temperature_c", &m.reference_temperature_c, -100, 200, kClosed,
+      field("measurement.reference_temperature_c", &m.reference_temperature_c, -100, 200,
             "air temperature the device assumes for the speed of light"),
 
       // scan: beam footprint sampling for ray casting (scan/)
       field("scan.rays_per_beam", &config.scan.rays_per_beam, 1, 4096,
             "sub-rays sampling the beam footprint, equal-area over the disk (1: axis only)"),
       field(
-          "scan.crease_angle_deg", &config.scan.crease_angle_deg, 0, 90, kClosed,
+          "scan.crease_angle_deg", &config.scan.crease_angle_deg, 0, 90,
           "sub-ray hits on one primitive meeting at a sharper crease (or a step) are two surfaces"),
 
       // memory: receiver recovery in a scan sequence (device/echo_memory.hpp)
-      field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6, kClosed,
+      field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6,
             "recovery time constant of the AC-coupled receiver / AGC after an echo step (0: none)"),
       field("memory.strength_gain_mm_per_neper", &config.memory.strength_gain_mm_per_neper, -1e4,
-            1e4, kClosed, "range error per neper of echo-strength step not yet recovered"),
-      field("memory.distance_gain", &config.memory.distance_gain, 0, 1, kClosed,
+            1e4, "range error per neper of echo-strength step not yet recovered"),
+      field("memory.distance_gain", &config.memory.distance_gain, 0, 1,
             "share of a distance step the timing loop still lags by, decaying likewise"),
 
       // oscillator: the self-oscillating loop principle (device/oscillator_loop.hpp)
       field("oscillator.enabled", &config.oscillator.enabled,
             "measuring principle: true = self-oscillating loop (AccuRange), false = pulsed TDC"),
-      field("oscillator.loop_delay_ns", &config.oscillator.loop_delay_ns, 0, 1e4, kClosed,
+      field("oscillator.loop_delay_ns", &config.oscillator.loop_delay_ns, 0, 1e4,
             "per edge: laser driver turn-on/off, comparator and logic delay"),
       field("oscillator.zero_half_period_ns", &config.oscillator.zero_half_period_ns, 0, 1e4,
-            kClosed, "vendor zero: the loop half period reported as range 0"),
-      field("oscillator.count_clock_mhz", &config.oscillator.count_clock_mhz, 0, 1e5, kOpen,
+            "vendor zero: the loop half period reported as range 0"),
+      field("oscillator.count_clock_mhz", &config.oscillator.count_clock_mhz, 1e-3, 1e5,
             "interface board's counting clock (thesis: 80 MHz)"),
-      field("oscillator.gate_fraction", &config.oscillator.gate_fraction, 0, 1, kOpen,
+      field("oscillator.gate_fraction", &config.oscillator.gate_fraction, 1e-6, 1,
             "share of each output period the period counter is gated on. Assumption"),
-      field("oscillator.coupling_duty", &config.oscillator.coupling_duty, 0, 1, kOpen,
+      field("oscillator.coupling_duty", &config.oscillator.coupling_duty, 1e-6, 1,
             "AC-coupled receiver baseline as a share of the signal swing (the loop's duty)"),
       field("oscillator.overdrive_jitter_ps_per_neper",
-            &config.oscillator.overdrive_jitter_ps_per_neper, 0, 1e6, kClosed,
+            &config.oscillator.overdrive_jitter_ps_per_neper, 0, 1e6,
             "extra edge jitter per neper of receiver overdrive (erratic in saturation)"),
-      field("oscillator.flicker_delay_ps", &config.oscillator.flicker_delay_ps, 0, 1e6, kClosed,
+      field("oscillator.flicker_delay_ps", &config.oscillator.flicker_delay_ps, 0, 1e6,
             "rms of the loop delay's slow wander, drawn per output (averaging floor)"),
       field("oscillator.duty_wander", &config.oscillator.duty_wander, 0, 0.5, kClosed,
             "rms of the loop duty's slow wander per output (share); the AC-coupled baseline "

@@ -28,9 +28,29 @@ namespace fs = std::filesystem;
 constexpr std::size_t kSignalSlots = 1024;
 std::array<std::atomic<char*>, kSignalSlots> g_live_temporaries{};
 
+// Directories the open transaction created (removed on rollback), for the
+// handler likewise.
+constexpr std::size_t kDirectorySlots = 256;
+std::array<std::atomic<char*>, kDirectorySlots> g_created_directories{};
+
 extern "C" void remove_temporaries_and_reraise(int signal_number) {
   for (auto& slot : g_live_temporaries) {
     if (char* path = slot.load()) ::unlink(path);
+  }
+  // Then the directories the command created, now empty unless something
+  // else wrote there (rmdir removes only empty ones): innermost first, so
+  // repeat while a pass removes one.
+  for (bool removed = true; removed;) {
+    removed = false;
+    for (auto& slot : g_created_directories) {
+      if (char* path = slot.exchange(nullptr)) {
+        if (::rmdir(path) == 0) {
+          removed = true;
+        } else {
+          slot.store(path);
+        }
+      }
+    }
   }
   std::signal(signal_number, SIG_DFL);
   std::raise(signal_number);
@@ -69,6 +89,25 @@ std::size_t register_temporary(const fs::path& path) {
 
 void unregister_temporary(std::size_t slot) {
   if (slot < kSignalSlots) std::free(g_live_temporaries[slot].exchange(nullptr));
+}
+
+void register_created_directory(const fs::path& path) {
+  install_signal_handlers();
+  const std::string text = path.string();
+  char* copy = static_cast<char*>(std::malloc(text.size() + 1));
+  if (copy == nullptr) return;
+  std::memcpy(copy, text.c_str(), text.size() + 1);
+  for (auto& slot : g_created_directories) {
+    char* expected = nullptr;
+    if (slot.compare_exchange_strong(expected, copy)) return;
+  }
+  std::free(copy);
+}
+
+// The transaction ended (committed or rolled back): its directories are no
+// longer the handler's to remove.
+void forget_created_directories() {
+  for (auto& slot : g_created_directories) std::free(slot.exchange(nullptr));
 }
 
 // A temporary file: removed unless renamed, and known to the signal handler
@@ -249,6 +288,7 @@ OutputTransaction::~OutputTransaction() {
     fs::remove(*it, ignored);  // only succeeds while empty
   }
   s.created_directories.clear();
+  forget_created_directories();
   s.inputs.clear();
   s.open = false;
 }
@@ -260,6 +300,7 @@ void OutputTransaction::commit() {
   s.staged.clear();
   for (auto& file : staged) file.temporary.rename_to(file.target);  // throws: the rest removed
   s.created_directories.clear();                                    // keep them
+  forget_created_directories();
 }
 
 std::size_t OutputTransaction::staged() const {
@@ -304,7 +345,10 @@ void create_output_directories(const fs::path& path) {
     }
     auto& s = state();
     const std::scoped_lock lock(s.mutex);
-    if (s.open) s.created_directories.push_back(*it);
+    if (s.open) {
+      s.created_directories.push_back(*it);
+      register_created_directory(*it);
+    }
   }
 }
 

@@ -103,15 +103,34 @@ ByteSource::ByteSource(const std::string& path, int baud) : path_(path) {
   }
   if (terminal_) {
     try {
+      termios saved{};
+      if (tcgetattr(fd_, &saved) != 0) throw system_error(path + ": tcgetattr");
       configure_raw_terminal(fd_, baud, path);
+      saved_ = std::make_unique<termios>(saved);
+      if (path == "-") {
+        // Stdin on a terminal is a person's keyboard: Ctrl-C must still end
+        // the stream (SIGINT), not arrive as byte 0x03.
+        termios tio{};
+        if (tcgetattr(fd_, &tio) == 0) {
+          tio.c_lflag |= ISIG;
+          tcsetattr(fd_, TCSANOW, &tio);
+        }
+      }
     } catch (...) {
+      restore_terminal();
       if (owned_) ::close(fd_);
       throw;
     }
   }
 }
 
+void ByteSource::restore_terminal() noexcept {
+  if (saved_) tcsetattr(fd_, TCSANOW, saved_.get());
+  saved_.reset();
+}
+
 ByteSource::~ByteSource() {
+  restore_terminal();  // the terminal as it was found, on every way out
   if (owned_ && fd_ >= 0) ::close(fd_);
 }
 

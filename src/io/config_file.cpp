@@ -557,7 +557,7 @@ std::string dump_device_config(const DeviceConfig& config) {
       value = number_text(*std::get<double*>(f.value));
       // TOML needs a '.' or an exponent to read a float back as a float.
       if (value.find_first_of(".eEni") == std::string::npos) value += ".0";
-      range = fmt::format("{}{}, {}]", f.min_exclusive ? "(" : "[", f.min, f.max);
+      range = device::range_text(f);
     }
     out += fmt::format("# {}. Valid: {}\n{} = {}\n", f.description, range, member_of(f.key), value);
   }

@@ -239,6 +239,10 @@ std::size_t ply_type_size(const std::string& t) {
   return 0;
 }
 
+/// Memory a PLY's mesh may take per byte of the file (a vertex of three
+/// uchar coordinates is the smallest: 3 bytes for a 24-byte Vec3).
+constexpr double kPlyMemoryPerInputByte = 8;
+
 double ply_read_binary(const char* p, const std::string& t) {
   auto get = [&](auto v) {
     std::memcpy(&v, p, sizeof v);
@@ -320,6 +324,54 @@ void load_ply(const fs::path& file, Primitive& mesh) {
                     "data, the file has {:.0f} (truncated PLY data)",
                     name, least_bytes, data_bytes));
   }
+  // Memory bounded by a small multiple of the input: a vertex takes a Vec3
+  // (24 bytes) whatever its properties, so a vertex element must hold x, y
+  // and z, and the vertices with the triangles their faces can make must fit
+  // in kPlyMemoryPerInputByte times the file (1e8 one-byte vertices of a
+  // 100 MB file had taken 3.25 GB before being refused).
+  std::size_t vertex_count = 0;
+  double triangle_bound = 0;
+  for (const auto& e : elements) {
+    if (e.name == "vertex") {
+      vertex_count = e.count;
+      for (const char* axis : {"x", "y", "z"}) {
+        if (std::none_of(e.properties.begin(), e.properties.end(),
+                         [&](const PlyProperty& p) { return p.name == axis; })) {
+          throw SceneError(name + ": the vertex element has no property '" + axis + "'");
+        }
+      }
+    }
+    if (e.name == "face") {
+      // A list of n indices makes n - 2 triangles: at most one per index in
+      // the data the other elements leave.
+      for (const auto& p : e.properties) {
+        if (!p.count_type.empty())
+          triangle_bound += ascii ? 0.5 : 1.0 / static_cast<double>(ply_type_size(p.type));
+      }
+    }
+  }
+  double other_bytes = 0;  // the least the elements other than faces take
+  for (const auto& e : elements) {
+    if (e.name == "face") continue;
+    for (const auto& p : e.properties) {
+      other_bytes +=
+          static_cast<double>(e.count) *
+          (ascii
+               ? 2.0
+               : static_cast<double>(ply_type_size(p.count_type.empty() ? p.type : p.count_type)));
+    }
+  }
+  triangle_bound *= std::max(0.0, data_bytes - other_bytes);
+  const double memory_bytes =
+      static_cast<double>(vertex_count) * sizeof(Vec3) + triangle_bound * sizeof(mesh.triangles[0]);
+  const double file_bytes = data_bytes + static_cast<double>(header_end);
+  if (memory_bytes > kPlyMemoryPerInputByte * file_bytes + 4096) {
+    throw SceneError(fmt::format(
+        "{}: {} vertices would take {:.0f} MB, more than {:.0f} times the file's {:.0f} MB (the "
+        "vertex element's properties are too small to be coordinates)",
+        name, vertex_count, memory_bytes / 1e6, kPlyMemoryPerInputByte, file_bytes / 1e6));
+  }
+  mesh.vertices.reserve(mesh.vertices.size() + vertex_count);
   auto read_value = [&](const std::string& type) -> double {
     if (ascii) {
       double v = 0;
@@ -340,9 +392,6 @@ void load_ply(const fs::path& file, Primitive& mesh) {
   };
   // A face's indices are checked against the header's vertex count (the
   // vertex element may follow the faces), so the message can name the face.
-  std::size_t vertex_count = 0;
-  for (const auto& e : elements)
-    if (e.name == "vertex") vertex_count = e.count;
   for (const auto& e : elements) {
     for (std::size_t i = 0; i < e.count; ++i) {
       Vec3 v{0, 0, 0};
@@ -353,7 +402,10 @@ void load_ply(const fs::path& file, Primitive& mesh) {
           std::vector<std::uint32_t> idx;
           for (int k = 0; k < static_cast<int>(n); ++k) {
             const double x = read_value(p.type);
-            if (!(x >= 0 && x < 4e9)) throw SceneError(name + ": bad face index");
+            if (!(x >= 0 && x < 4e9 && x == std::floor(x))) {
+              // (a float index 1.5 had been truncated to 1)
+              throw SceneError(fmt::format("{}: bad face index {} in {} {}", name, x, e.name, i));
+            }
             idx.push_back(static_cast<std::uint32_t>(x));
           }
           if (e.name == "face" && (p.name == "vertex_indices" || p.name == "vertex_index")) {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -31,6 +32,12 @@ void clamp_to_axis(const double* x, std::size_t count, double lo, double hi,
   }
 }
 
+std::string number_text(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.6g", v);
+  return buffer;
+}
+
 void require_axis(const BSplineAxis& axis, double domain_min, double domain_max, const char* name) {
   const std::string prefix = std::string("BSplineSurface: ") + name;
   axis.validate(prefix);
@@ -39,6 +46,19 @@ void require_axis(const BSplineAxis& axis, double domain_min, double domain_max,
   }
   if (axis.log_scale && !(domain_min > 0)) {
     throw std::invalid_argument(prefix + " axis is on a log scale but its domain is not positive");
+  }
+  // Inputs are clamped to the domain, and the spline is defined between its
+  // first and last knot only: a domain wider than the knots evaluates the
+  // basis outside its span (extrapolated, or coefficients read past the grid).
+  const double lo = axis.log_scale ? std::log(domain_min) : domain_min;
+  const double hi = axis.log_scale ? std::log(domain_max) : domain_max;
+  const double tolerance = 1e-9 * (axis.hi() - axis.lo());
+  if (!(lo >= axis.lo() - tolerance) || !(hi <= axis.hi() + tolerance)) {
+    const auto input = [&](double u) { return axis.log_scale ? std::exp(u) : u; };
+    throw std::invalid_argument(prefix + " domain [" + number_text(domain_min) + ", " +
+                                number_text(domain_max) + "] exceeds the axis knots [" +
+                                number_text(input(axis.lo())) + ", " +
+                                number_text(input(axis.hi())) + "]");
   }
 }
 

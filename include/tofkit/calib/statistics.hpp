@@ -22,7 +22,10 @@ namespace tofkit::calib {
 using ranging::kMaxMagnitude;
 
 /// Throws std::invalid_argument naming the column and the data row (`index`
-/// 0-based, printed 1-based) when a finite value exceeds kMaxMagnitude.
+/// 0-based, printed 1-based) when a finite value exceeds kMaxMagnitude, or is
+/// outside its column's physical range (distance_true_m and pulse_width_ns
+/// in [0, 1e6], amplitude >= 0, temperature_c in [-273.15, 1e4]): checked
+/// before any fit, so an impossible cell is named, not fitted.
 void require_magnitude(double v, const char* column, std::size_t index);
 
 struct ErrorStats {

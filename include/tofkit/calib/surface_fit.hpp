@@ -2,6 +2,7 @@
 /// \file Least-squares fits of correction surfaces.
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -72,8 +73,15 @@ struct BSplineFitOptions {
   /// cross-validation: the count from a ladder (3, 5, 8, 12 per axis; 2, 3, 5
   /// for temperature) capped by the data's distinct values on that axis, and
   /// the placement (uniform or quantile) per axis; the intervals_* and
-  /// knot_placement above are then ignored. Implies choose_smoothing_by_gcv.
+  /// knot_placement above are then ignored. Implies choose_smoothing_by_gcv
+  /// unless keep_smoothing. Grids with more coefficients than
+  /// kMaxBSplineCoefficientsPerRow per data row, or than
+  /// bspline_coefficient_limit(true), are not tried: the search is bounded
+  /// in time by construction.
   bool choose_intervals_by_gcv = false;
+  /// With choose_intervals_by_gcv: keep `smoothing` as given (the knots are
+  /// chosen for it) instead of choosing it too.
+  bool keep_smoothing = false;
   /// When nothing is chosen by cross-validation: each axis's penalty weight
   /// relative to `smoothing` (range, amplitude, temperature). With a result's
   /// intervals, smoothing, placement and axis_weight the options refit its
@@ -82,6 +90,23 @@ struct BSplineFitOptions {
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
+
+/// The largest smoothing weight (relative to the data term) a fit takes.
+constexpr double kMaxBSplineSmoothing = 1e6;
+
+/// Coefficients per data row the automatic knot search tries at most (the
+/// penalty fixes what the data leave free; a finer grid than this the data
+/// cannot choose).
+constexpr double kMaxBSplineCoefficientsPerRow = 1.0;
+
+/// The most coefficients a B-spline fit solves for: each penalized solve costs
+/// p^3 / 3, and choosing the smoothing by cross-validation takes ~27 weights x
+/// (folds + 1) of them (400: a few seconds; fixed smoothing, 1500: one solve,
+/// its hat-matrix trace and condition number). fit_bspline_surface refuses a
+/// grid beyond it naming the intervals.
+[[nodiscard]] constexpr std::size_t bspline_coefficient_limit(bool choose_smoothing) {
+  return choose_smoothing ? 400 : 1500;
+}
 
 struct SurfaceFitResult {
   std::shared_ptr<const CorrectionSurface> surface;

@@ -153,9 +153,10 @@ struct DeviceConfig {
 struct ConfigField {
   std::string key;  ///< "section.name_unit"
   std::variant<double*, int*, bool*> value;
-  double min = 0;  ///< smallest valid value (inclusive unless min_exclusive)
+  double min = 0;  ///< smallest valid value (inclusive; physically meaningful, never "> 0")
   double max = 0;  ///< largest valid value (inclusive)
-  bool min_exclusive = false;
+  /// When > 0 (and min is 0, "none"): a nonzero value is at least this.
+  double min_nonzero = 0;
   std::string description;  ///< one line, with source or "Assumption"
 };
 
@@ -166,7 +167,12 @@ struct ConfigField {
 /// The key's value as a double (bools as 0/1).
 [[nodiscard]] double field_value(const ConfigField& field);
 
-/// Messages, one per bad key ("receiver.bandwidth_mhz = 0 is out of range (0, 1e5]").
+/// The key's valid values: "[0.001, 1e+05]", or "0 or [1e-06, 10]".
+[[nodiscard]] std::string range_text(const ConfigField& field);
+/// Whether `value` is valid for the key: finite, not subnormal, in its range.
+[[nodiscard]] bool in_range(const ConfigField& field, double value);
+
+/// Messages, one per bad key ("receiver.bandwidth_mhz = 0 is out of range [0.001, 1e+05]").
 [[nodiscard]] std::vector<std::string> validate(const DeviceConfig& config);
 
 /// The conversion the device reports distance_raw_m with: its wavelength and

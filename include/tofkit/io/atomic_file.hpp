@@ -28,7 +28,8 @@
 /// - a directory that does not exist.
 ///
 /// SIGINT and SIGTERM remove every temporary of this process (staged or being
-/// written) and then terminate as the signal would have.
+/// written) and the directories the open transaction created (those left
+/// empty), and then terminate as the signal would have.
 
 #include <filesystem>
 #include <functional>

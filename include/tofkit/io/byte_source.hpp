@@ -5,8 +5,11 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
+
+struct termios;
 
 namespace tofkit::io {
 
@@ -17,7 +20,9 @@ namespace tofkit::io {
 void configure_raw_terminal(int fd, int baud, const std::string& name);
 
 /// A readable byte stream: "-" is stdin; a terminal (serial port, pty) is put
-/// in raw mode at --baud; anything else is read as a file or pipe.
+/// in raw mode at --baud (stdin keeps its signal keys: Ctrl-C is SIGINT) and
+/// given back its settings when the ByteSource goes; anything else is read as
+/// a file or pipe.
 class ByteSource {
  public:
   /// Throws std::runtime_error naming the path (missing, unreadable, --baud
@@ -36,10 +41,13 @@ class ByteSource {
   [[nodiscard]] int fd() const { return fd_; }
 
  private:
+  void restore_terminal() noexcept;
+
   std::string path_;
   int fd_ = -1;
   bool owned_ = false;
   bool terminal_ = false;
+  std::unique_ptr<termios> saved_;  // a terminal's settings before raw mode
 };
 
 /// A new pseudo-terminal pair in raw mode: the emulator writes to the master,

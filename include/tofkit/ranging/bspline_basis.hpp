@@ -120,8 +120,9 @@ class BSplineKnots {
   /// when they are).
   [[nodiscard]] int interval(double u) const {
     double x = (u - lo_) * scale_;
-    x = x >= 0 ? x : 0.0;  // also NaN -> 0
-    int j = std::min(static_cast<int>(x), intervals_ - 1);
+    x = x >= 0 ? x : 0.0;                                  // also NaN -> 0
+    x = std::min(x, static_cast<double>(intervals_ - 1));  // no int overflow past the last knot
+    int j = static_cast<int>(x);
     while (j > 0 && u < t(j)) --j;
     while (j < intervals_ - 1 && u >= t(j + 1)) ++j;
     return j;
