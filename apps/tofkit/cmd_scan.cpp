@@ -20,6 +20,7 @@
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
+#include "tofkit/io/scan_writer.hpp"
 #include "tofkit/io/scene_file.hpp"
 #include "tofkit/scan/scanner.hpp"
 
@@ -69,23 +70,24 @@ struct Progress {
   }
 };
 
-nlohmann::json sidecar(const std::string& file, const char* quantity, const char* units,
-                       const io::Png16& png, const scan::ScanResult& r, const ScanCliOptions& o) {
+std::string sidecar(const std::string& file, const char* quantity, const char* units,
+                    double scale, double offset, const scan::BeamPattern& pattern,
+                    const ScanCliOptions& o) {
   nlohmann::json j;
   j["file"] = file;
   j["quantity"] = quantity;
   j["units"] = units;
   j["value"] = "offset + scale * pixel";
-  j["scale"] = png.scale;
-  j["offset"] = png.offset;
+  j["scale"] = scale;
+  j["offset"] = offset;
   j["invalid_value"] = 0;
-  j["rows"] = r.pattern.rows;
-  j["columns"] = r.pattern.columns;
+  j["rows"] = pattern.rows;
+  j["columns"] = pattern.columns;
   j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
   j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
                {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
-               {"beams", r.beams.size()}};
-  return j;
+               {"beams", pattern.beams.size()}};
+  return j.dump(2) + "\n";
 }
 
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
@@ -105,58 +107,41 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
 
   const auto start = std::chrono::steady_clock::now();
   const auto mode = simulation_mode(o.mode);
-  scan::ScanResult result =
-      run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
-  if (pipeline) scan::apply_pipeline(*pipeline, result);
+  // The scan streams: blocks of beams measured, corrected and written in beam
+  // order; every file through the one writer, staged and committed with the
+  // others only when the command succeeds (main's OutputTransaction).
+  scan::ScanResult description = scan::describe_scan(pattern, scene);
+  description.has_model = pipeline.has_value();
+  io::ScanWriterSettings settings;
+  settings.directory = o.out;
+  settings.outputs = outputs;
+  settings.ambient_c = o.scan.ambient_c;
+  settings.sidecar = [&](const std::string& file, const char* quantity, const char* units,
+                         double scale, double offset) {
+    return sidecar(file, quantity, units, scale, offset, pattern, o);
+  };
+  io::ScanWriter writer(description, scan::row_last_beams(pattern), std::move(settings));
+  run_scene_scan_blocks(
+      o.scan, scene, pattern, config, mode, shots, o.seed, 0, pattern.beams.size(),
+      [&](std::size_t first, std::span<scan::BeamResult> beams) {
+        if (pipeline) scan::apply_pipeline(*pipeline, beams);
+        writer.add(first, beams);
+      },
+      Progress{});
+  const io::ScanWriter::Summary summary = writer.finish();
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
-  // Every file through the one writer: staged, and committed with the
-  // others only when the command succeeds (main's OutputTransaction); a
-  // target that is an input, a link, a FIFO or a directory is refused.
-  const scan::ScanImages images = scan::make_images(result);
-  const std::filesystem::path dir(o.out);
-  auto write = [&](const std::string& name, const std::string& bytes) {
-    io::write_file_atomically(dir / name, bytes);
-  };
-  if (outputs.count("csv") != 0) write("scan.csv", io::encode_scan_csv(result, o.scan.ambient_c));
-  const struct {
-    const char* name;
-    const char* quantity;
-    const char* units;
-    const scan::Image* image;
-  } planes[] = {{"range", "range", "m", &images.range},
-                {"intensity", "echo amplitude", "V", &images.intensity},
-                {"sigma", "expected range error (1 sigma)", "m", &images.sigma}};
-  for (const auto& p : planes) {
-    if (p.image == &images.sigma && !result.has_model) continue;
-    if (outputs.count("png") != 0) {
-      const io::Png16 png = io::encode_png16(*p.image);
-      const std::string name = std::string(p.name) + ".png";
-      write(name, png.png);
-      write(std::string(p.name) + ".json",
-            sidecar(name, p.quantity, p.units, png, result, o).dump(2) + "\n");
-    }
-    if (outputs.count("npy") != 0) write(std::string(p.name) + ".npy", io::encode_npy(*p.image));
-  }
-  const auto points = io::cloud_points(result);
-  if (outputs.count("ply") != 0) write("points.ply", io::encode_ply(points));
-  if (outputs.count("pcd") != 0) write("points.pcd", io::encode_pcd(points));
-  if (outputs.count("las") != 0) write("points.las", io::encode_las(points));
-  if (outputs.count("view") != 0) write("range_view.png", io::encode_range_view(images));
-
-  std::size_t mixed = 0;
-  for (const auto& b : result.beams) mixed += b.surfaces > 1 ? 1 : 0;
   const auto threads =
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
              "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
-             result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
+             summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
-             o.seed, points.size(), mixed, result.beams.size() - points.size(), seconds, threads,
-             o.out);
+             o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,
+             threads, o.out);
 }
 
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {

@@ -96,4 +96,20 @@ scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& sc
   return scan::run_scan(scene, config, mode, pattern, options);
 }
 
+void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
+                           const scan::BeamPattern& pattern, const device::DeviceConfig& config,
+                           device::SimulationMode mode, int shots, std::uint64_t seed,
+                           std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
+                           std::function<void(std::size_t, std::size_t)> progress) {
+  scan::ScanOptions options;
+  options.seed = seed;
+  options.shots = shots;
+  options.conditions.ambient_c = o.ambient_c;
+  options.progress = std::move(progress);
+  const device::VirtualRangefinder rangefinder(config, mode);
+  const scan::RayCaster caster(scene);
+  scan::run_scan_blocks(caster, scan::Footprint(config), rangefinder, pattern, options, first, last,
+                        kScanBlockBeams, sink);
+}
+
 }  // namespace tofkit::app
