@@ -70,9 +70,8 @@ struct Progress {
   }
 };
 
-std::string sidecar(const std::string& file, const char* quantity, const char* units,
-                    double scale, double offset, const scan::BeamPattern& pattern,
-                    const ScanCliOptions& o) {
+std::string sidecar(const std::string& file, const char* quantity, const char* units, double scale,
+                    double offset, const scan::BeamPattern& pattern, const ScanCliOptions& o) {
   nlohmann::json j;
   j["file"] = file;
   j["quantity"] = quantity;
@@ -86,7 +85,7 @@ std::string sidecar(const std::string& file, const char* quantity, const char* u
   j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
   j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
                {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
-               {"beams", pattern.beams.size()}};
+               {"beams", pattern.size()}};
   return j.dump(2) + "\n";
 }
 
@@ -103,7 +102,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                                                                  : "(a directory) does not exist"));
   }
   const int shots = scan_shots(config, o.shots);
-  const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
+  const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
 
   const auto start = std::chrono::steady_clock::now();
   const auto mode = simulation_mode(o.mode);
@@ -122,7 +121,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   };
   io::ScanWriter writer(description, scan::row_last_beams(pattern), std::move(settings));
   run_scene_scan_blocks(
-      o.scan, scene, pattern, config, mode, shots, o.seed, 0, pattern.beams.size(),
+      o.scan, scene, pattern, config, mode, shots, o.seed, 0, pattern.size(),
       [&](std::size_t first, std::span<scan::BeamResult> beams) {
         if (pipeline) scan::apply_pipeline(*pipeline, beams);
         writer.add(first, beams);

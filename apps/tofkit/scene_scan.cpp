@@ -63,7 +63,7 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 }
 
 scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::DeviceConfig& config,
-                                    int shots) {
+                                    int shots, bool on_demand) {
   const double period_s = shots / config.link.laser.repetition_hz;
   const std::string* texts[] = {&o.y, &o.z, &o.azimuth, &o.elevation};  // PatternListName order
   const auto lists = [&](scan::PatternListName l) {
@@ -72,7 +72,7 @@ scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::Dev
   };
   try {
     return scan::make_pattern(o.pattern, o.settings, lists, period_s,
-                              io::resource_limits().max_rows);
+                              io::resource_limits().max_rows, on_demand);
   } catch (const std::length_error& e) {
     // A beam is a row of scan.csv: the rows' limit applies.
     throw std::invalid_argument(std::string(e.what()) + " (raise it with --max-rows)");

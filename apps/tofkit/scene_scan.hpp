@@ -44,8 +44,11 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 /// measurement (its output period: shots / laser repetition rate). Throws
 /// std::invalid_argument naming the option a pattern lacks, and when the
 /// pattern has more beams than --max-rows allows (a beam is a row of scan.csv).
+/// With `on_demand`, a mirror, spherical or spinning pattern makes its beams
+/// as a streaming scan asks for them (scan::BeamPattern::make_beams).
 [[nodiscard]] scan::BeamPattern make_scan_pattern(const SceneScanOptions& o,
-                                                  const device::DeviceConfig& config, int shots);
+                                                  const device::DeviceConfig& config, int shots,
+                                                  bool on_demand = false);
 
 /// Shots per beam before the pattern's multiplier: `shots`, or the config's.
 [[nodiscard]] int scan_shots(const device::DeviceConfig& config, int shots);

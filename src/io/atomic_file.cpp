@@ -409,7 +409,8 @@ void StreamingOutput::append_from(int from_fd, std::uint64_t offset, std::uint64
   flush();
   std::string chunk(std::min<std::uint64_t>(length, kStreamBuffer), '\0');
   while (length > 0) {
-    const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(length, chunk.size()));
+    const std::size_t want =
+        static_cast<std::size_t>(std::min<std::uint64_t>(length, chunk.size()));
     const ssize_t n = ::pread(from_fd, chunk.data(), want, static_cast<off_t>(offset));
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) refuse(target_, "reading back a working file failed");

@@ -205,8 +205,8 @@ void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
   ihdr.bit_depth = 16;
   ihdr.color_type = SPNG_COLOR_TYPE_GRAYSCALE;
   spng_set_ihdr(ctx, &ihdr);
-  int err =
-      spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG, SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
+  int err = spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG,
+                              SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
   std::vector<float> values(static_cast<std::size_t>(columns));
   std::vector<std::uint16_t> pixels(static_cast<std::size_t>(columns));
   for (int r = 0; r < rows && err == 0; ++r) {
@@ -238,8 +238,8 @@ std::string encode_png_rgb(int rows, int columns, const std::vector<unsigned cha
 }
 
 std::string npy_header(int rows, int columns) {
-  std::string header = fmt::format(
-      "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", rows, columns);
+  std::string header =
+      fmt::format("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", rows, columns);
   // Magic (6) + version (2) + length (2) + header + '\n', padded to 64 bytes.
   const std::size_t total = (10 + header.size() + 1 + 63) / 64 * 64;
   header.append(total - 10 - header.size() - 1, ' ');

@@ -39,9 +39,7 @@ struct ScanWriter::Impl {
   Impl(const scan::ScanResult& d, std::vector<std::size_t> row_last, ScanWriterSettings s)
       : settings(std::move(s)), description(d.pattern), images(d.pattern, std::move(row_last)) {}
 
-  [[nodiscard]] bool wants(const char* output) const {
-    return settings.outputs.count(output) != 0;
-  }
+  [[nodiscard]] bool wants(const char* output) const { return settings.outputs.count(output) != 0; }
   [[nodiscard]] std::filesystem::path at(const std::string& name) const {
     return settings.directory / name;
   }
@@ -154,9 +152,12 @@ ScanWriter::Summary ScanWriter::finish() {
       if (!m.wants(c.output)) continue;
       StreamingOutput out(m.at(c.file));
       const std::string_view kind = c.output;
-      out.append(kind == "ply" ? ply_header(n) : kind == "pcd" ? pcd_header(n) : las_header(m.bounds));
+      out.append(kind == "ply"   ? ply_header(n)
+                 : kind == "pcd" ? pcd_header(n)
+                                 : las_header(m.bounds));
       for (std::uint64_t i = 0; i < n; i += kPointsPerChunk) {
-        const std::size_t count = static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
+        const std::size_t count =
+            static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
         m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
         m.text.clear();
         for (std::size_t k = 0; k < count; ++k) {

@@ -101,49 +101,48 @@ namespace {
 
 /// Beams [begin, end) of `pattern` measured into out[0 .. end - begin).
 void measure_beams(const RayCaster& caster, const Footprint& footprint,
-                   const device::VirtualRangefinder& device, const BeamPattern& pattern,
+                   const device::VirtualRangefinder& device, const BeamPattern& /*pattern*/,
                    const ScanOptions& options, const RigidTransform& pose, int shots,
-                   std::size_t begin, std::size_t end, BeamResult* out) {
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(begin, end, 256),
-                    [&](const tbb::blocked_range<std::size_t>& block) {
-                        // The block in stages, each over all its beams: the beams
-                        // in the world frame and their conditions, the footprints,
-                        // the targets, then their measurements in one call (single
-                        // shots run in lanes). A stage reads what the one before
-                        // wrote long after the stores: a load that follows a store
-                        // to the same bytes closely, but is wider than it, waits
-                        // for the store to reach the cache (~15 cycles a time).
-                        BlockScratch& s = block_scratch();
-                        const std::size_t count = block.size();
-                        s.resize(count);
-                        BeamResult* const beams = out + (block.begin() - begin);
-                        for (std::size_t k = 0; k < count; ++k) {
-                          const Beam& from = pattern.beams[block.begin() + k];
-                          beam_to_world(from, pose, beams[k].beam);
-                          const device::Conditions& at_start = options.conditions;
-                          device::Conditions& conditions = s.conditions[k];
-                          conditions = at_start;
-                          if (options.clocks_follow_beams) {
-                            conditions.minutes_since_power_on =
-                                at_start.minutes_since_power_on + from.time_s / 60.0;
-                            conditions.ms_since_laser_on =
-                                at_start.ms_since_laser_on + from.time_s * 1e3;
-                          }
-                        }
-                        for (std::size_t k = 0; k < count; ++k)
-                          footprint.trace(caster, beams[k].beam.origin_m, beams[k].beam.direction,
-                                          s.footprints[k]);
-                        for (std::size_t k = 0; k < count; ++k) {
-                          Footprint::Result& fp = s.footprints[k];
-                          record_footprint(fp, beams[k]);
-                          beams[k].range = {};
-                          // (Swapped, not copied: both buffers are reused.)
-                          std::swap(s.targets[k].surfaces, fp.target.surfaces);
-                        }
-                        device.measure({s.targets.data(), count}, {s.conditions.data(), count},
-                                       options.seed, block.begin(), shots, {s.raw.data(), count});
-                        for (std::size_t k = 0; k < count; ++k) beams[k].raw = s.raw[k];
-                      });
+                   std::size_t begin, std::size_t end, const Beam* from_beams, BeamResult* out) {
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(begin, end, 256),
+      [&](const tbb::blocked_range<std::size_t>& block) {
+        // The block in stages, each over all its beams: the beams
+        // in the world frame and their conditions, the footprints,
+        // the targets, then their measurements in one call (single
+        // shots run in lanes). A stage reads what the one before
+        // wrote long after the stores: a load that follows a store
+        // to the same bytes closely, but is wider than it, waits
+        // for the store to reach the cache (~15 cycles a time).
+        BlockScratch& s = block_scratch();
+        const std::size_t count = block.size();
+        s.resize(count);
+        BeamResult* const beams = out + (block.begin() - begin);
+        for (std::size_t k = 0; k < count; ++k) {
+          const Beam& from = from_beams[block.begin() - begin + k];
+          beam_to_world(from, pose, beams[k].beam);
+          const device::Conditions& at_start = options.conditions;
+          device::Conditions& conditions = s.conditions[k];
+          conditions = at_start;
+          if (options.clocks_follow_beams) {
+            conditions.minutes_since_power_on =
+                at_start.minutes_since_power_on + from.time_s / 60.0;
+            conditions.ms_since_laser_on = at_start.ms_since_laser_on + from.time_s * 1e3;
+          }
+        }
+        for (std::size_t k = 0; k < count; ++k)
+          footprint.trace(caster, beams[k].beam.origin_m, beams[k].beam.direction, s.footprints[k]);
+        for (std::size_t k = 0; k < count; ++k) {
+          Footprint::Result& fp = s.footprints[k];
+          record_footprint(fp, beams[k]);
+          beams[k].range = {};
+          // (Swapped, not copied: both buffers are reused.)
+          std::swap(s.targets[k].surfaces, fp.target.surfaces);
+        }
+        device.measure({s.targets.data(), count}, {s.conditions.data(), count}, options.seed,
+                       block.begin(), shots, {s.raw.data(), count});
+        for (std::size_t k = 0; k < count; ++k) beams[k].raw = s.raw[k];
+      });
 }
 
 }  // namespace
@@ -187,16 +186,23 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
   result.pattern.beams.clear();
   result.sensor = caster.scene().sensor;
   const RigidTransform pose = result.sensor.to_world();
-  const std::size_t n = pattern.beams.size();
+  const std::size_t n = pattern.size();
   if (result.beams.capacity() < n) {
     result.beams = {};
     reserve_populated(result.beams, n);
   }
   result.beams.resize(n);
   const int shots = shots_per_beam(device.config(), options.shots, pattern);
+  std::vector<Beam> made;  // an on-demand pattern's block
   for (std::size_t begin = 0; begin < n; begin += kProgressBlock) {
     const std::size_t end = std::min(n, begin + kProgressBlock);
-    measure_beams(caster, footprint, device, pattern, options, pose, shots, begin, end,
+    const Beam* from = pattern.beams.data() + begin;
+    if (pattern.make_beams) {
+      made.resize(end - begin);
+      pattern.get(begin, made);
+      from = made.data();
+    }
+    measure_beams(caster, footprint, device, pattern, options, pose, shots, begin, end, from,
                   &result.beams[begin]);
     if (options.progress) options.progress(end, n);
   }
@@ -206,7 +212,7 @@ void run_scan_blocks(const RayCaster& caster, const Footprint& footprint,
                      const device::VirtualRangefinder& device, const BeamPattern& pattern,
                      const ScanOptions& options, std::size_t first, std::size_t last,
                      std::size_t block_beams, const BeamBlockSink& sink) {
-  last = std::min(last, pattern.beams.size());
+  last = std::min(last, pattern.size());
   if (first >= last) return;
   block_beams = std::max<std::size_t>(1, block_beams);
   const RigidTransform pose = caster.scene().sensor.to_world();
@@ -214,18 +220,21 @@ void run_scan_blocks(const RayCaster& caster, const Footprint& footprint,
   // Two buffers: the sink writes one block (on this thread) while the next
   // is measured (on the others).
   std::vector<BeamResult> buffers[2];
+  std::vector<Beam> made[2];  // the blocks' beams (sensor frame)
   for (auto& b : buffers) b.resize(std::min(block_beams, last - first));
-  auto measure = [&](std::size_t begin, std::vector<BeamResult>& into) {
+  for (auto& b : made) b.resize(std::min(block_beams, last - first));
+  auto measure = [&](std::size_t begin, int k) {
     const std::size_t end = std::min(last, begin + block_beams);
+    pattern.get(begin, std::span<Beam>(made[k]).first(end - begin));
     measure_beams(caster, footprint, device, pattern, options, pose, shots, begin, end,
-                  into.data());
+                  made[k].data(), buffers[k].data());
   };
-  measure(first, buffers[0]);
+  measure(first, 0);
   tbb::task_group next;
   for (std::size_t begin = first, k = 0; begin < last; begin += block_beams, k ^= 1) {
     const std::size_t end = std::min(last, begin + block_beams);
     const bool more = end < last;
-    if (more) next.run([&, end, k] { measure(end, buffers[k ^ 1]); });
+    if (more) next.run([&, end, k] { measure(end, static_cast<int>(k ^ 1)); });
     try {
       sink(begin, {buffers[k].data(), end - begin});
     } catch (...) {
@@ -274,9 +283,14 @@ void apply_pipeline(const ranging::Pipeline& pipeline, ScanResult& result) {
 
 std::vector<std::size_t> row_last_beams(const BeamPattern& pattern) {
   std::vector<std::size_t> last(static_cast<std::size_t>(std::max(0, pattern.rows)), 0);
-  for (std::size_t i = 0; i < pattern.beams.size(); ++i) {
-    const int r = pattern.beams[i].row;
-    if (r >= 0 && r < pattern.rows) last[static_cast<std::size_t>(r)] = i;
+  std::vector<Beam> block(std::min<std::size_t>(pattern.size(), 1 << 14));
+  for (std::size_t first = 0; first < pattern.size(); first += block.size()) {
+    const std::size_t count = std::min(block.size(), pattern.size() - first);
+    pattern.get(first, std::span<Beam>(block).first(count));
+    for (std::size_t k = 0; k < count; ++k) {
+      const int r = block[k].row;
+      if (r >= 0 && r < pattern.rows) last[static_cast<std::size_t>(r)] = first + k;
+    }
   }
   return last;
 }
@@ -285,7 +299,7 @@ struct ImageBuilder::Impl {
   BeamPattern description;  // without beams
   std::vector<std::size_t> row_last;
   int next_row = 0;
-  std::map<int, Accumulator> open;  // rows begun and not handed out
+  std::map<int, Accumulator> open;                    // rows begun and not handed out
   std::vector<float> range, intensity, sigma, truth;  // the row being handed out
 
   Accumulator& row(int r) {
@@ -371,8 +385,8 @@ void ImageBuilder::take_finished_rows(const std::function<void(const Row&)>& tak
                           const std::vector<double>& w) {
     out.resize(columns);
     for (std::size_t i = 0; i < columns; ++i) {
-      out[i] = w[i] > 0 ? static_cast<float>(sum[i] / w[i])
-                        : std::numeric_limits<float>::quiet_NaN();
+      out[i] =
+          w[i] > 0 ? static_cast<float>(sum[i] / w[i]) : std::numeric_limits<float>::quiet_NaN();
     }
   };
   while (m.next_row < m.description.rows &&

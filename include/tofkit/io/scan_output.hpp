@@ -10,8 +10,8 @@
 #include <cstdint>
 #include <functional>
 #include <span>
-#include <string_view>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "tofkit/scan/scanner.hpp"
