@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "app.hpp"
+#include "scan_shard.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/atomic_file.hpp"
@@ -29,7 +30,7 @@ namespace {
 
 struct ScanCliOptions {
   SceneScanOptions scan;
-  std::string model, mode = "analytic", write = "all", out;
+  std::string model, mode = "analytic", write = "all", out, shard;
   int shots = 0;
   std::uint64_t seed = 1;
 };
@@ -70,25 +71,6 @@ struct Progress {
   }
 };
 
-std::string sidecar(const std::string& file, const char* quantity, const char* units, double scale,
-                    double offset, const scan::BeamPattern& pattern, const ScanCliOptions& o) {
-  nlohmann::json j;
-  j["file"] = file;
-  j["quantity"] = quantity;
-  j["units"] = units;
-  j["value"] = "offset + scale * pixel";
-  j["scale"] = scale;
-  j["offset"] = offset;
-  j["invalid_value"] = 0;
-  j["rows"] = pattern.rows;
-  j["columns"] = pattern.columns;
-  j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
-  j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
-               {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
-               {"beams", pattern.size()}};
-  return j.dump(2) + "\n";
-}
-
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
@@ -108,26 +90,50 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto mode = simulation_mode(o.mode);
   // The scan streams: blocks of beams measured, corrected and written in beam
   // order; every file through the one writer, staged and committed with the
-  // others only when the command succeeds (main's OutputTransaction).
-  scan::ScanResult description = scan::describe_scan(pattern, scene);
-  description.has_model = pipeline.has_value();
-  io::ScanWriterSettings settings;
-  settings.directory = o.out;
-  settings.outputs = outputs;
-  settings.ambient_c = o.scan.ambient_c;
-  settings.sidecar = [&](const std::string& file, const char* quantity, const char* units,
-                         double scale, double offset) {
-    return sidecar(file, quantity, units, scale, offset, pattern, o);
-  };
-  io::ScanWriter writer(description, scan::row_last_beams(pattern), std::move(settings));
+  // others only when the command succeeds (main's OutputTransaction). A
+  // shard (--shard K/N) writes its range of beams for `tofkit merge`.
+  const Shard shard = o.shard.empty() ? Shard{} : parse_shard(o.shard, "--shard");
+  ScanShardHeader header;
+  header.shard = shard;
+  header.beams = pattern.size();
+  std::tie(header.first_beam, header.last_beam) = shard.range(pattern.size());
+  header.pattern = scan::describe_scan(pattern, scene).pattern;
+  header.row_last_beam = scan::row_last_beams(pattern);
+  header.has_model = pipeline.has_value();
+  header.ambient_c = o.scan.ambient_c;
+  header.outputs = outputs;
+  header.scan_record = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
+                        {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
+                        {"beams", pattern.size()}};
+  std::optional<io::ScanWriter> writer;
+  std::optional<ScanShardWriter> shard_writer;
+  if (shard.whole()) {
+    scan::ScanResult description = scan::describe_scan(pattern, scene);
+    description.has_model = pipeline.has_value();
+    writer.emplace(description, header.row_last_beam, scan_writer_settings(o.out, header));
+  } else {
+    shard_writer.emplace(o.out, header);
+  }
+  io::ScanWriter::Summary summary;
   run_scene_scan_blocks(
-      o.scan, scene, pattern, config, mode, shots, o.seed, 0, pattern.size(),
+      o.scan, scene, pattern, config, mode, shots, o.seed, header.first_beam, header.last_beam,
       [&](std::size_t first, std::span<scan::BeamResult> beams) {
         if (pipeline) scan::apply_pipeline(*pipeline, beams);
-        writer.add(first, beams);
+        if (writer) {
+          writer->add(first - header.first_beam, beams);
+        } else {
+          shard_writer->add(beams);
+          summary.beams += beams.size();
+          io::CloudPoint point{};
+          for (const auto& b : beams) {
+            summary.points += io::cloud_point(b, point) ? 1 : 0;
+            summary.mixed += b.surfaces > 1 ? 1 : 0;
+          }
+        }
       },
       Progress{});
-  const io::ScanWriter::Summary summary = writer.finish();
+  if (writer) summary = writer->finish();
+  if (shard_writer) shard_writer->finish();
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -136,11 +142,14 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
-             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
+             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/{}\n",
              summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
              o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,
-             threads, o.out);
+             threads, o.out,
+             shard.whole() ? ""
+                           : fmt::format(" (shard {}/{}: beams {}..{})", shard.index, shard.count,
+                                         header.first_beam, header.last_beam));
 }
 
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {
@@ -159,6 +168,9 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();
+  sub.add_option("--shard", o->shard,
+                 "K/N: only beams [K n/N, (K+1) n/N) into shard.json + beams.bin, for tofkit "
+                 "merge");
   sub.add_option("--out", o->out, "output directory (must exist)")->required();
   sub.callback([o, &ctx] { run_scan_command(*o, ctx); });
 });
