@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -15,6 +16,7 @@
 #include <vector>
 
 #include "app.hpp"
+#include "mpi_world.hpp"
 #include "scan_shard.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
@@ -105,35 +107,71 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   header.scan_record = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
                         {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
                         {"beams", pattern.size()}};
+  // Under mpirun, rank 0 writes; every rank measures its chunks.
+  const MpiWorld world = mpi_world();
   std::optional<io::ScanWriter> writer;
   std::optional<ScanShardWriter> shard_writer;
-  if (shard.whole()) {
+  if (world.rank == 0 && shard.whole()) {
     scan::ScanResult description = scan::describe_scan(pattern, scene);
     description.has_model = pipeline.has_value();
     writer.emplace(description, header.row_last_beam, scan_writer_settings(o.out, header));
-  } else {
+  } else if (world.rank == 0) {
     shard_writer.emplace(o.out, header);
   }
   io::ScanWriter::Summary summary;
-  run_scene_scan_blocks(
-      o.scan, scene, pattern, config, mode, shots, o.seed, header.first_beam, header.last_beam,
-      [&](std::size_t first, std::span<scan::BeamResult> beams) {
-        if (pipeline) scan::apply_pipeline(*pipeline, beams);
-        if (writer) {
-          writer->add(first - header.first_beam, beams);
-        } else {
-          shard_writer->add(beams);
-          summary.beams += beams.size();
-          io::CloudPoint point{};
-          for (const auto& b : beams) {
-            summary.points += io::cloud_point(b, point) ? 1 : 0;
-            summary.mixed += b.surfaces > 1 ? 1 : 0;
-          }
-        }
-      },
-      Progress{});
+  auto take = [&](std::size_t first, std::span<scan::BeamResult> beams) {
+    if (writer) {
+      writer->add(first - header.first_beam, beams);
+    } else {
+      shard_writer->add(beams);
+      summary.beams += beams.size();
+      io::CloudPoint point{};
+      for (const auto& b : beams) {
+        summary.points += io::cloud_point(b, point) ? 1 : 0;
+        summary.mixed += b.surfaces > 1 ? 1 : 0;
+      }
+    }
+  };
+  if (world.size == 1) {
+    run_scene_scan_blocks(
+        o.scan, scene, pattern, config, mode, shots, o.seed, header.first_beam, header.last_beam,
+        [&](std::size_t first, std::span<scan::BeamResult> beams) {
+          if (pipeline) scan::apply_pipeline(*pipeline, beams);
+          take(first, beams);
+        },
+        Progress{});
+  } else {
+    const device::VirtualRangefinder rangefinder(config, mode);
+    const scan::RayCaster caster(scene);
+    const scan::Footprint footprint(config);
+    const scan::ScanOptions options = scene_scan_options(o.scan, shots, o.seed);
+    const std::uint64_t beams = header.last_beam - header.first_beam;
+    const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
+    std::vector<scan::BeamResult> received;
+    mpi_ordered_chunks(
+        chunks,
+        [&](std::size_t c) {
+          std::string bytes;
+          const std::size_t begin = header.first_beam + c * kScanBlockBeams;
+          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
+          scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, begin, end,
+                                kScanBlockBeams, [&](std::size_t, std::span<scan::BeamResult> b) {
+                                  if (pipeline) scan::apply_pipeline(*pipeline, b);
+                                  bytes.assign(reinterpret_cast<const char*>(b.data()),
+                                               b.size_bytes());
+                                });
+          return bytes;
+        },
+        [&](std::size_t c, std::string_view bytes) {
+          received.resize(bytes.size() / sizeof(scan::BeamResult));
+          std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
+          take(header.first_beam + c * kScanBlockBeams, received);
+        });
+  }
   if (writer) summary = writer->finish();
   if (shard_writer) shard_writer->finish();
+  mpi_done();
+  if (world.rank != 0) return;
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 

@@ -88,12 +88,17 @@ scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& sc
                                 const device::DeviceConfig& config, device::SimulationMode mode,
                                 int shots, std::uint64_t seed,
                                 std::function<void(std::size_t, std::size_t)> progress) {
+  scan::ScanOptions options = scene_scan_options(o, shots, seed);
+  options.progress = std::move(progress);
+  return scan::run_scan(scene, config, mode, pattern, options);
+}
+
+scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots, std::uint64_t seed) {
   scan::ScanOptions options;
   options.seed = seed;
   options.shots = shots;
   options.conditions.ambient_c = o.ambient_c;
-  options.progress = std::move(progress);
-  return scan::run_scan(scene, config, mode, pattern, options);
+  return options;
 }
 
 void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
@@ -101,10 +106,7 @@ void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
                            device::SimulationMode mode, int shots, std::uint64_t seed,
                            std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
                            std::function<void(std::size_t, std::size_t)> progress) {
-  scan::ScanOptions options;
-  options.seed = seed;
-  options.shots = shots;
-  options.conditions.ambient_c = o.ambient_c;
+  scan::ScanOptions options = scene_scan_options(o, shots, seed);
   options.progress = std::move(progress);
   const device::VirtualRangefinder rangefinder(config, mode);
   const scan::RayCaster caster(scene);

@@ -70,6 +70,10 @@ void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
                            std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
                            std::function<void(std::size_t, std::size_t)> progress = {});
 
+/// The scan options run_scene_scan uses (seed, shots, ambient at the start).
+[[nodiscard]] scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots,
+                                                   std::uint64_t seed);
+
 /// Beams a streaming scan measures and writes at a time.
 inline constexpr std::size_t kScanBlockBeams = 1 << 15;
 
