@@ -257,3 +257,44 @@ TEST_F(Cluster, BadSweepPlansNameTheLineAndWriteNothing) {
     EXPECT_FALSE(fs::exists(dir_ / "out")) << plan;
   }
 }
+
+TEST_F(Cluster, MpirunGivesTheOneProcessBytesAndAFailedRankLeavesNothing) {
+#if !defined(TOFKIT_TEST_MPI)
+  GTEST_SKIP() << "tofkit was built without MPI (scripts/setup installs libopenmpi-dev)";
+#else
+  if (std::system("command -v mpirun >/dev/null 2>&1") != 0)
+    GTEST_SKIP() << "mpirun is missing (scripts/setup installs openmpi-bin)";
+  const std::string mpirun = "mpirun --allow-run-as-root --oversubscribe -np 2 ";
+  // A scan of 3 chunks (80 k beams) with a model, and the issue's sweep.
+  ASSERT_EQ(run("measure --distance 0.5:8:0.5 --reflectance 0.05,0.2,0.5,0.9 --out raw.csv").status,
+            0);
+  ASSERT_EQ(run("fit --in raw.csv --out model.json --chain offset,grayvalue").status, 0);
+  const std::string scan = "scan --scene " + (kScenes / "blocks.toml").string() +
+                           " --pattern spherical --azimuth=-40:40:0.2 --elevation=-15:25:0.2 "
+                           "--shots 2 --model model.json";
+  fs::create_directories(dir_ / "one");
+  fs::create_directories(dir_ / "two");
+  ASSERT_EQ(run("--threads 2 " + scan + " --out one").status, 0) << read("stderr.txt");
+  const std::string command = "cd '" + dir_.string() + "' && " + mpirun + TOFKIT_BINARY +
+                              " --threads 1 " + scan + " --out two >/dev/null 2>mpi.txt";
+  ASSERT_EQ(std::system(command.c_str()), 0) << read("mpi.txt");
+  expect_same_files("one", "two", 14u);
+  write("sweep.toml", kIssuePlan);
+  ASSERT_EQ(run("sweep --plan sweep.toml --out sw1").status, 0);
+  const std::string sweep = "cd '" + dir_.string() + "' && " + mpirun + TOFKIT_BINARY +
+                            " --threads 1 sweep --plan sweep.toml --out sw2 >/dev/null 2>mpi.txt";
+  ASSERT_EQ(std::system(sweep.c_str()), 0) << read("mpi.txt");
+  EXPECT_EQ(read("sw2/sweep.csv"), read("sw1/sweep.csv"));
+  // Rank 1 fails (its scene is missing): the job ends with an error, no file.
+  write("rank.sh", "#!/bin/sh\nscene=" + (kScenes / "blocks.toml").string() +
+                       "\n[ \"$OMPI_COMM_WORLD_RANK\" = 1 ] && scene=/nonexistent.toml\nexec " +
+                       TOFKIT_BINARY + " --threads 1 " +
+                       "scan --scene $scene --pattern spherical --azimuth=-40:40:0.1 "
+                       "--elevation=-15:25:0.1 --shots 2 --out failed\n");
+  fs::create_directories(dir_ / "failed");
+  const std::string failing = "cd '" + dir_.string() + "' && chmod +x rank.sh && " + mpirun +
+                              "./rank.sh >/dev/null 2>mpi.txt";
+  EXPECT_NE(std::system(failing.c_str()), 0);
+  EXPECT_TRUE(fs::is_empty(dir_ / "failed")) << "a failed rank left files";
+#endif
+}

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "app.hpp"
+#include "mpi_world.hpp"
 #include "scan_shard.hpp"
 #include "sweep_run.hpp"
 
@@ -41,6 +42,8 @@ void run_sweep_command(const SweepOptions& o, const AppContext& ctx) {
   }
   const auto start = std::chrono::steady_clock::now();
   const SweepRunSummary s = run_sweep(plan, ctx, o.out, first, last, shard.whole(), record);
+  mpi_done();
+  if (mpi_world().rank != 0) return;
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   fmt::print(stderr, "tofkit sweep: {} points ({} run, {} resumed{}) in {:.2f} s -> {}/sweep.csv\n",

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -15,6 +16,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "mpi_world.hpp"
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/measurement_grid.hpp"
@@ -318,7 +320,8 @@ std::string sweep_row(const SweepPlan& plan, const AppContext& ctx, std::uint64_
 SweepRunSummary run_sweep(const SweepPlan& plan, const AppContext& ctx, const fs::path& out,
                           std::uint64_t first, std::uint64_t last, bool plots,
                           const std::string& shard_record_json) {
-  io::create_output_directories(out);
+  const MpiWorld world = mpi_world();
+  if (world.rank == 0) io::create_output_directories(out);
   const fs::path journal = out / ".sweep.journal";
   const std::string stamp = fmt::format("# tofkit sweep journal {} {:016x} {} {}", kJournalVersion,
                                         plan.fingerprint, first, last);
@@ -329,7 +332,7 @@ SweepRunSummary run_sweep(const SweepPlan& plan, const AppContext& ctx, const fs
   // Resuming: the finished points of an interrupted run of the same plan.
   // (The journal is the one file a sweep keeps outside the all-or-nothing
   // writer: what makes an interrupted sweep resumable.)
-  if (fs::exists(journal)) {
+  if (world.rank == 0 && fs::exists(journal)) {
     std::ifstream in(journal);
     std::string line;
     std::getline(in, line);
@@ -353,6 +356,29 @@ SweepRunSummary run_sweep(const SweepPlan& plan, const AppContext& ctx, const fs
   std::vector<std::uint64_t> missing;
   for (std::uint64_t i = first; i < last; ++i)
     if (rows.count(i) == 0) missing.push_back(i);
+  if (world.size > 1) {
+    // Rank 0's list (it alone reads the journal) on every rank.
+    std::string bytes(reinterpret_cast<const char*>(missing.data()),
+                      missing.size() * sizeof(std::uint64_t));
+    mpi_broadcast(bytes);
+    missing.resize(bytes.size() / sizeof(std::uint64_t));
+    std::memcpy(missing.data(), bytes.data(), bytes.size());
+  }
+  const std::size_t batches = (missing.size() + kBatchPoints - 1) / kBatchPoints;
+  auto make_batch = [&](std::size_t b) {
+    const std::size_t begin = b * kBatchPoints;
+    const std::size_t n = std::min<std::size_t>(kBatchPoints, missing.size() - begin);
+    std::vector<std::string> batch(n);
+    tbb::parallel_for(std::size_t{0}, n,
+                      [&](std::size_t k) { batch[k] = sweep_row(plan, ctx, missing[begin + k]); });
+    std::string joined;
+    for (const auto& row : batch) joined += row + "\n";
+    return joined;
+  };
+  if (world.rank != 0) {
+    mpi_ordered_chunks(batches, make_batch, {});
+    return summary;
+  }
   {
     std::ofstream journal_out(journal, std::ios::app);
     if (!journal_out) throw std::runtime_error("cannot write '" + journal.string() + "'");
@@ -367,21 +393,19 @@ SweepRunSummary run_sweep(const SweepPlan& plan, const AppContext& ctx, const fs
       fmt::print(stderr, "{}tofkit sweep: {} of {} points ({} resumed){}", tty ? "\r" : "",
                  rows.size(), summary.points, summary.resumed, tty && !final ? "" : "\n");
     };
-    std::vector<std::string> batch;
-    for (std::size_t b = 0; b < missing.size(); b += kBatchPoints) {
-      const std::size_t n = std::min<std::size_t>(kBatchPoints, missing.size() - b);
-      batch.assign(n, {});
-      tbb::parallel_for(std::size_t{0}, n,
-                        [&](std::size_t k) { batch[k] = sweep_row(plan, ctx, missing[b + k]); });
-      for (std::size_t k = 0; k < n; ++k) {
-        journal_out << missing[b + k] << '\t' << batch[k] << '\n';
-        rows[missing[b + k]] = batch[k];
+    mpi_ordered_chunks(batches, make_batch, [&](std::size_t b, std::string_view joined) {
+      std::size_t k = b * kBatchPoints;
+      for (std::size_t start = 0, eol; (eol = joined.find('\n', start)) != std::string::npos;
+           start = eol + 1, ++k) {
+        const std::string row(joined.substr(start, eol - start));
+        journal_out << missing[k] << '\t' << row << '\n';
+        rows[missing[k]] = row;
+        ++summary.run;
       }
       journal_out.flush();
       if (!journal_out) throw std::runtime_error("cannot write '" + journal.string() + "'");
-      summary.run += n;
       report(false);
-    }
+    });
     report(true);
   }
   std::string table = header + "\n";
