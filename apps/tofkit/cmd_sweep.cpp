@@ -22,7 +22,7 @@ struct SweepOptions {
 };
 
 void run_sweep_command(const SweepOptions& o, const AppContext& ctx) {
-  const SweepPlan plan = load_sweep_plan(o.plan, ctx);
+  const io::SweepPlan plan = io::load_sweep_plan(o.plan, sweep_base(ctx));
   const Shard shard = o.shard.empty() ? Shard{} : parse_shard(o.shard, "--shard");
   const auto [first, last] = shard.range(plan.points());
   std::string record;
@@ -35,7 +35,7 @@ void run_sweep_command(const SweepOptions& o, const AppContext& ctx) {
                             {"last_point", last},
                             {"points", plan.points()},
                             {"fingerprint", fmt::format("{:016x}", plan.fingerprint)},
-                            {"header", sweep_header(plan)},
+                            {"header", io::sweep_header(plan)},
                             {"axes", plan.axes.size()}}
                  .dump(1) +
              "\n";

@@ -23,38 +23,12 @@
 #include <vector>
 
 #include "app.hpp"
+#include "tofkit/io/sweep_plan.hpp"
 
 namespace tofkit::app {
 
-struct SweepAxis {
-  std::string key;                  ///< device key or condition
-  bool device_key = false;          ///< applied as --set key=value
-  std::vector<std::string> values;  ///< as written in the table (and in --set)
-  std::vector<double> numbers;      ///< the values as numbers (NaN for a non-number)
-};
-
-struct SweepPlan {
-  std::vector<SweepAxis> axes;  ///< in the file's order
-  int shots = 0, count = 1;
-  std::string mode = "analytic";
-  bool measure = true, budget = false;
-  double distance_m = 0, reflectance = 0, angle_deg = 0, ambient_c = 0;  ///< when not an axis
-  std::uint64_t seed = 1;
-  std::uint64_t fingerprint = 0;  ///< of the plan and the device configuration's options
-  [[nodiscard]] std::uint64_t points() const;
-};
-
-/// Reads and checks a plan; throws std::invalid_argument naming the file,
-/// line and key of the first problem (an unknown key, a bad value, a device
-/// key the config refuses).
-[[nodiscard]] SweepPlan load_sweep_plan(const std::filesystem::path& file, const AppContext& ctx);
-
-/// The table's header (no newline).
-[[nodiscard]] std::string sweep_header(const SweepPlan& plan);
-
-/// Row `index` of the table (no newline).
-[[nodiscard]] std::string sweep_row(const SweepPlan& plan, const AppContext& ctx,
-                                    std::uint64_t index);
+/// The base configuration of a sweep's points: the global options.
+[[nodiscard]] io::SweepBase sweep_base(const AppContext& ctx);
 
 struct SweepRunSummary {
   std::uint64_t points = 0, resumed = 0, run = 0;
@@ -62,7 +36,7 @@ struct SweepRunSummary {
 
 /// Runs points [first, last) into `out`/sweep.csv (rows in order), resuming
 /// from `out`/.sweep.journal; `plots`: also the plots. Progress on stderr.
-SweepRunSummary run_sweep(const SweepPlan& plan, const AppContext& ctx,
+SweepRunSummary run_sweep(const io::SweepPlan& plan, const AppContext& ctx,
                           const std::filesystem::path& out, std::uint64_t first, std::uint64_t last,
                           bool plots, const std::string& shard_record_json = "");
 
