@@ -1,7 +1,9 @@
 #include "tofkit/io/scan_writer.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <limits>
 #include <optional>
 #include <stdexcept>
 #include <utility>
@@ -14,13 +16,22 @@ namespace {
 
 constexpr std::size_t kPointsPerChunk = 1 << 14;
 
+constexpr std::size_t kBandBytes = 16 << 20;
+
 struct Plane {
   const char* name;
   const char* quantity;
   const char* units;
   std::unique_ptr<ScratchFile> rows;  // the finished rows, float32, row-major
   FiniteRange finite;
+  std::unique_ptr<ScratchFile> by_beam;  // spherical: the pixels in beam order
 };
+
+// A pixel's value from its one beam, as ImageBuilder computes it (a weight-1
+// sum divided by its weight: the same float bits).
+float single(double value) {
+  return static_cast<float>((0.0 + 1.0 * value) / 1.0);
+}
 
 }  // namespace
 
@@ -29,6 +40,10 @@ struct ScanWriter::Impl {
   scan::BeamPattern description;
   scan::ImageBuilder images;
   bool want_images = false, want_cloud = false;
+  // `spherical` goes down columns, so no image row is finished before the
+  // last column: its pixels (one beam each) are kept on disk in beam order
+  // and turned into rows at the end, a band of rows at a time.
+  bool column_major = false;
   std::optional<StreamingOutput> csv;
   std::vector<Plane> planes;  // range, intensity[, sigma]
   std::unique_ptr<ScratchFile> points;
@@ -57,11 +72,15 @@ ScanWriter::ScanWriter(const scan::ScanResult& description, std::vector<std::siz
     m.csv->append(scan_csv_header(m.settings.has_model));
   }
   if (m.want_images) {
-    m.planes.push_back({"range", "range", "m", nullptr, {}});
-    m.planes.push_back({"intensity", "echo amplitude", "V", nullptr, {}});
+    m.planes.push_back({"range", "range", "m", nullptr, {}, nullptr});
+    m.planes.push_back({"intensity", "echo amplitude", "V", nullptr, {}, nullptr});
     if (m.settings.has_model)
-      m.planes.push_back({"sigma", "expected range error (1 sigma)", "m", nullptr, {}});
-    for (auto& p : m.planes) p.rows = std::make_unique<ScratchFile>(m.at(p.name));
+      m.planes.push_back({"sigma", "expected range error (1 sigma)", "m", nullptr, {}, nullptr});
+    m.column_major = m.description.name == "spherical";
+    for (auto& p : m.planes) {
+      p.rows = std::make_unique<ScratchFile>(m.at(p.name));
+      if (m.column_major) p.by_beam = std::make_unique<ScratchFile>(m.at(p.name));
+    }
   }
   if (m.want_cloud) m.points = std::make_unique<ScratchFile>(m.at("points"));
 }
@@ -87,7 +106,22 @@ void ScanWriter::add(std::size_t first_beam, std::span<const scan::BeamResult> b
     m.text.append(reinterpret_cast<const char*>(&point), sizeof point);
   }
   if (m.want_cloud) m.points->append(m.text);
-  if (m.want_images) {
+  if (m.want_images && m.column_major) {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    for (std::size_t k = 0; k < m.planes.size(); ++k) {
+      m.text.clear();
+      for (const auto& b : beams) {
+        const double d = scan::reported_distance_m(b);
+        const bool echo = b.raw.has_echo() && !std::isnan(d);
+        const float v = !echo    ? nan
+                        : k == 0 ? single(d)
+                        : k == 1 ? single(b.raw.amplitude)
+                                 : single(b.range.sigma_m);
+        m.text.append(reinterpret_cast<const char*>(&v), sizeof v);
+      }
+      m.planes[k].by_beam->append(m.text);
+    }
+  } else if (m.want_images) {
     m.images.add(first_beam, beams);
     m.images.take_finished_rows([&](const scan::ImageBuilder::Row& row) {
       const std::span<const float> values[] = {row.range, row.intensity, row.sigma};
@@ -105,8 +139,34 @@ ScanWriter::Summary ScanWriter::finish() {
   if (m.csv) m.csv->commit();
   const int rows = m.description.rows, columns = m.description.columns;
   const std::size_t row_bytes = static_cast<std::size_t>(columns) * sizeof(float);
+  if (m.want_images && m.column_major) {
+    // Pixel (i, j) is beam (columns - 1 - j) rows + (rows - 1 - i): for a band
+    // of rows, each column's values are one contiguous run (rows reversed).
+    const auto e = static_cast<std::uint64_t>(rows), a = static_cast<std::uint64_t>(columns);
+    const std::uint64_t band =
+        std::max<std::uint64_t>(1, kBandBytes / std::max<std::uint64_t>(1, a * sizeof(float)));
+    std::vector<float> values, run;
+    for (auto& p : m.planes) {
+      if (p.by_beam->size() != e * a * sizeof(float))
+        throw std::logic_error("ScanWriter: a spherical scan ended before its last beam");
+      for (std::uint64_t r0 = 0; r0 < e; r0 += band) {
+        const std::uint64_t n = std::min(band, e - r0);
+        values.resize(n * a);
+        run.resize(n);
+        for (std::uint64_t j = 0; j < a; ++j) {
+          const std::uint64_t first = (a - 1 - j) * e + (e - r0 - n);
+          p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data());
+          for (std::uint64_t t = 0; t < n; ++t) values[t * a + j] = run[n - 1 - t];
+        }
+        p.finite.add(values);
+        p.rows->append(
+            {reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float)});
+      }
+      p.by_beam.reset();
+    }
+  }
   if (m.want_images) {
-    if (m.images.next_beam() == 0) {
+    if (!m.column_major && m.images.next_beam() == 0) {
       // No beam: every pixel invalid (make_images' empty frame).
       const std::vector<float> nan(static_cast<std::size_t>(columns),
                                    std::numeric_limits<float>::quiet_NaN());
