@@ -154,12 +154,15 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
           std::string bytes;
           const std::size_t begin = header.first_beam + c * kScanBlockBeams;
           const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
-          scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, begin, end,
-                                kScanBlockBeams, [&](std::size_t, std::span<scan::BeamResult> b) {
-                                  if (pipeline) scan::apply_pipeline(*pipeline, b);
-                                  bytes.assign(reinterpret_cast<const char*>(b.data()),
-                                               b.size_bytes());
-                                });
+          // In sub-blocks, the last chunk's send advanced between them.
+          bytes.reserve((end - begin) * sizeof(scan::BeamResult));
+          scan::run_scan_blocks(
+              caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
+              [&](std::size_t, std::span<scan::BeamResult> b) {
+                if (pipeline) scan::apply_pipeline(*pipeline, b);
+                bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
+                mpi_progress();
+              });
           return bytes;
         },
         [&](std::size_t c, std::string_view bytes) {

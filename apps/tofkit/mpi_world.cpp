@@ -40,6 +40,17 @@ void check(int code, const char* what) {
 
 constexpr int kChunkTag = 33;
 
+// The send on its way (ranks other than 0): advanced by mpi_progress while
+// the next chunk is made (a large message moves only while both sides are in
+// MPI calls when the transport cannot read the sender's memory directly).
+MPI_Request g_pending = MPI_REQUEST_NULL;
+
+// Round-robin: chunk c is rank c % size's. (Giving rank 0, which also
+// writes, fewer chunks was slower: writing costs far less than measuring.)
+int owner(std::size_t chunk, int size) {
+  return static_cast<int>(chunk % static_cast<std::size_t>(size));
+}
+
 }  // namespace
 
 MpiWorld mpi_world() {
@@ -63,11 +74,10 @@ void mpi_done() {
 void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take) {
   const MpiWorld w = mpi_world();
-  const auto size = static_cast<std::size_t>(w.size);
   if (w.rank == 0) {
     std::string received;
     for (std::size_t c = 0; c < chunks; ++c) {
-      const int from = static_cast<int>(c % size);
+      const int from = owner(c, w.size);
       if (from == 0) {
         const std::string bytes = make(c);
         take(c, bytes);
@@ -87,8 +97,9 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
   }
   // The other ranks: make the next chunk while the last one is on its way.
   std::string sending;
-  MPI_Request request = MPI_REQUEST_NULL;
-  for (std::size_t c = static_cast<std::size_t>(w.rank); c < chunks; c += size) {
+  MPI_Request& request = g_pending;
+  for (std::size_t c = 0; c < chunks; ++c) {
+    if (owner(c, w.size) != w.rank) continue;
     std::string bytes = make(c);
     check(MPI_Wait(&request, MPI_STATUS_IGNORE), "MPI_Wait");
     sending = std::move(bytes);
@@ -97,6 +108,12 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
           "MPI_Isend");
   }
   check(MPI_Wait(&request, MPI_STATUS_IGNORE), "MPI_Wait");
+}
+
+void mpi_progress() {
+  if (g_pending == MPI_REQUEST_NULL) return;
+  int done = 0;
+  MPI_Test(&g_pending, &done, MPI_STATUS_IGNORE);
 }
 
 void mpi_broadcast(std::string& bytes) {
@@ -128,6 +145,8 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
 }
 
 void mpi_broadcast(std::string&) {}
+
+void mpi_progress() {}
 
 #endif
 

@@ -25,11 +25,15 @@ struct MpiWorld {
 /// outputs are committed).
 void mpi_done();
 
-/// Chunks 0 .. chunks - 1: chunk c is made by rank c % size (`make`), and
-/// rank 0 hands every chunk's bytes to `take` in chunk order (memory: a chunk
-/// or two per rank).
+/// Chunks 0 .. chunks - 1: chunk c made by rank c % size (`make`), and rank 0
+/// hands every chunk's bytes to `take` in chunk order (memory: a chunk or two
+/// per rank).
 void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take);
+
+/// Advances this rank's chunk on its way to rank 0 (call it now and then
+/// while making the next one).
+void mpi_progress();
 
 /// Rank 0's `bytes` on every rank.
 void mpi_broadcast(std::string& bytes);
