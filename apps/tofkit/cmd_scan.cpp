@@ -100,7 +100,15 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   header.beams = pattern.size();
   std::tie(header.first_beam, header.last_beam) = shard.range(pattern.size());
   header.pattern = scan::describe_scan(pattern, scene).pattern;
-  header.row_last_beam = scan::row_last_beams(pattern);
+  // Each image row's last beam (a pass over every beam): only where rows are
+  // finished by it (images asked for; not spherical, whose rows all finish
+  // at the end and are made otherwise).
+  const bool rows_needed =
+      (outputs.count("png") + outputs.count("npy") + outputs.count("view")) != 0 &&
+      pattern.name != "spherical";
+  header.row_last_beam = rows_needed
+                             ? scan::row_last_beams(pattern)
+                             : std::vector<std::size_t>(static_cast<std::size_t>(pattern.rows), 0);
   header.has_model = pipeline.has_value();
   header.ambient_c = o.scan.ambient_c;
   header.outputs = outputs;
