@@ -126,8 +126,9 @@ void mpi_broadcast(std::string& bytes) {
 #else
 
 MpiWorld mpi_world() {
-  if (under_launcher() && std::getenv("OMPI_COMM_WORLD_RANK") != nullptr &&
-      std::string(std::getenv("OMPI_COMM_WORLD_SIZE")) != "1") {
+  const char* size = std::getenv("OMPI_COMM_WORLD_SIZE");
+  if (size == nullptr) size = std::getenv("PMI_SIZE");
+  if (under_launcher() && size != nullptr && std::string(size) != "1") {
     throw std::runtime_error(
         "started by mpirun, but this tofkit was built without MPI (install libopenmpi-dev and "
         "rebuild): each rank would write the whole output");
