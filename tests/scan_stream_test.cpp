@@ -158,6 +158,18 @@ TEST(ScanStream, OnDemandPatternsMakeTheStoredBeams) {
     }
     EXPECT_EQ(scan::row_last_beams(lazy), scan::row_last_beams(stored)) << name;
   }
+  // The spherical beams' directions are direction_from_angles' of their
+  // pixel's azimuth (column 0: the largest) and elevation (row 0: the largest),
+  // to the bit, though made from tabulated sines and cosines.
+  const auto lazy = scan::make_pattern("spherical", s, lists, 1e-6, scan::kMaxPatternBeams, true);
+  const std::vector<double> azimuths = {4, 1, -3}, elevations = {9, 5, 0, -2};
+  std::vector<scan::Beam> all(lazy.size());
+  lazy.get(0, all);
+  for (const auto& b : all) {
+    const auto expected = scan::direction_from_angles(azimuths[static_cast<std::size_t>(b.column)],
+                                                      elevations[static_cast<std::size_t>(b.row)]);
+    EXPECT_EQ(b.direction, expected) << b.row << ", " << b.column;
+  }
 }
 
 TEST(ScanStream, StreamingOutputAppearsOnlyWhenCommitted) {

@@ -184,7 +184,21 @@ BeamPattern spherical_on_demand(const SphericalOptions& o, std::size_t max_beams
   p.beam_count = as.size() * es.size();
   // The table turns from the right (smallest azimuth) to the left; one mirror
   // revolution (an elevation profile, bottom to top) per azimuth.
-  p.make_beams = [as, es, period](std::size_t first, std::span<Beam> out) {
+  // The angles' sines and cosines once per listed value (direction_from_angles'
+  // products of them: the same bits).
+  struct Trig {
+    std::vector<double> cos, sin;
+  };
+  auto trig = [](const std::vector<double>& degrees) {
+    Trig t;
+    for (const double d : degrees) {
+      t.cos.push_back(std::cos(rad(d)));
+      t.sin.push_back(std::sin(rad(d)));
+    }
+    return t;
+  };
+  p.make_beams = [as, es, period, ta = trig(as), te = trig(es)](std::size_t first,
+                                                                std::span<Beam> out) {
     for (std::size_t n = 0; n < out.size(); ++n) {
       const std::size_t index = first + n;
       const std::size_t j = as.size() - 1 - index / es.size();
@@ -196,7 +210,7 @@ BeamPattern spherical_on_demand(const SphericalOptions& o, std::size_t max_beams
                 t,
                 0,
                 {0, 0, 0},
-                direction_from_angles(as[j], es[i])};
+                {te.cos[i] * ta.cos[j], te.cos[i] * ta.sin[j], te.sin[i]}};
     }
   };
   return p;
