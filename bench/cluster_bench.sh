@@ -54,7 +54,8 @@ echo "10 kW $ts s, 1 W $tw s: ratio $(awk -v a="$ts" -v b="$tw" 'BEGIN{printf "%
 if command -v mpirun >/dev/null; then
   echo "# 3. mpirun -np 2 x 1 thread vs 1 process x 2 threads (same scan, LAS)"
   read -r t1 _ < <(measure $(scan 2 10000 1 --azimuth=$az --elevation=$el --write las))
-  read -r t2 _ < <(measure mpirun --allow-run-as-root --oversubscribe -np 2 $(scan 1 10000 1 --azimuth=$az --elevation=$el --write las))
+  # (--bind-to none: on a shared machine a rank pinned to a busy core waits)
+  read -r t2 _ < <(measure mpirun --allow-run-as-root --oversubscribe --bind-to none -np 2 $(scan 1 10000 1 --azimuth=$az --elevation=$el --write las))
   echo "1 x 2 threads $t1 s, 2 ranks x 1 thread $t2 s: ranks reach $(awk -v a="$t1" -v b="$t2" 'BEGIN{printf "%.0f", 100*a/b}') % of the threads' throughput"
 else
   echo "# 3. skipped: mpirun is missing"

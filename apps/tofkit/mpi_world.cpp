@@ -1,5 +1,7 @@
 #include "mpi_world.hpp"
 
+#include <unistd.h>
+
 #include <cstdlib>
 #include <stdexcept>
 
@@ -39,6 +41,17 @@ void check(int code, const char* what) {
 }
 
 constexpr int kChunkTag = 33;
+
+// Waiting without spinning: a rank that waits gives its core to the others
+// (MPI's blocking calls poll at full speed, which on a shared or
+// oversubscribed node slows the rank being waited for).
+void wait_politely(MPI_Request& request) {
+  for (int done = 0;;) {
+    check(MPI_Test(&request, &done, MPI_STATUS_IGNORE), "MPI_Test");
+    if (done) return;
+    ::usleep(100);
+  }
+}
 
 // The send on its way (ranks other than 0): advanced by mpi_progress while
 // the next chunk is made (a large message moves only while both sides are in
@@ -84,7 +97,11 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
         continue;
       }
       MPI_Status status;
-      check(MPI_Probe(from, kChunkTag, MPI_COMM_WORLD, &status), "MPI_Probe");
+      for (int arrived = 0;;) {
+        check(MPI_Iprobe(from, kChunkTag, MPI_COMM_WORLD, &arrived, &status), "MPI_Iprobe");
+        if (arrived) break;
+        ::usleep(100);
+      }
       int count = 0;
       MPI_Get_count(&status, MPI_BYTE, &count);
       received.resize(static_cast<std::size_t>(count));
@@ -101,13 +118,13 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
   for (std::size_t c = 0; c < chunks; ++c) {
     if (owner(c, w.size) != w.rank) continue;
     std::string bytes = make(c);
-    check(MPI_Wait(&request, MPI_STATUS_IGNORE), "MPI_Wait");
+    wait_politely(request);
     sending = std::move(bytes);
     check(MPI_Isend(sending.data(), static_cast<int>(sending.size()), MPI_BYTE, 0, kChunkTag,
                     MPI_COMM_WORLD, &request),
           "MPI_Isend");
   }
-  check(MPI_Wait(&request, MPI_STATUS_IGNORE), "MPI_Wait");
+  wait_politely(request);
 }
 
 void mpi_progress() {
