@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -15,11 +16,14 @@
 #include <vector>
 
 #include "app.hpp"
+#include "mpi_world.hpp"
+#include "scan_shard.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
+#include "tofkit/io/scan_writer.hpp"
 #include "tofkit/io/scene_file.hpp"
 #include "tofkit/scan/scanner.hpp"
 
@@ -28,7 +32,7 @@ namespace {
 
 struct ScanCliOptions {
   SceneScanOptions scan;
-  std::string model, mode = "analytic", write = "all", out;
+  std::string model, mode = "analytic", write = "all", out, shard;
   int shots = 0;
   std::uint64_t seed = 1;
 };
@@ -69,25 +73,6 @@ struct Progress {
   }
 };
 
-nlohmann::json sidecar(const std::string& file, const char* quantity, const char* units,
-                       const io::Png16& png, const scan::ScanResult& r, const ScanCliOptions& o) {
-  nlohmann::json j;
-  j["file"] = file;
-  j["quantity"] = quantity;
-  j["units"] = units;
-  j["value"] = "offset + scale * pixel";
-  j["scale"] = png.scale;
-  j["offset"] = png.offset;
-  j["invalid_value"] = 0;
-  j["rows"] = r.pattern.rows;
-  j["columns"] = r.pattern.columns;
-  j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
-  j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
-               {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
-               {"beams", r.beams.size()}};
-  return j;
-}
-
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
@@ -102,61 +87,118 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                                                                  : "(a directory) does not exist"));
   }
   const int shots = scan_shots(config, o.shots);
-  const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
+  const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
 
   const auto start = std::chrono::steady_clock::now();
-  scan::ScanResult result =
-      run_scene_scan(o.scan, scene, pattern, config, mode, shots, o.seed, Progress{});
-  if (pipeline) scan::apply_pipeline(*pipeline, result);
+  // The scan streams: blocks of beams measured, corrected and written in beam
+  // order; every file through the one writer, staged and committed with the
+  // others only when the command succeeds (main's OutputTransaction). A
+  // shard (--shard K/N) writes its range of beams for `tofkit merge`.
+  const Shard shard = o.shard.empty() ? Shard{} : parse_shard(o.shard, "--shard");
+  ScanShardHeader header;
+  header.shard = shard;
+  header.beams = pattern.size();
+  std::tie(header.first_beam, header.last_beam) = shard.range(pattern.size());
+  header.pattern = scan::describe_scan(pattern, scene).pattern;
+  // Each image row's last beam (a pass over every beam): only where rows are
+  // finished by it (images asked for; not spherical, whose rows all finish
+  // at the end and are made otherwise).
+  const bool rows_needed =
+      (outputs.count("png") + outputs.count("npy") + outputs.count("view")) != 0 &&
+      pattern.name != "spherical";
+  header.row_last_beam = rows_needed
+                             ? scan::row_last_beams(pattern)
+                             : std::vector<std::size_t>(static_cast<std::size_t>(pattern.rows), 0);
+  header.has_model = pipeline.has_value();
+  header.ambient_c = o.scan.ambient_c;
+  header.outputs = outputs;
+  header.scan_record = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
+                        {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
+                        {"beams", pattern.size()}};
+  // Under mpirun, rank 0 writes; every rank measures its chunks.
+  const MpiWorld world = mpi_world();
+  std::optional<io::ScanWriter> writer;
+  std::optional<ScanShardWriter> shard_writer;
+  if (world.rank == 0 && shard.whole()) {
+    scan::ScanResult description = scan::describe_scan(pattern, scene);
+    description.has_model = pipeline.has_value();
+    writer.emplace(description, header.row_last_beam, scan_writer_settings(o.out, header));
+  } else if (world.rank == 0) {
+    shard_writer.emplace(o.out, header);
+  }
+  io::ScanWriter::Summary summary;
+  auto take = [&](std::size_t first, std::span<scan::BeamResult> beams) {
+    if (writer) {
+      writer->add(first - header.first_beam, beams);
+    } else {
+      shard_writer->add(beams);
+      summary.beams += beams.size();
+      io::CloudPoint point{};
+      for (const auto& b : beams) {
+        summary.points += io::cloud_point(b, point) ? 1 : 0;
+        summary.mixed += b.surfaces > 1 ? 1 : 0;
+      }
+    }
+  };
+  if (world.size == 1) {
+    run_scene_scan_blocks(
+        o.scan, scene, pattern, config, mode, shots, o.seed, header.first_beam, header.last_beam,
+        [&](std::size_t first, std::span<scan::BeamResult> beams) {
+          if (pipeline) scan::apply_pipeline(*pipeline, beams);
+          take(first, beams);
+        },
+        Progress{});
+  } else {
+    const device::VirtualRangefinder rangefinder(config, mode);
+    const scan::RayCaster caster(scene);
+    const scan::Footprint footprint(config);
+    const scan::ScanOptions options = scene_scan_options(o.scan, shots, o.seed);
+    const std::uint64_t beams = header.last_beam - header.first_beam;
+    const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
+    std::vector<scan::BeamResult> received;
+    mpi_ordered_chunks(
+        chunks,
+        [&](std::size_t c) {
+          std::string bytes;
+          const std::size_t begin = header.first_beam + c * kScanBlockBeams;
+          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
+          // In sub-blocks, the last chunk's send advanced between them.
+          bytes.reserve((end - begin) * sizeof(scan::BeamResult));
+          scan::run_scan_blocks(
+              caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
+              [&](std::size_t, std::span<scan::BeamResult> b) {
+                if (pipeline) scan::apply_pipeline(*pipeline, b);
+                bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
+                mpi_progress();
+              });
+          return bytes;
+        },
+        [&](std::size_t c, std::string_view bytes) {
+          received.resize(bytes.size() / sizeof(scan::BeamResult));
+          std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
+          take(header.first_beam + c * kScanBlockBeams, received);
+        });
+  }
+  if (writer) summary = writer->finish();
+  if (shard_writer) shard_writer->finish();
+  mpi_done();
+  if (world.rank != 0) return;
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
-  // Every file through the one writer: staged, and committed with the
-  // others only when the command succeeds (main's OutputTransaction); a
-  // target that is an input, a link, a FIFO or a directory is refused.
-  const scan::ScanImages images = scan::make_images(result);
-  const std::filesystem::path dir(o.out);
-  auto write = [&](const std::string& name, const std::string& bytes) {
-    io::write_file_atomically(dir / name, bytes);
-  };
-  if (outputs.count("csv") != 0) write("scan.csv", io::encode_scan_csv(result, o.scan.ambient_c));
-  const struct {
-    const char* name;
-    const char* quantity;
-    const char* units;
-    const scan::Image* image;
-  } planes[] = {{"range", "range", "m", &images.range},
-                {"intensity", "echo amplitude", "V", &images.intensity},
-                {"sigma", "expected range error (1 sigma)", "m", &images.sigma}};
-  for (const auto& p : planes) {
-    if (p.image == &images.sigma && !result.has_model) continue;
-    if (outputs.count("png") != 0) {
-      const io::Png16 png = io::encode_png16(*p.image);
-      const std::string name = std::string(p.name) + ".png";
-      write(name, png.png);
-      write(std::string(p.name) + ".json",
-            sidecar(name, p.quantity, p.units, png, result, o).dump(2) + "\n");
-    }
-    if (outputs.count("npy") != 0) write(std::string(p.name) + ".npy", io::encode_npy(*p.image));
-  }
-  const auto points = io::cloud_points(result);
-  if (outputs.count("ply") != 0) write("points.ply", io::encode_ply(points));
-  if (outputs.count("pcd") != 0) write("points.pcd", io::encode_pcd(points));
-  if (outputs.count("las") != 0) write("points.las", io::encode_las(points));
-  if (outputs.count("view") != 0) write("range_view.png", io::encode_range_view(images));
-
-  std::size_t mixed = 0;
-  for (const auto& b : result.beams) mixed += b.surfaces > 1 ? 1 : 0;
   const auto threads =
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
-             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
-             result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
+             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/{}\n",
+             summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
-             o.seed, points.size(), mixed, result.beams.size() - points.size(), seconds, threads,
-             o.out);
+             o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,
+             threads, o.out,
+             shard.whole() ? ""
+                           : fmt::format(" (shard {}/{}: beams {}..{})", shard.index, shard.count,
+                                         header.first_beam, header.last_beam));
 }
 
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {
@@ -175,6 +217,9 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();
+  sub.add_option("--shard", o->shard,
+                 "K/N: only beams [K n/N, (K+1) n/N) into shard.json + beams.bin, for tofkit "
+                 "merge");
   sub.add_option("--out", o->out, "output directory (must exist)")->required();
   sub.callback([o, &ctx] { run_scan_command(*o, ctx); });
 });

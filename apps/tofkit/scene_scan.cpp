@@ -63,7 +63,7 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 }
 
 scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::DeviceConfig& config,
-                                    int shots) {
+                                    int shots, bool on_demand) {
   const double period_s = shots / config.link.laser.repetition_hz;
   const std::string* texts[] = {&o.y, &o.z, &o.azimuth, &o.elevation};  // PatternListName order
   const auto lists = [&](scan::PatternListName l) {
@@ -72,7 +72,7 @@ scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::Dev
   };
   try {
     return scan::make_pattern(o.pattern, o.settings, lists, period_s,
-                              io::resource_limits().max_rows);
+                              io::resource_limits().max_rows, on_demand);
   } catch (const std::length_error& e) {
     // A beam is a row of scan.csv: the rows' limit applies.
     throw std::invalid_argument(std::string(e.what()) + " (raise it with --max-rows)");
@@ -88,12 +88,30 @@ scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& sc
                                 const device::DeviceConfig& config, device::SimulationMode mode,
                                 int shots, std::uint64_t seed,
                                 std::function<void(std::size_t, std::size_t)> progress) {
+  scan::ScanOptions options = scene_scan_options(o, shots, seed);
+  options.progress = std::move(progress);
+  return scan::run_scan(scene, config, mode, pattern, options);
+}
+
+scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots, std::uint64_t seed) {
   scan::ScanOptions options;
   options.seed = seed;
   options.shots = shots;
   options.conditions.ambient_c = o.ambient_c;
+  return options;
+}
+
+void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
+                           const scan::BeamPattern& pattern, const device::DeviceConfig& config,
+                           device::SimulationMode mode, int shots, std::uint64_t seed,
+                           std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
+                           std::function<void(std::size_t, std::size_t)> progress) {
+  scan::ScanOptions options = scene_scan_options(o, shots, seed);
   options.progress = std::move(progress);
-  return scan::run_scan(scene, config, mode, pattern, options);
+  const device::VirtualRangefinder rangefinder(config, mode);
+  const scan::RayCaster caster(scene);
+  scan::run_scan_blocks(caster, scan::Footprint(config), rangefinder, pattern, options, first, last,
+                        kScanBlockBeams, sink);
 }
 
 }  // namespace tofkit::app

@@ -44,8 +44,11 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 /// measurement (its output period: shots / laser repetition rate). Throws
 /// std::invalid_argument naming the option a pattern lacks, and when the
 /// pattern has more beams than --max-rows allows (a beam is a row of scan.csv).
+/// With `on_demand`, a mirror, spherical or spinning pattern makes its beams
+/// as a streaming scan asks for them (scan::BeamPattern::make_beams).
 [[nodiscard]] scan::BeamPattern make_scan_pattern(const SceneScanOptions& o,
-                                                  const device::DeviceConfig& config, int shots);
+                                                  const device::DeviceConfig& config, int shots,
+                                                  bool on_demand = false);
 
 /// Shots per beam before the pattern's multiplier: `shots`, or the config's.
 [[nodiscard]] int scan_shots(const device::DeviceConfig& config, int shots);
@@ -57,5 +60,21 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
     const SceneScanOptions& o, const scan::Scene& scene, const scan::BeamPattern& pattern,
     const device::DeviceConfig& config, device::SimulationMode mode, int shots, std::uint64_t seed,
     std::function<void(std::size_t, std::size_t)> progress = {});
+
+/// The same scan streamed: beams [first, last) of `pattern` handed to `sink`
+/// in blocks, in beam order (scan::run_scan_blocks), the same values as
+/// run_scene_scan's.
+void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
+                           const scan::BeamPattern& pattern, const device::DeviceConfig& config,
+                           device::SimulationMode mode, int shots, std::uint64_t seed,
+                           std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
+                           std::function<void(std::size_t, std::size_t)> progress = {});
+
+/// The scan options run_scene_scan uses (seed, shots, ambient at the start).
+[[nodiscard]] scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots,
+                                                   std::uint64_t seed);
+
+/// Beams a streaming scan measures and writes at a time.
+inline constexpr std::size_t kScanBlockBeams = 1 << 15;
 
 }  // namespace tofkit::app

@@ -36,5 +36,6 @@ namespace py = pybind11;
 void bind_device(py::module_& m);
 void bind_model(py::module_& m);
 void bind_scan(py::module_& m);
+void bind_sweep(py::module_& m);
 
 }  // namespace tofkit::python

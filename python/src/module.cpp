@@ -92,4 +92,5 @@ PYBIND11_MODULE(_tofkit, m) {
   tp::bind_device(m);
   tp::bind_model(m);
   tp::bind_scan(m);
+  tp::bind_sweep(m);
 }

@@ -36,6 +36,7 @@ struct ScanArgs {
   double ambient_c = device::Conditions{}.ambient_c;
   std::uint64_t seed = 1;
   std::string mode = "analytic";
+  std::uint64_t shard_index = 0, shard_count = 1;  ///< shard=(k, n): beams [k n/N, (k+1) n/N)
 };
 
 /// One row of the per-beam table (BEAM_DTYPE): scan.csv's columns plus the
@@ -105,6 +106,8 @@ void validate(const ScanArgs& a) {
   check_range(a.azimuth_step_deg, 1e-4, 360, "azimuth_step_deg");
   if (a.shots != 0) check_range(a.shots, 1, 1e7, "shots");
   check_range(a.ambient_c, -60, 150, "ambient_c");
+  if (a.shard_count < 1 || a.shard_count > 1000000 || a.shard_index >= a.shard_count)
+    throw std::invalid_argument("shard: (k, n) needs n = 1 .. 1000000 and k = 0 .. n - 1");
 }
 
 /// A NumPy array over a vector's memory (moved, not copied; freed with the array).
@@ -232,7 +235,23 @@ py::dict run(const device::DeviceConfig& config, const fs::path& scene_path, con
     options.seed = args.seed;
     options.shots = shots;
     options.conditions.ambient_c = args.ambient_c;
-    result = scan::run_scan(scene, config, mode, pattern, options);
+    if (args.shard_count <= 1) {
+      result = scan::run_scan(scene, config, mode, pattern, options);
+    } else {
+      // A shard: its range of beams, the same values as in the whole scan
+      // (beam i on random stream i); images hold its pixels only.
+      const std::uint64_t n = pattern.size(), k = args.shard_index, count = args.shard_count;
+      const auto at = [&](std::uint64_t j) { return n / count * j + n % count * j / count; };
+      const device::VirtualRangefinder rangefinder(config, mode);
+      const scan::RayCaster caster(scene);
+      result = scan::describe_scan(pattern, scene);
+      result.beams.reserve(at(k + 1) - at(k));
+      scan::run_scan_blocks(caster, scan::Footprint(config), rangefinder, pattern, options, at(k),
+                            at(k + 1), 1 << 15,
+                            [&](std::size_t, std::span<scan::BeamResult> beams) {
+                              result.beams.insert(result.beams.end(), beams.begin(), beams.end());
+                            });
+    }
     if (pipeline != nullptr) scan::apply_pipeline(*pipeline, result);
     images = scan::make_images(result);
     points = io::cloud_points(result);
@@ -277,7 +296,9 @@ void bind_scan(py::module_& m) {
       .def_readwrite("azimuth_step_deg", &ScanArgs::azimuth_step_deg)
       .def_readwrite("ambient_c", &ScanArgs::ambient_c)
       .def_readwrite("seed", &ScanArgs::seed)
-      .def_readwrite("mode", &ScanArgs::mode);
+      .def_readwrite("mode", &ScanArgs::mode)
+      .def_readwrite("shard_index", &ScanArgs::shard_index)
+      .def_readwrite("shard_count", &ScanArgs::shard_count);
   m.def("_scan", &run, py::arg("config"), py::arg("scene"), py::arg("args"), py::arg("model"));
   m.attr("BEAM_DTYPE") = beam_dtype();
   py::tuple columns(kPointColumnCount);

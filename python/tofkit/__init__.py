@@ -19,6 +19,7 @@ from ._tofkit import RANGE_DTYPE, RAW_DTYPE, RECORD_DTYPE, read_raw, set_max_row
 from .device import DeviceConfig, link_budget, measure
 from .model import Model, fit_chain, fit_surface
 from .scanning import BEAM_DTYPE, POINT_COLUMNS, ScanResult, scan
+from .sweeping import SweepPlan, sweep
 
 RAW_COLUMNS = RECORD_DTYPE.names
 """The raw CSV columns, in file order (the fields of measure()'s result).
@@ -35,9 +36,11 @@ __all__ = [
     "RAW_DTYPE",
     "RECORD_DTYPE",
     "ScanResult",
+    "SweepPlan",
     "fit_chain",
     "fit_surface",
     "link_budget",
+    "sweep",
     "measure",
     "read_raw",
     "scan",

@@ -56,7 +56,7 @@ class ScanResult:
 def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, samples=1,
          speed_m_per_s=0.05, turnaround_s=0.5, rate_hz=10.0, revolutions=1,
          azimuth_step_deg=0.2, model=None, mode="analytic", shots=None, seed=1,
-         ambient_c=None, config=None):
+         ambient_c=None, config=None, shard=None):
     """Scan a scene file (TOML) with a pattern, as ``tofkit scan``.
 
     pattern: "raster" | "line" (y, z: stage positions, m) | "mirror" |
@@ -70,6 +70,13 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
     path) applied to every beam, adding corrected range and sigma; config: a
     DeviceConfig (None: the default one). The same arguments and seed give the
     same numbers as ``tofkit scan`` on any thread count.
+
+    shard: (k, n) scans only beams [k N / n, (k + 1) N / n) of the N, as
+    ``tofkit scan --shard k/n``: the same values as those beams have in the
+    whole scan (each beam has its own random stream), so shards run anywhere
+    (a cluster's workers) and their beams and points concatenate, in k's
+    order, into the whole scan's; the images hold the shard's pixels only
+    (NaN elsewhere).
 
     Returns a ScanResult. Raises FileNotFoundError for a missing scene file
     and ValueError (with the CLI's message) for a bad scene, key or value.
@@ -96,5 +103,9 @@ def scan(scene, pattern, *, y=None, z=None, azimuth=None, elevation=None, sample
         args.ambient_c = _float(ambient_c, "ambient_c")
     args.seed = _seed(seed)
     args.mode = str(mode)
+    if shard is not None:
+        k, n = shard
+        args.shard_index = _int(k, "shard k", 0, 1_000_000)
+        args.shard_count = _int(n, "shard n", 1, 1_000_000)
     return ScanResult(_tofkit._scan(_config(config), os.fspath(scene), args,
                                     None if model is None else model._model))

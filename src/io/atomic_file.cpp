@@ -1,5 +1,6 @@
 #include "tofkit/io/atomic_file.hpp"
 
+#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -350,6 +351,177 @@ void create_output_directories(const fs::path& path) {
       register_created_directory(*it);
     }
   }
+}
+
+// ---- streaming outputs and scratch files -----------------------------------
+namespace {
+
+constexpr std::size_t kStreamBuffer = 1 << 20;
+
+void write_all(int fd, const char* data, std::size_t length, const fs::path& name) {
+  while (length > 0) {
+    const ssize_t n = ::write(fd, data, length);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) refuse(name, std::string("write failed: ") + std::strerror(errno));
+    data += n;
+    length -= static_cast<std::size_t>(n);
+  }
+}
+
+void pwrite_all(int fd, const char* data, std::size_t length, std::uint64_t offset,
+                const fs::path& name) {
+  while (length > 0) {
+    const ssize_t n = ::pwrite(fd, data, length, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) refuse(name, std::string("write failed: ") + std::strerror(errno));
+    data += n;
+    length -= static_cast<std::size_t>(n);
+    offset += static_cast<std::uint64_t>(n);
+  }
+}
+
+int open_temporary(const fs::path& temporary, const fs::path& name) {
+  const int fd = ::open(temporary.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) refuse(name, std::strerror(errno));
+  return fd;
+}
+
+}  // namespace
+
+StreamingOutput::StreamingOutput(fs::path target) : target_(std::move(target)) {
+  check_target(target_);
+  temporary_ = temporary_path_for(target_);
+  slot_ = register_temporary(temporary_);
+  try {
+    fd_ = open_temporary(temporary_, target_);
+  } catch (...) {
+    unregister_temporary(std::exchange(slot_, kSignalSlots));
+    throw;
+  }
+}
+
+StreamingOutput::StreamingOutput(StreamingOutput&& other) noexcept
+    : target_(std::move(other.target_)),
+      temporary_(std::move(other.temporary_)),
+      slot_(std::exchange(other.slot_, kSignalSlots)),
+      fd_(std::exchange(other.fd_, -1)),
+      size_(other.size_),
+      buffer_(std::move(other.buffer_)) {}
+
+StreamingOutput& StreamingOutput::operator=(StreamingOutput&& other) noexcept {
+  if (this != &other) {
+    this->~StreamingOutput();
+    new (this) StreamingOutput(std::move(other));
+  }
+  return *this;
+}
+
+StreamingOutput::~StreamingOutput() {
+  if (fd_ >= 0) {
+    ::close(fd_);
+    ::unlink(temporary_.c_str());
+  }
+  unregister_temporary(std::exchange(slot_, kSignalSlots));
+}
+
+void StreamingOutput::flush() {
+  if (buffer_.empty()) return;
+  write_all(fd_, buffer_.data(), buffer_.size(), target_);
+  buffer_.clear();
+}
+
+void StreamingOutput::append(std::string_view bytes) {
+  if (fd_ < 0) throw std::logic_error("StreamingOutput: append after commit");
+  size_ += bytes.size();
+  if (buffer_.size() + bytes.size() > kStreamBuffer) {
+    flush();
+    if (bytes.size() > kStreamBuffer) {
+      write_all(fd_, bytes.data(), bytes.size(), target_);
+      return;
+    }
+  }
+  buffer_.append(bytes);
+}
+
+void StreamingOutput::write_at(std::uint64_t offset, std::string_view bytes) {
+  if (offset + bytes.size() > size_) throw std::logic_error("StreamingOutput: write past the end");
+  flush();
+  pwrite_all(fd_, bytes.data(), bytes.size(), offset, target_);
+}
+
+void StreamingOutput::append_from(int from_fd, std::uint64_t offset, std::uint64_t length) {
+  flush();
+  std::string chunk(std::min<std::uint64_t>(length, kStreamBuffer), '\0');
+  while (length > 0) {
+    const std::size_t want =
+        static_cast<std::size_t>(std::min<std::uint64_t>(length, chunk.size()));
+    const ssize_t n = ::pread(from_fd, chunk.data(), want, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) refuse(target_, "reading back a working file failed");
+    write_all(fd_, chunk.data(), static_cast<std::size_t>(n), target_);
+    offset += static_cast<std::uint64_t>(n);
+    length -= static_cast<std::uint64_t>(n);
+    size_ += static_cast<std::uint64_t>(n);
+  }
+}
+
+void StreamingOutput::commit() {
+  if (fd_ < 0) throw std::logic_error("StreamingOutput: committed twice");
+  flush();
+  if (::close(std::exchange(fd_, -1)) != 0) refuse(target_, "close failed");
+  // From here the Temporary owns the file (removed on failure or rollback).
+  unregister_temporary(std::exchange(slot_, kSignalSlots));
+  Temporary temporary(temporary_);
+  check_target(target_);
+  stage_or_rename(std::move(temporary), target_);
+}
+
+ScratchFile::ScratchFile(const fs::path& near) {
+  path_ = temporary_path_for(near.parent_path() / (near.filename().string() + ".work"));
+  fd_ = open_temporary(path_, path_);
+  ::unlink(path_.c_str());  // nameless from now on: gone with the process, whatever ends it
+}
+
+ScratchFile::~ScratchFile() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void ScratchFile::flush() {
+  if (buffer_.empty()) return;
+  pwrite_all(fd_, buffer_.data(), buffer_.size(), size_ - buffer_.size(), path_);
+  buffer_.clear();
+}
+
+void ScratchFile::append(std::string_view bytes) {
+  if (buffer_.size() + bytes.size() > kStreamBuffer) {
+    const std::uint64_t end = size_;
+    flush();
+    if (bytes.size() > kStreamBuffer) {
+      pwrite_all(fd_, bytes.data(), bytes.size(), end, path_);
+      size_ += bytes.size();
+      return;
+    }
+  }
+  buffer_.append(bytes);
+  size_ += bytes.size();
+}
+
+void ScratchFile::read(std::uint64_t offset, std::size_t length, void* out) {
+  flush();
+  auto* to = static_cast<char*>(out);
+  while (length > 0) {
+    const ssize_t n = ::pread(fd_, to, length, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) refuse(path_, "reading back a working file failed");
+    to += n;
+    offset += static_cast<std::uint64_t>(n);
+    length -= static_cast<std::size_t>(n);
+  }
+}
+
+int ScratchFile::fd() {
+  flush();
+  return fd_;
 }
 
 }  // namespace tofkit::io

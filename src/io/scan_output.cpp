@@ -147,19 +147,87 @@ struct Canvas {
 
 }  // namespace
 
-Png16 encode_png16(const scan::Image& image) {
-  Png16 out;
-  const auto [lo, hi] = limits(image, 0.0);
+Png16Scale png16_scale(const FiniteRange& finite) {
+  double lo = 0, hi = 1;
+  if (finite.any) {
+    lo = finite.lo, hi = finite.hi;
+    if (!(hi > lo)) hi = lo + 1e-3;
+  }
   // Stored 1 .. 65535 spans [lo, hi]; 0 is invalid.
+  Png16Scale out;
   out.scale = (hi - lo) / 65534.0;
   out.offset = lo - out.scale;
-  std::vector<std::uint16_t> pixels(image.values.size(), 0);
-  for (std::size_t i = 0; i < pixels.size(); ++i) {
-    const float v = image.values[i];
+  return out;
+}
+
+void FiniteRange::add(std::span<const float> values) {
+  for (const float v : values) {
     if (!std::isfinite(v)) continue;
-    const double p = std::round((v - out.offset) / out.scale);
+    if (!any) lo = hi = v, any = true;
+    lo = std::min<double>(lo, v), hi = std::max<double>(hi, v);
+  }
+}
+
+namespace {
+
+void png16_row(std::span<const float> values, const Png16Scale& s, std::uint16_t* pixels) {
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    const float v = values[i];
+    pixels[i] = 0;
+    if (!std::isfinite(v)) continue;
+    const double p = std::round((v - s.offset) / s.scale);
     pixels[i] = static_cast<std::uint16_t>(std::clamp(p, 1.0, 65535.0));
   }
+}
+
+int write_to_sink(spng_ctx*, void* user, void* data, std::size_t length) {
+  auto& sink = *static_cast<const std::function<void(std::string_view)>*>(user);
+  try {
+    sink(std::string_view(static_cast<const char*>(data), length));
+  } catch (...) {
+    return SPNG_IO_ERROR;
+  }
+  return 0;
+}
+
+}  // namespace
+
+void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
+                       const std::function<void(int, std::span<float>)>& row,
+                       const std::function<void(std::string_view)>& write) {
+  spng_ctx* ctx = spng_ctx_new(SPNG_CTX_ENCODER);
+  if (ctx == nullptr) throw std::runtime_error("PNG: cannot create an encoder");
+  std::function<void(std::string_view)> sink = write;
+  spng_set_png_stream(ctx, write_to_sink, &sink);
+  spng_ihdr ihdr{};
+  ihdr.width = static_cast<std::uint32_t>(columns);
+  ihdr.height = static_cast<std::uint32_t>(rows);
+  ihdr.bit_depth = 16;
+  ihdr.color_type = SPNG_COLOR_TYPE_GRAYSCALE;
+  spng_set_ihdr(ctx, &ihdr);
+  int err = spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG,
+                              SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
+  std::vector<float> values(static_cast<std::size_t>(columns));
+  std::vector<std::uint16_t> pixels(static_cast<std::size_t>(columns));
+  for (int r = 0; r < rows && err == 0; ++r) {
+    row(r, values);
+    png16_row(values, scale, pixels.data());
+    err = spng_encode_row(ctx, pixels.data(), pixels.size() * sizeof(std::uint16_t));
+    if (err == SPNG_EOI) err = 0;
+  }
+  spng_ctx_free(ctx);
+  if (err != 0) throw std::runtime_error(std::string("PNG encoding failed: ") + spng_strerror(err));
+}
+
+Png16 encode_png16(const scan::Image& image) {
+  Png16 out;
+  FiniteRange finite;
+  finite.add(image.values);
+  const Png16Scale s = png16_scale(finite);
+  out.scale = s.scale;
+  out.offset = s.offset;
+  std::vector<std::uint16_t> pixels(image.values.size(), 0);
+  png16_row(image.values, s, pixels.data());
   out.png = encode_png(image.rows, image.columns, 16, SPNG_COLOR_TYPE_GRAYSCALE, pixels.data(),
                        pixels.size() * sizeof(std::uint16_t));
   return out;
@@ -169,9 +237,9 @@ std::string encode_png_rgb(int rows, int columns, const std::vector<unsigned cha
   return encode_png(rows, columns, 8, SPNG_COLOR_TYPE_TRUECOLOR, rgb.data(), rgb.size());
 }
 
-std::string encode_npy(const scan::Image& image) {
-  std::string header = fmt::format(
-      "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", image.rows, image.columns);
+std::string npy_header(int rows, int columns) {
+  std::string header =
+      fmt::format("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", rows, columns);
   // Magic (6) + version (2) + length (2) + header + '\n', padded to 64 bytes.
   const std::size_t total = (10 + header.size() + 1 + 63) / 64 * 64;
   header.append(total - 10 - header.size() - 1, ' ');
@@ -179,71 +247,114 @@ std::string encode_npy(const scan::Image& image) {
   std::string out("\x93NUMPY\x01\x00", 8);
   put(out, static_cast<std::uint16_t>(header.size()));
   out += header;
+  return out;
+}
+
+std::string encode_npy(const scan::Image& image) {
+  std::string out = npy_header(image.rows, image.columns);
   for (const float v : image.values) put(out, v);
   return out;
 }
 
+bool cloud_point(const scan::BeamResult& b, CloudPoint& point) {
+  const double d = scan::reported_distance_m(b);
+  if (!b.raw.has_echo() || !std::isfinite(d)) return false;  // REP-117
+  const auto& o = b.beam.origin_m;
+  const auto& u = b.beam.direction;
+  point = {o[0] + d * u[0],
+           o[1] + d * u[1],
+           o[2] + d * u[2],
+           static_cast<float>(b.raw.amplitude),
+           static_cast<float>(d),
+           static_cast<float>(b.range.sigma_m),
+           b.beam.row,
+           b.beam.column,
+           b.beam.time_s,
+           b.raw.flags};
+  return true;
+}
+
 std::vector<CloudPoint> cloud_points(const scan::ScanResult& result) {
   std::vector<CloudPoint> points;
+  CloudPoint point{};
   for (const auto& b : result.beams) {
-    const double d = scan::reported_distance_m(b);
-    if (!b.raw.has_echo() || !std::isfinite(d)) continue;  // REP-117
-    const auto& o = b.beam.origin_m;
-    const auto& u = b.beam.direction;
-    points.push_back({o[0] + d * u[0], o[1] + d * u[1], o[2] + d * u[2],
-                      static_cast<float>(b.raw.amplitude), static_cast<float>(d),
-                      static_cast<float>(b.range.sigma_m), b.beam.row, b.beam.column, b.beam.time_s,
-                      b.raw.flags});
+    if (cloud_point(b, point)) points.push_back(point);
   }
   return points;
 }
 
-std::string encode_ply(const std::vector<CloudPoint>& points) {
-  std::string out = fmt::format(
+std::string ply_header(std::uint64_t points) {
+  return fmt::format(
       "ply\nformat binary_little_endian 1.0\ncomment tofkit scan: world frame (REP-103), metres\n"
       "element vertex {}\nproperty double x\nproperty double y\nproperty double z\n"
       "property float intensity\nproperty float range\nproperty float sigma\nproperty int row\n"
       "property int column\nproperty double time\nproperty int flags\nend_header\n",
-      points.size());
-  for (const auto& p : points) {
-    put(out, p.x), put(out, p.y), put(out, p.z);
-    put(out, p.intensity), put(out, p.range), put(out, p.sigma);
-    put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
-    put(out, p.time_s), put(out, static_cast<std::int32_t>(p.flags));
-  }
+      points);
+}
+
+void append_ply_point(std::string& out, const CloudPoint& p) {
+  put(out, p.x), put(out, p.y), put(out, p.z);
+  put(out, p.intensity), put(out, p.range), put(out, p.sigma);
+  put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
+  put(out, p.time_s), put(out, static_cast<std::int32_t>(p.flags));
+}
+
+std::string encode_ply(const std::vector<CloudPoint>& points) {
+  std::string out = ply_header(points.size());
+  for (const auto& p : points) append_ply_point(out, p);
   return out;
 }
 
-std::string encode_pcd(const std::vector<CloudPoint>& points) {
-  std::string out = fmt::format(
+std::string pcd_header(std::uint64_t points) {
+  return fmt::format(
       "# .PCD v0.7 - tofkit scan, world frame (REP-103), metres\nVERSION 0.7\n"
       "FIELDS x y z intensity range sigma row column time flags\n"
       "SIZE 4 4 4 4 4 4 4 4 8 4\nTYPE F F F F F F I I F U\nCOUNT 1 1 1 1 1 1 1 1 1 1\n"
       "WIDTH {}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {}\nDATA binary\n",
-      points.size(), points.size());
-  for (const auto& p : points) {
-    put(out, static_cast<float>(p.x)), put(out, static_cast<float>(p.y)),
-        put(out, static_cast<float>(p.z));
-    put(out, p.intensity), put(out, p.range), put(out, p.sigma);
-    put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
-    put(out, p.time_s), put(out, p.flags);
-  }
+      points, points);
+}
+
+void append_pcd_point(std::string& out, const CloudPoint& p) {
+  put(out, static_cast<float>(p.x)), put(out, static_cast<float>(p.y)),
+      put(out, static_cast<float>(p.z));
+  put(out, p.intensity), put(out, p.range), put(out, p.sigma);
+  put(out, static_cast<std::int32_t>(p.row)), put(out, static_cast<std::int32_t>(p.column));
+  put(out, p.time_s), put(out, p.flags);
+}
+
+std::string encode_pcd(const std::vector<CloudPoint>& points) {
+  std::string out = pcd_header(points.size());
+  for (const auto& p : points) append_pcd_point(out, p);
   return out;
 }
 
-std::string encode_las(const std::vector<CloudPoint>& points) {
+void LasBounds::add(const CloudPoint& p) {
+  const double c[3] = {p.x, p.y, p.z};
+  if (points == 0) {
+    for (int k = 0; k < 3; ++k) lo[k] = hi[k] = c[k];
+  }
+  for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], c[k]), hi[k] = std::max(hi[k], c[k]);
+  ++points;
+}
+
+LasBounds::Offset LasBounds::offset() const {
+  Offset o;
+  for (int k = 0; k < 3; ++k) o.xyz[k] = std::floor(lo[k]);
+  return o;
+}
+
+namespace {
+constexpr double kLasScale = 1e-4;
+}  // namespace
+
+std::string las_header(const LasBounds& bounds) {
   // ASPRS LAS 1.2, public header block (227 bytes) + point data format 1 (28 bytes).
-  constexpr double kScale = 1e-4;
-  double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
-  if (!points.empty()) {
-    lo[0] = hi[0] = points[0].x, lo[1] = hi[1] = points[0].y, lo[2] = hi[2] = points[0].z;
-  }
-  for (const auto& p : points) {
-    const double c[3] = {p.x, p.y, p.z};
-    for (int k = 0; k < 3; ++k) lo[k] = std::min(lo[k], c[k]), hi[k] = std::max(hi[k], c[k]);
-  }
-  double offset[3];
-  for (int k = 0; k < 3; ++k) offset[k] = std::floor(lo[k]);
+  constexpr double kScale = kLasScale;
+  const std::uint64_t points = bounds.points;
+  const double* lo = bounds.lo;
+  const double* hi = bounds.hi;
+  const LasBounds::Offset kept = bounds.offset();
+  const double* offset = kept.xyz;
   std::string out;
   out += "LASF";
   put(out, std::uint16_t{0});          // file source ID
@@ -261,41 +372,56 @@ std::string encode_las(const std::vector<CloudPoint>& points) {
   put(out, std::uint32_t{0});                                 // variable length records
   out.push_back(1);                                           // point data format 1
   put(out, std::uint16_t{28});                                // point record length
-  put(out, static_cast<std::uint32_t>(points.size()));
-  put(out, static_cast<std::uint32_t>(points.size()));  // points by return: all first returns
+  put(out, static_cast<std::uint32_t>(points));
+  put(out, static_cast<std::uint32_t>(points));  // points by return: all first returns
   for (int k = 0; k < 4; ++k) put(out, std::uint32_t{0});
   for (int k = 0; k < 3; ++k) put(out, kScale);
   for (int k = 0; k < 3; ++k) put(out, offset[k]);
   for (int k = 0; k < 3; ++k) put(out, hi[k]), put(out, lo[k]);  // max x, min x, max y, ...
-  for (const auto& p : points) {
-    const double c[3] = {p.x, p.y, p.z};
-    for (int k = 0; k < 3; ++k)
-      put(out, static_cast<std::int32_t>(std::lround((c[k] - offset[k]) / kScale)));
-    const double mv =
-        std::isfinite(p.intensity) ? std::clamp(1e3 * p.intensity, 0.0f * 1.0, 65535.0) : 0.0;
-    put(out, static_cast<std::uint16_t>(std::lround(mv)));
-    out.push_back(static_cast<char>(1 | (1 << 3)));  // return 1 of 1
-    out.push_back(0);                                // classification: never classified
-    out.push_back(0);                                // scan angle rank
-    out.push_back(0);                                // user data
-    put(out, std::uint16_t{0});                      // point source ID
-    put(out, p.time_s);                              // GPS time
-  }
   return out;
 }
 
-std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
+void append_las_point(std::string& out, const CloudPoint& p, const LasBounds::Offset& offset) {
+  constexpr double kScale = kLasScale;
+  const double c[3] = {p.x, p.y, p.z};
+  for (int k = 0; k < 3; ++k)
+    put(out, static_cast<std::int32_t>(std::lround((c[k] - offset.xyz[k]) / kScale)));
+  const double mv =
+      std::isfinite(p.intensity) ? std::clamp(1e3 * p.intensity, 0.0f * 1.0, 65535.0) : 0.0;
+  put(out, static_cast<std::uint16_t>(std::lround(mv)));
+  out.push_back(static_cast<char>(1 | (1 << 3)));  // return 1 of 1
+  out.push_back(0);                                // classification: never classified
+  out.push_back(0);                                // scan angle rank
+  out.push_back(0);                                // user data
+  put(out, std::uint16_t{0});                      // point source ID
+  put(out, p.time_s);                              // GPS time
+}
+
+std::string encode_las(const std::vector<CloudPoint>& points) {
+  LasBounds bounds;
+  for (const auto& p : points) bounds.add(p);
+  std::string out = las_header(bounds);
+  const LasBounds::Offset offset = bounds.offset();
+  for (const auto& p : points) append_las_point(out, p, offset);
+  return out;
+}
+
+std::string scan_csv_header(bool has_model) {
+  return fmt::format(
+      "row,column,time_s,origin_x_m,origin_y_m,origin_z_m,dir_x,dir_y,dir_z,"
+      "distance_true_m,reflectance,angle_deg,ambient_c,tof_ns,distance_raw_m,"
+      "pulse_width_ns,amplitude,temperature_c,shots_valid,flags{}\n",
+      has_model ? ",distance_m,sigma_m,correction_flags" : "");
+}
+
+void append_scan_csv_rows(std::string& text, std::span<const scan::BeamResult> beams,
+                          double ambient_c, bool has_model) {
   fmt::memory_buffer out;
-  fmt::format_to(std::back_inserter(out),
-                 "row,column,time_s,origin_x_m,origin_y_m,origin_z_m,dir_x,dir_y,dir_z,"
-                 "distance_true_m,reflectance,angle_deg,ambient_c,tof_ns,distance_raw_m,"
-                 "pulse_width_ns,amplitude,temperature_c,shots_valid,flags{}\n",
-                 result.has_model ? ",distance_m,sigma_m,correction_flags" : "");
   auto num = [&](double v) {
     out.push_back(',');
     if (!std::isnan(v)) fmt::format_to(std::back_inserter(out), "{}", v);
   };
-  for (const auto& b : result.beams) {
+  for (const auto& b : beams) {
     fmt::format_to(std::back_inserter(out), "{},{}", b.beam.row, b.beam.column);
     num(b.beam.time_s);
     for (const double v : b.beam.origin_m) num(v);
@@ -309,14 +435,20 @@ std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
          {m.tof_ns, m.distance_raw_m, m.pulse_width_ns, m.amplitude, m.temperature_c})
       num(v);
     fmt::format_to(std::back_inserter(out), ",{},{}", m.shots_valid, m.flags);
-    if (result.has_model) {
+    if (has_model) {
       num(b.range.distance_m);
       num(b.range.sigma_m);
       fmt::format_to(std::back_inserter(out), ",{}", b.range.correction_flags);
     }
     out.push_back('\n');
   }
-  return fmt::to_string(out);
+  text.append(out.data(), out.size());
+}
+
+std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
+  std::string out = scan_csv_header(result.has_model);
+  append_scan_csv_rows(out, result.beams, ambient_c, result.has_model);
+  return out;
 }
 
 std::string encode_range_view(const scan::ScanImages& images) {

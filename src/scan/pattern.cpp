@@ -66,7 +66,8 @@ BeamPattern raster_pattern(const RasterOptions& o, double period_s, std::size_t 
   require_beams(static_cast<double>(ys.size()) * static_cast<double>(zs.size()), max_beams,
                 "raster");
   BeamPattern p{
-      "raster", static_cast<int>(zs.size()), static_cast<int>(ys.size()), o.samples, {}, {}, 0};
+      "raster", static_cast<int>(zs.size()), static_cast<int>(ys.size()), o.samples, {}, {}, 0, {},
+      0};
   double t = 0;
   Vec3 last{0, ys[0], zs[0]};
   for (std::size_t r = 0; r < zs.size(); ++r) {
@@ -99,7 +100,8 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
     }
   }
   if (!(o.turnaround_s >= 0)) throw std::invalid_argument("line turnaround must be >= 0");
-  BeamPattern p{"line", static_cast<int>(zs.size()), static_cast<int>(ys.size()), 1, {}, ys, 0};
+  BeamPattern p{"line", static_cast<int>(zs.size()), static_cast<int>(ys.size()), 1, {}, ys, 0, {},
+                0};
   // The stage sweeps from half a column before the first centre to half a
   // column past the last, so every column is covered.
   const double start = ys.front() + 0.5 * pitch, stop = ys.back() - 0.5 * pitch;
@@ -134,7 +136,18 @@ BeamPattern line_pattern(const LineOptions& o, double period_s, std::size_t max_
   return p;
 }
 
-BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
+namespace {
+
+/// Makes the stored form of an on-demand pattern.
+BeamPattern stored(BeamPattern p) {
+  if (!p.make_beams) return p;
+  p.beams.resize(p.beam_count);
+  p.get(0, p.beams);
+  p.make_beams = nullptr;
+  return p;
+}
+
+BeamPattern mirror_on_demand(const MirrorOptions& o, std::size_t max_beams) {
   const auto es = descending(o.elevation_deg, "mirror elevation", kMaxAngleDeg, "degrees");
   require_positive(o.revolutions_per_s, "mirror revolutions per second");
   if (o.revolutions < 1) throw std::invalid_argument("mirror revolutions must be at least 1");
@@ -142,46 +155,68 @@ BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
                 "mirror");
   // Rows: revolutions (profiles); columns: elevation, top first. The mirror
   // turns upwards (increasing elevation) in time.
-  BeamPattern p{"mirror", o.revolutions, static_cast<int>(es.size()), 1, {}, {}, 0};
+  BeamPattern p{"mirror", o.revolutions, static_cast<int>(es.size()), 1, {}, {}, 0, {}, 0};
   const double period = 1.0 / o.revolutions_per_s;
-  for (int r = 0; r < o.revolutions; ++r) {
-    for (std::size_t k = es.size(); k-- > 0;) {
+  const double speed = o.stage_speed_m_per_s;
+  p.beam_count = static_cast<std::size_t>(o.revolutions) * es.size();
+  p.make_beams = [es, period, speed](std::size_t first, std::span<Beam> out) {
+    for (std::size_t n = 0; n < out.size(); ++n) {
+      const std::size_t index = first + n;
+      const int r = static_cast<int>(index / es.size());
+      const std::size_t k = es.size() - 1 - index % es.size();
       const double t = r * period + (es[k] - es.back()) / 360.0 * period;
-      const Vec3 origin{0, -o.stage_speed_m_per_s * t, 0};
-      p.beams.push_back({r, static_cast<int>(k), t, 0, origin, direction_from_angles(0, es[k])});
+      const Vec3 origin{0, -speed * t, 0};
+      out[n] = {r, static_cast<int>(k), t, 0, origin, direction_from_angles(0, es[k])};
     }
-  }
+  };
   return p;
 }
 
-BeamPattern spherical_pattern(const SphericalOptions& o, std::size_t max_beams) {
+BeamPattern spherical_on_demand(const SphericalOptions& o, std::size_t max_beams) {
   const auto as = descending(o.azimuth_deg, "spherical azimuth", kMaxAngleDeg, "degrees");
   const auto es = descending(o.elevation_deg, "spherical elevation", kMaxAngleDeg, "degrees");
   require_positive(o.revolutions_per_s, "spherical revolutions per second");
   require_beams(static_cast<double>(as.size()) * static_cast<double>(es.size()), max_beams,
                 "spherical");
   BeamPattern p{
-      "spherical", static_cast<int>(es.size()), static_cast<int>(as.size()), 1, {}, {}, 0};
-  p.beams.reserve(as.size() * es.size());
+      "spherical", static_cast<int>(es.size()), static_cast<int>(as.size()), 1, {}, {}, 0, {}, 0};
   const double period = 1.0 / o.revolutions_per_s;
+  p.beam_count = as.size() * es.size();
   // The table turns from the right (smallest azimuth) to the left; one mirror
   // revolution (an elevation profile, bottom to top) per azimuth.
-  for (std::size_t j = as.size(); j-- > 0;) {
-    const double t0 = static_cast<double>(as.size() - 1 - j) * period;
-    for (std::size_t i = es.size(); i-- > 0;) {
-      const double t = t0 + (es[i] - es.back()) / 360.0 * period;
-      p.beams.push_back({static_cast<int>(i),
-                         static_cast<int>(j),
-                         t,
-                         0,
-                         {0, 0, 0},
-                         direction_from_angles(as[j], es[i])});
+  // The angles' sines and cosines once per listed value (direction_from_angles'
+  // products of them: the same bits).
+  struct Trig {
+    std::vector<double> cos, sin;
+  };
+  auto trig = [](const std::vector<double>& degrees) {
+    Trig t;
+    for (const double d : degrees) {
+      t.cos.push_back(std::cos(rad(d)));
+      t.sin.push_back(std::sin(rad(d)));
     }
-  }
+    return t;
+  };
+  p.make_beams = [as, es, period, ta = trig(as), te = trig(es)](std::size_t first,
+                                                                std::span<Beam> out) {
+    for (std::size_t n = 0; n < out.size(); ++n) {
+      const std::size_t index = first + n;
+      const std::size_t j = as.size() - 1 - index / es.size();
+      const std::size_t i = es.size() - 1 - index % es.size();
+      const double t0 = static_cast<double>(as.size() - 1 - j) * period;
+      const double t = t0 + (es[i] - es.back()) / 360.0 * period;
+      out[n] = {static_cast<int>(i),
+                static_cast<int>(j),
+                t,
+                0,
+                {0, 0, 0},
+                {te.cos[i] * ta.cos[j], te.cos[i] * ta.sin[j], te.sin[i]}};
+    }
+  };
   return p;
 }
 
-BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
+BeamPattern spinning_on_demand(const SpinningOptions& o, std::size_t max_beams) {
   const auto es = descending(o.elevation_deg, "spinning elevation", kMaxAngleDeg, "degrees");
   require_positive(o.azimuth_step_deg, "spinning azimuth step");
   require_positive(o.rotation_hz, "spinning rotation rate");
@@ -192,25 +227,52 @@ BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
   const int per_rev = static_cast<int>(firings);
   require_beams(static_cast<double>(o.revolutions) * per_rev * static_cast<double>(es.size()),
                 max_beams, "spinning");
-  BeamPattern p{"spinning", static_cast<int>(es.size()) * o.revolutions, per_rev, 1, {}, {}, 0};
+  BeamPattern p{"spinning", static_cast<int>(es.size()) * o.revolutions, per_rev, 1, {}, {}, 0, {},
+                0};
   const double firing_period = 1.0 / (o.rotation_hz * per_rev);
+  p.beam_count = static_cast<std::size_t>(o.revolutions) * per_rev * es.size();
   // The head turns clockwise seen from above (azimuth decreasing), starting
   // at +180 deg: column 0 is the left edge of the image, as for the others.
-  for (int rev = 0; rev < o.revolutions; ++rev) {
-    for (int c = 0; c < per_rev; ++c) {
+  p.make_beams = [es, per_rev, firing_period](std::size_t first, std::span<Beam> out) {
+    for (std::size_t n = 0; n < out.size(); ++n) {
+      const std::size_t index = first + n;
+      const std::size_t i = index % es.size();
+      const std::size_t firing = index / es.size();
+      const int rev = static_cast<int>(firing / static_cast<std::size_t>(per_rev));
+      const int c = static_cast<int>(firing % static_cast<std::size_t>(per_rev));
       const double az = 180.0 - (c + 0.5) * 360.0 / per_rev;
       const double t = (rev * per_rev + c) * firing_period;
-      for (std::size_t i = 0; i < es.size(); ++i) {
-        p.beams.push_back({rev * static_cast<int>(es.size()) + static_cast<int>(i),
-                           c,
-                           t,
-                           0,
-                           {0, 0, 0},
-                           direction_from_angles(az, es[i])});
-      }
+      out[n] = {rev * static_cast<int>(es.size()) + static_cast<int>(i),
+                c,
+                t,
+                0,
+                {0, 0, 0},
+                direction_from_angles(az, es[i])};
     }
-  }
+  };
   return p;
+}
+
+}  // namespace
+
+void BeamPattern::get(std::size_t first, std::span<Beam> out) const {
+  if (make_beams) {
+    make_beams(first, out);
+  } else {
+    std::copy_n(beams.begin() + static_cast<std::ptrdiff_t>(first), out.size(), out.begin());
+  }
+}
+
+BeamPattern mirror_pattern(const MirrorOptions& o, std::size_t max_beams) {
+  return stored(mirror_on_demand(o, max_beams));
+}
+
+BeamPattern spherical_pattern(const SphericalOptions& o, std::size_t max_beams) {
+  return stored(spherical_on_demand(o, max_beams));
+}
+
+BeamPattern spinning_pattern(const SpinningOptions& o, std::size_t max_beams) {
+  return stored(spinning_on_demand(o, max_beams));
 }
 
 const char* pattern_list_name(PatternListName list) {
@@ -219,7 +281,7 @@ const char* pattern_list_name(PatternListName list) {
 }
 
 BeamPattern make_pattern(const std::string& name, const PatternSettings& s, const PatternList& list,
-                         double measurement_period_s, std::size_t max_beams) {
+                         double measurement_period_s, std::size_t max_beams, bool on_demand) {
   using enum PatternListName;
   if (name == "raster")
     return raster_pattern({list(y), list(z), s.samples, s.speed_m_per_s}, measurement_period_s,
@@ -229,12 +291,12 @@ BeamPattern make_pattern(const std::string& name, const PatternSettings& s, cons
                         max_beams);
   BeamPattern p;
   if (name == "mirror")
-    p = mirror_pattern({list(elevation), s.revolutions, s.rate_hz, s.speed_m_per_s}, max_beams);
+    p = mirror_on_demand({list(elevation), s.revolutions, s.rate_hz, s.speed_m_per_s}, max_beams);
   else if (name == "spherical")
-    p = spherical_pattern({list(azimuth), list(elevation), s.rate_hz}, max_beams);
+    p = spherical_on_demand({list(azimuth), list(elevation), s.rate_hz}, max_beams);
   else if (name == "spinning")
-    p = spinning_pattern({list(elevation), s.azimuth_step_deg, s.rate_hz, s.revolutions},
-                         max_beams);
+    p = spinning_on_demand({list(elevation), s.azimuth_step_deg, s.rate_hz, s.revolutions},
+                           max_beams);
   else
     throw std::invalid_argument("pattern: '" + name +
                                 "' is not raster, line, mirror, spherical or spinning");
@@ -242,9 +304,15 @@ BeamPattern make_pattern(const std::string& name, const PatternSettings& s, cons
   // its shots over one output period, so beams closer in time than that are
   // samples the device cannot give (a spinning head's lasers, one per
   // elevation, fire together: only successive firings count).
-  for (std::size_t i = 1; i < p.beams.size(); ++i) {
-    const double gap = p.beams[i].time_s - p.beams[i - 1].time_s;
-    if (gap > 0 && gap < measurement_period_s * (1 - 1e-9)) {
+  // (In blocks: an on-demand pattern's beams are made and dropped.)
+  std::vector<Beam> block(std::min<std::size_t>(p.size(), 1 << 14));
+  double previous_time = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    const std::size_t k = i % block.size();
+    if (k == 0) p.get(i, std::span<Beam>(block).first(std::min(block.size(), p.size() - i)));
+    const double gap = block[k].time_s - previous_time;
+    previous_time = block[k].time_s;
+    if (i > 0 && gap > 0 && gap < measurement_period_s * (1 - 1e-9)) {
       char text[240];
       std::snprintf(text, sizeof text,
                     "%s: beams %.4g ms apart, less than one measurement (%.4g ms of shots): use "
@@ -253,7 +321,7 @@ BeamPattern make_pattern(const std::string& name, const PatternSettings& s, cons
       throw std::invalid_argument(text);
     }
   }
-  return p;
+  return on_demand ? p : stored(std::move(p));
 }
 
 }  // namespace tofkit::scan

@@ -31,9 +31,11 @@
 /// written) and the directories the open transaction created (those left
 /// empty), and then terminate as the signal would have.
 
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <ostream>
+#include <string>
 #include <string_view>
 
 namespace tofkit::io {
@@ -89,5 +91,73 @@ void adopt_written_file(const std::filesystem::path& written, const std::filesys
 /// The path where `target`'s content currently is: the staged temporary if
 /// the open transaction holds one for it, else `target` itself.
 [[nodiscard]] std::filesystem::path staged_path(const std::filesystem::path& target);
+
+}  // namespace tofkit::io
+
+namespace tofkit::io {
+
+/// An output file written in pieces (a streaming command's appended blocks),
+/// through the same mechanism as write_file_atomically: the target is checked
+/// when the object is made, the content goes to a hidden temporary beside it
+/// (removed on SIGINT / SIGTERM, on an exception, or when the object dies
+/// uncommitted), and commit() stages it with the open transaction (or renames
+/// it over the target when none is open). Not thread-safe: one writer.
+class StreamingOutput {
+ public:
+  /// Throws std::runtime_error naming `target` if it is refused (see above).
+  explicit StreamingOutput(std::filesystem::path target);
+  StreamingOutput(const StreamingOutput&) = delete;
+  StreamingOutput& operator=(const StreamingOutput&) = delete;
+  StreamingOutput(StreamingOutput&&) noexcept;
+  StreamingOutput& operator=(StreamingOutput&&) noexcept;
+  ~StreamingOutput();
+
+  /// Appends `bytes` at the end (buffered). Throws naming the target on a failed write.
+  void append(std::string_view bytes);
+  /// Overwrites bytes already written at `offset` (a header finished at the end).
+  void write_at(std::uint64_t offset, std::string_view bytes);
+  /// Appends `length` bytes of `from` (a scratch or another output), starting at `offset`.
+  void append_from(int from_fd, std::uint64_t offset, std::uint64_t length);
+  /// Bytes written so far.
+  [[nodiscard]] std::uint64_t size() const { return size_; }
+  [[nodiscard]] const std::filesystem::path& target() const { return target_; }
+  /// Flushes, closes and stages (or renames) the file. Throws naming the target.
+  void commit();
+
+ private:
+  void flush();
+  std::filesystem::path target_;
+  std::filesystem::path temporary_;
+  std::size_t slot_ = 0;
+  int fd_ = -1;
+  std::uint64_t size_ = 0;
+  std::string buffer_;
+};
+
+/// A temporary working file of a command that is never an output (a block
+/// store read back at the end): made beside `near` (a file in the output
+/// directory, so it is on the output's file system), removed when the object
+/// dies (it is unlinked as soon as it is opened: nothing of it outlives the
+/// process, whatever ends it).
+class ScratchFile {
+ public:
+  explicit ScratchFile(const std::filesystem::path& near);
+  ScratchFile(const ScratchFile&) = delete;
+  ScratchFile& operator=(const ScratchFile&) = delete;
+  ~ScratchFile();
+  void append(std::string_view bytes);
+  /// Reads `length` bytes at `offset` into `out` (flushing what is buffered first).
+  void read(std::uint64_t offset, std::size_t length, void* out);
+  [[nodiscard]] std::uint64_t size() const { return size_; }
+  /// The file descriptor, flushed (for StreamingOutput::append_from).
+  [[nodiscard]] int fd();
+
+ private:
+  void flush();
+  std::filesystem::path path_;
+  int fd_ = -1;
+  std::uint64_t size_ = 0;
+  std::string buffer_;
+};
 
 }  // namespace tofkit::io

@@ -7,7 +7,11 @@
 /// are invalid pixels (NaN in .npy, 0 in PNG): no fake ranges (REP-117).
 /// Points are in the world frame (REP-103), metres.
 
+#include <cstdint>
+#include <functional>
+#include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "tofkit/scan/scanner.hpp"
@@ -21,6 +25,23 @@ struct Png16 {
   double scale = 1, offset = 0;
 };
 [[nodiscard]] Png16 encode_png16(const scan::Image& image);
+
+/// The span of an image's finite values, grown row by row.
+struct FiniteRange {
+  bool any = false;
+  double lo = 0, hi = 0;
+  void add(std::span<const float> values);
+};
+/// encode_png16's scale and offset for an image whose finite values span `finite`.
+struct Png16Scale {
+  double scale = 1, offset = 0;
+};
+[[nodiscard]] Png16Scale png16_scale(const FiniteRange& finite);
+/// The PNG encode_png16 makes, made row by row: `row(r, values)` fills row r's
+/// values, `write` receives the file's bytes in order (memory: a row).
+void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
+                       const std::function<void(int, std::span<float>)>& row,
+                       const std::function<void(std::string_view)>& write);
 /// 8-bit RGB PNG (rows x columns x 3).
 [[nodiscard]] std::string encode_png_rgb(int rows, int columns,
                                          const std::vector<unsigned char>& rgb);
@@ -36,12 +57,39 @@ struct CloudPoint {
   std::uint32_t flags;  ///< RawMeasurement flags
 };
 [[nodiscard]] std::vector<CloudPoint> cloud_points(const scan::ScanResult& result);
+/// Beam `b` as a point into `point`; false (point untouched) without an echo.
+bool cloud_point(const scan::BeamResult& b, CloudPoint& point);
 
 [[nodiscard]] std::string encode_ply(const std::vector<CloudPoint>& points);
 [[nodiscard]] std::string encode_pcd(const std::vector<CloudPoint>& points);
 /// LAS 1.2, point format 1: X, Y, Z at 0.1 mm scale with offsets at the cloud's
 /// minimum; intensity = amplitude in mV (clipped to 65535); GPS time = time_s.
 [[nodiscard]] std::string encode_las(const std::vector<CloudPoint>& points);
+
+// The same files in pieces, for a streaming scan: a header (once the count or
+// bounds are known) and records appended in beam order; the encode_* forms
+// above are header + records, so both give the same bytes.
+[[nodiscard]] std::string npy_header(int rows, int columns);
+[[nodiscard]] std::string ply_header(std::uint64_t points);
+void append_ply_point(std::string& out, const CloudPoint& p);
+[[nodiscard]] std::string pcd_header(std::uint64_t points);
+void append_pcd_point(std::string& out, const CloudPoint& p);
+/// A LAS file's point count and bounds, grown point by point.
+struct LasBounds {
+  std::uint64_t points = 0;
+  double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  void add(const CloudPoint& p);
+  /// The coordinates' offsets: the floor of the minimum, per axis.
+  struct Offset {
+    double xyz[3];
+  };
+  [[nodiscard]] Offset offset() const;
+};
+[[nodiscard]] std::string las_header(const LasBounds& bounds);
+void append_las_point(std::string& out, const CloudPoint& p, const LasBounds::Offset& offset);
+[[nodiscard]] std::string scan_csv_header(bool has_model);
+void append_scan_csv_rows(std::string& out, std::span<const scan::BeamResult> beams,
+                          double ambient_c, bool has_model);
 
 [[nodiscard]] std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c);
 

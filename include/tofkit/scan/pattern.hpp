@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,17 @@ struct BeamPattern {
   /// the line one measurement integrates (stage speed x output period).
   std::vector<double> column_positions_m;
   double sample_extent_m = 0;
+  /// A pattern made on demand (mirror, spherical, spinning from make_pattern
+  /// with on_demand): `beams` stays empty and make_beams(first, out) makes
+  /// beams first .. first + out.size() (the same values as the stored form),
+  /// so a scan of 10^8 beams does not hold them; `beam_count` counts them.
+  std::function<void(std::size_t first, std::span<Beam> out)> make_beams;
+  std::size_t beam_count = 0;
+
+  /// Number of beams, stored or on demand.
+  [[nodiscard]] std::size_t size() const { return make_beams ? beam_count : beams.size(); }
+  /// Beams first .. first + out.size() into `out` (copied or made).
+  void get(std::size_t first, std::span<Beam> out) const;
 };
 
 /// Every builder refuses a pattern of more than `max_beams` beams before it
@@ -118,9 +130,12 @@ using PatternList = std::function<std::vector<double>(PatternListName list)>;
 /// asking `list` for the lists it needs, for a device with output period
 /// `measurement_period_s`. The one dispatch `tofkit scan`, `emulate --scene` and
 /// Python's tofkit.scan share; throws std::invalid_argument for another name.
+/// With `on_demand`, mirror, spherical and spinning patterns make their
+/// beams when asked (BeamPattern::make_beams); raster and line are stored.
 [[nodiscard]] BeamPattern make_pattern(const std::string& name, const PatternSettings& settings,
                                        const PatternList& list, double measurement_period_s,
-                                       std::size_t max_beams = kMaxPatternBeams);
+                                       std::size_t max_beams = kMaxPatternBeams,
+                                       bool on_demand = false);
 
 /// Direction of azimuth a (about z, from +x towards +y) and elevation e.
 [[nodiscard]] Vec3 direction_from_angles(double azimuth_deg, double elevation_deg);

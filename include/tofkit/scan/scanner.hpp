@@ -5,6 +5,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
+#include <span>
 #include <vector>
 
 #include "tofkit/device/virtual_rangefinder.hpp"
@@ -79,6 +81,28 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
                                   device::SimulationMode mode, const BeamPattern& pattern,
                                   const ScanOptions& options);
 
+/// Blocks of beams as a streaming scan hands them out: the index of the
+/// block's first beam in the pattern and its results (mutable: a sink may
+/// correct them in place, apply_pipeline's batch on a block).
+using BeamBlockSink = std::function<void(std::size_t first_beam, std::span<BeamResult> beams)>;
+
+/// The streaming scan: beams [first, last) of `pattern`, made and measured in
+/// blocks of at most `block_beams`, each handed to `sink` in beam order from
+/// the calling thread while the next block is measured. Memory: two blocks
+/// (a block's results are reused). The beams' values are those run_scan gives
+/// them (beam i on random stream i): any range, any block size, any threads.
+void run_scan_blocks(const RayCaster& caster, const Footprint& footprint,
+                     const device::VirtualRangefinder& device, const BeamPattern& pattern,
+                     const ScanOptions& options, std::size_t first, std::size_t last,
+                     std::size_t block_beams, const BeamBlockSink& sink);
+
+/// A ScanResult without beams: the pattern's description and the sensor pose
+/// (what a streaming scan's writers need before the first block).
+[[nodiscard]] ScanResult describe_scan(const BeamPattern& pattern, const Scene& scene);
+
+/// Corrects the raw measurements of `beams` with `pipeline` into their `range` (one batch).
+void apply_pipeline(const ranging::Pipeline& pipeline, std::span<BeamResult> beams);
+
 /// Corrects every beam's raw measurement with `pipeline` (one batch) into its
 /// `range` and sets has_model: the images and points then report corrected
 /// distances and sigma.
@@ -105,6 +129,44 @@ struct ScanImages {
 /// columns by weighted averaging (thesis Section 4.7): a sample covering
 /// [y - e/2, y + e/2] counts in a column by its overlap with the column.
 [[nodiscard]] ScanImages make_images(const ScanResult& result);
+
+/// Images built row by row as a streaming scan's blocks arrive (what
+/// make_images computes, the same values): add() takes blocks in beam order;
+/// a row is finished once the last beam that falls in it has been added, and
+/// take_finished_rows() hands out the finished rows in row order. Held: the
+/// rows begun and not finished (for a row-major pattern a row or two; for
+/// `spherical`, whose beams go down columns, every row until the end).
+class ImageBuilder {
+ public:
+  /// One finished row: its index and its values per plane (NaN: no echo).
+  struct Row {
+    int row = 0;
+    std::span<const float> range, intensity, sigma, truth;
+  };
+  /// `description`: the pattern's name, size and line columns (its beams may
+  /// be empty); `row_last_beam`: per row, the index of the last beam in it
+  /// (row_last_beams gives them).
+  ImageBuilder(const BeamPattern& description, std::vector<std::size_t> row_last_beam);
+  ~ImageBuilder();
+  ImageBuilder(const ImageBuilder&) = delete;
+  ImageBuilder& operator=(const ImageBuilder&) = delete;
+
+  /// Adds beams `first_beam` .. `first_beam + beams.size()` (in order, no gap).
+  void add(std::size_t first_beam, std::span<const BeamResult> beams);
+  /// Calls `take` for every finished row not yet handed out, in row order.
+  void take_finished_rows(const std::function<void(const Row&)>& take);
+  /// Beams added so far plus the first one (where the next block starts).
+  [[nodiscard]] std::size_t next_beam() const { return next_beam_; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::size_t next_beam_ = 0;
+};
+
+/// Per image row, the index of the pattern's last beam in it (a row without
+/// beams: 0, finished from the start).
+[[nodiscard]] std::vector<std::size_t> row_last_beams(const BeamPattern& pattern);
 
 /// Distance a beam reports: the model's range if present, else the raw one.
 [[nodiscard]] double reported_distance_m(const BeamResult& b);

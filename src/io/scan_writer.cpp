@@ -1,0 +1,253 @@
+#include "tofkit/io/scan_writer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <optional>
+#include <stdexcept>
+#include <utility>
+
+#include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/scan_output.hpp"
+
+namespace tofkit::io {
+namespace {
+
+constexpr std::size_t kPointsPerChunk = 1 << 14;
+
+constexpr std::size_t kBandBytes = 16 << 20;
+
+struct Plane {
+  const char* name;
+  const char* quantity;
+  const char* units;
+  std::unique_ptr<ScratchFile> rows;  // the finished rows, float32, row-major
+  FiniteRange finite;
+  std::unique_ptr<ScratchFile> by_beam;  // spherical: the pixels in beam order
+};
+
+// A pixel's value from its one beam, as ImageBuilder computes it (a weight-1
+// sum divided by its weight: the same float bits).
+float single(double value) {
+  return static_cast<float>((0.0 + 1.0 * value) / 1.0);
+}
+
+}  // namespace
+
+struct ScanWriter::Impl {
+  ScanWriterSettings settings;
+  scan::BeamPattern description;
+  scan::ImageBuilder images;
+  bool want_images = false, want_cloud = false;
+  // `spherical` goes down columns, so no image row is finished before the
+  // last column: its pixels (one beam each) are kept on disk in beam order
+  // and turned into rows at the end, a band of rows at a time.
+  bool column_major = false;
+  std::optional<StreamingOutput> csv;
+  std::vector<Plane> planes;  // range, intensity[, sigma]
+  std::unique_ptr<ScratchFile> points;
+  LasBounds bounds;
+  Summary summary;
+  std::string text;
+
+  Impl(const scan::ScanResult& d, std::vector<std::size_t> row_last, ScanWriterSettings s)
+      : settings(std::move(s)), description(d.pattern), images(d.pattern, std::move(row_last)) {}
+
+  [[nodiscard]] bool wants(const char* output) const { return settings.outputs.count(output) != 0; }
+  [[nodiscard]] std::filesystem::path at(const std::string& name) const {
+    return settings.directory / name;
+  }
+};
+
+ScanWriter::ScanWriter(const scan::ScanResult& description, std::vector<std::size_t> row_last_beam,
+                       ScanWriterSettings settings)
+    : impl_(std::make_unique<Impl>(description, std::move(row_last_beam), std::move(settings))) {
+  auto& m = *impl_;
+  m.settings.has_model = m.settings.has_model || description.has_model;
+  m.want_images = m.wants("png") || m.wants("npy") || m.wants("view");
+  m.want_cloud = m.wants("ply") || m.wants("pcd") || m.wants("las");
+  if (m.wants("csv")) {
+    m.csv.emplace(m.at("scan.csv"));
+    m.csv->append(scan_csv_header(m.settings.has_model));
+  }
+  if (m.want_images) {
+    m.planes.push_back({"range", "range", "m", nullptr, {}, nullptr});
+    m.planes.push_back({"intensity", "echo amplitude", "V", nullptr, {}, nullptr});
+    if (m.settings.has_model)
+      m.planes.push_back({"sigma", "expected range error (1 sigma)", "m", nullptr, {}, nullptr});
+    m.column_major = m.description.name == "spherical";
+    for (auto& p : m.planes) {
+      p.rows = std::make_unique<ScratchFile>(m.at(p.name));
+      if (m.column_major) p.by_beam = std::make_unique<ScratchFile>(m.at(p.name));
+    }
+  }
+  if (m.want_cloud) m.points = std::make_unique<ScratchFile>(m.at("points"));
+}
+
+ScanWriter::~ScanWriter() = default;
+
+void ScanWriter::add(std::size_t first_beam, std::span<const scan::BeamResult> beams) {
+  auto& m = *impl_;
+  m.summary.beams += beams.size();
+  for (const auto& b : beams) m.summary.mixed += b.surfaces > 1 ? 1 : 0;
+  if (m.csv) {
+    m.text.clear();
+    append_scan_csv_rows(m.text, beams, m.settings.ambient_c, m.settings.has_model);
+    m.csv->append(m.text);
+  }
+  CloudPoint point{};
+  if (m.want_cloud) m.text.clear();
+  for (const auto& b : beams) {
+    if (!cloud_point(b, point)) continue;
+    ++m.summary.points;
+    if (!m.want_cloud) continue;
+    m.bounds.add(point);
+    m.text.append(reinterpret_cast<const char*>(&point), sizeof point);
+  }
+  if (m.want_cloud) m.points->append(m.text);
+  if (m.want_images && m.column_major) {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    for (std::size_t k = 0; k < m.planes.size(); ++k) {
+      m.text.clear();
+      for (const auto& b : beams) {
+        const double d = scan::reported_distance_m(b);
+        const bool echo = b.raw.has_echo() && !std::isnan(d);
+        const float v = !echo    ? nan
+                        : k == 0 ? single(d)
+                        : k == 1 ? single(b.raw.amplitude)
+                                 : single(b.range.sigma_m);
+        m.text.append(reinterpret_cast<const char*>(&v), sizeof v);
+      }
+      m.planes[k].by_beam->append(m.text);
+    }
+  } else if (m.want_images) {
+    m.images.add(first_beam, beams);
+    m.images.take_finished_rows([&](const scan::ImageBuilder::Row& row) {
+      const std::span<const float> values[] = {row.range, row.intensity, row.sigma};
+      for (std::size_t k = 0; k < m.planes.size(); ++k) {
+        m.planes[k].finite.add(values[k]);
+        m.planes[k].rows->append(std::string_view(reinterpret_cast<const char*>(values[k].data()),
+                                                  values[k].size_bytes()));
+      }
+    });
+  }
+}
+
+ScanWriter::Summary ScanWriter::finish() {
+  auto& m = *impl_;
+  if (m.csv) m.csv->commit();
+  const int rows = m.description.rows, columns = m.description.columns;
+  const std::size_t row_bytes = static_cast<std::size_t>(columns) * sizeof(float);
+  if (m.want_images && m.column_major) {
+    // Pixel (i, j) is beam (columns - 1 - j) rows + (rows - 1 - i): for a band
+    // of rows, each column's values are one contiguous run (rows reversed).
+    const auto e = static_cast<std::uint64_t>(rows), a = static_cast<std::uint64_t>(columns);
+    const std::uint64_t band =
+        std::max<std::uint64_t>(1, kBandBytes / std::max<std::uint64_t>(1, a * sizeof(float)));
+    std::vector<float> values, run;
+    for (auto& p : m.planes) {
+      if (p.by_beam->size() != e * a * sizeof(float))
+        throw std::logic_error("ScanWriter: a spherical scan ended before its last beam");
+      for (std::uint64_t r0 = 0; r0 < e; r0 += band) {
+        const std::uint64_t n = std::min(band, e - r0);
+        values.resize(n * a);
+        run.resize(n);
+        for (std::uint64_t j = 0; j < a; ++j) {
+          const std::uint64_t first = (a - 1 - j) * e + (e - r0 - n);
+          p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data());
+          for (std::uint64_t t = 0; t < n; ++t) values[t * a + j] = run[n - 1 - t];
+        }
+        p.finite.add(values);
+        p.rows->append(
+            {reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float)});
+      }
+      p.by_beam.reset();
+    }
+  }
+  if (m.want_images) {
+    if (!m.column_major && m.images.next_beam() == 0) {
+      // No beam: every pixel invalid (make_images' empty frame).
+      const std::vector<float> nan(static_cast<std::size_t>(columns),
+                                   std::numeric_limits<float>::quiet_NaN());
+      for (int r = 0; r < rows; ++r)
+        for (auto& p : m.planes)
+          p.rows->append({reinterpret_cast<const char*>(nan.data()), row_bytes});
+    }
+    for (auto& p : m.planes) {
+      if (p.rows->size() != static_cast<std::uint64_t>(rows) * row_bytes)
+        throw std::logic_error("ScanWriter: the scan ended before every image row was finished");
+      if (m.wants("png")) {
+        const std::string name = std::string(p.name) + ".png";
+        StreamingOutput png(m.at(name));
+        const Png16Scale s = png16_scale(p.finite);
+        encode_png16_rows(
+            rows, columns, s,
+            [&](int r, std::span<float> values) {
+              p.rows->read(static_cast<std::uint64_t>(r) * row_bytes, row_bytes, values.data());
+            },
+            [&](std::string_view bytes) { png.append(bytes); });
+        png.commit();
+        StreamingOutput json(m.at(std::string(p.name) + ".json"));
+        json.append(m.settings.sidecar(name, p.quantity, p.units, s.scale, s.offset));
+        json.commit();
+      }
+      if (m.wants("npy")) {
+        StreamingOutput npy(m.at(std::string(p.name) + ".npy"));
+        npy.append(npy_header(rows, columns));
+        npy.append_from(p.rows->fd(), 0, p.rows->size());
+        npy.commit();
+      }
+    }
+  }
+  if (m.want_cloud) {
+    const std::uint64_t n = m.summary.points;
+    const LasBounds::Offset offset = m.bounds.offset();
+    const struct {
+      const char* output;
+      const char* file;
+    } clouds[] = {{"ply", "points.ply"}, {"pcd", "points.pcd"}, {"las", "points.las"}};
+    std::vector<CloudPoint> chunk(kPointsPerChunk);
+    for (const auto& c : clouds) {
+      if (!m.wants(c.output)) continue;
+      StreamingOutput out(m.at(c.file));
+      const std::string_view kind = c.output;
+      out.append(kind == "ply"   ? ply_header(n)
+                 : kind == "pcd" ? pcd_header(n)
+                                 : las_header(m.bounds));
+      for (std::uint64_t i = 0; i < n; i += kPointsPerChunk) {
+        const std::size_t count =
+            static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
+        m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
+        m.text.clear();
+        for (std::size_t k = 0; k < count; ++k) {
+          if (kind == "ply")
+            append_ply_point(m.text, chunk[k]);
+          else if (kind == "pcd")
+            append_pcd_point(m.text, chunk[k]);
+          else
+            append_las_point(m.text, chunk[k], offset);
+        }
+        out.append(m.text);
+      }
+      out.commit();
+    }
+  }
+  if (m.wants("view")) {
+    // The picture's colour limits are quantiles of the whole image: it is
+    // made from the finished images read back (memory: two float images).
+    scan::ScanImages view;
+    for (std::size_t k = 0; k < 2; ++k) {
+      scan::Image& image = k == 0 ? view.range : view.intensity;
+      image = {rows, columns, std::vector<float>(static_cast<std::size_t>(rows) * columns)};
+      if (!image.values.empty())
+        m.planes[k].rows->read(0, image.values.size() * sizeof(float), image.values.data());
+    }
+    StreamingOutput out(m.at("range_view.png"));
+    out.append(encode_range_view(view));
+    out.commit();
+  }
+  return m.summary;
+}
+
+}  // namespace tofkit::io
