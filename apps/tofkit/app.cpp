@@ -1,4 +1,5 @@
 #include "app.hpp"
+#include "tofkit/io/atomic_file.hpp"
 
 #include <charconv>
 #include <stdexcept>
@@ -38,12 +39,12 @@ device::SimulationMode simulation_mode(const std::string& mode) {
 }
 
 void require_output_directory(const std::filesystem::path& path, const std::string& option) {
-  const std::filesystem::path directory =
-      path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-  std::error_code ec;
-  if (!std::filesystem::is_directory(directory, ec)) {
-    throw std::runtime_error(option + " " + path.string() + ": directory '" + directory.string() +
-                             "' does not exist");
+  const std::filesystem::path directory = path.parent_path();
+  if (directory.empty()) return;
+  try {
+    io::create_output_directories(directory);  // removed again if the command fails
+  } catch (const std::exception& e) {
+    throw std::runtime_error(option + " " + path.string() + ": " + e.what());
   }
 }
 

@@ -184,7 +184,7 @@ void emulate_plates(const EmulateOptions& o, const AppContext& ctx) {
 void emulate_scene(const EmulateOptions& o, const AppContext& ctx) {
   const device::DeviceConfig config = ctx.load_config();
   const scan::Scene scene = io::load_scene(o.scan.scene);
-  const int shots = scan_shots(config, o.shots);
+  const int shots = fitting_shots(o.scan, config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
   const auto start = std::chrono::steady_clock::now();
   const scan::ScanResult result =

@@ -17,6 +17,7 @@
 #include "app.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/device_plan.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
@@ -31,6 +32,7 @@ struct ScanCliOptions {
   std::string model, mode = "analytic", write = "all", out;
   int shots = 0;
   std::uint64_t seed = 1;
+  bool raw = false;  // --raw: no correction (the default is the factory calibration)
 };
 
 const std::vector<std::string>& all_outputs() {
@@ -94,14 +96,19 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::Scene scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
-  std::error_code ec;
-  if (!std::filesystem::is_directory(o.out, ec)) {
-    throw std::runtime_error("--out: '" + o.out + "' " +
-                             (std::filesystem::exists(o.out, ec) ? "is not a directory"
-                                                                 : "(a directory) does not exist"));
-  }
-  const int shots = scan_shots(config, o.shots);
+  io::create_output_directories(o.out);  // removed again if the scan fails
+  const int shots = fitting_shots(o.scan, config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
+  // Calibrated ranges by default, as a lidar's own output is: the device's
+  // factory calibration (the default plan measured at seed 1, chain fitted).
+  if (!pipeline && !o.raw) {
+    pipeline = experiments::factory_calibration(config).pipeline;
+    fmt::print(stderr,
+               "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
+               "and a distance sweep, seed 1); --model FILE for your own, --raw for none\n");
+  } else if (o.raw) {
+    fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
+  }
 
   const auto start = std::chrono::steady_clock::now();
   const auto mode = simulation_mode(o.mode);
@@ -165,8 +172,11 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   const SceneScanOptionHandles h = add_scene_scan_options(sub, o->scan);
   h.scene->required();
   h.pattern->required();
-  sub.add_option("--model", o->model,
-                 "correction model (JSON, from tofkit fit): adds range, sigma");
+  CLI::Option* model = sub.add_option(
+      "--model", o->model,
+      "correction model (JSON, from tofkit fit; default: the device's factory calibration)");
+  sub.add_flag("--raw", o->raw, "write raw ranges (no correction; fixed delays included)")
+      ->excludes(model);
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
@@ -175,7 +185,7 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
   sub.add_option("--write", o->write, "outputs: all or LIST of csv, png, npy, ply, pcd, las, view")
       ->capture_default_str();
-  sub.add_option("--out", o->out, "output directory (must exist)")->required();
+  sub.add_option("--out", o->out, "output directory (made if missing)")->required();
   sub.callback([o, &ctx] { run_scan_command(*o, ctx); });
 });
 

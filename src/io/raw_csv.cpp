@@ -277,20 +277,22 @@ std::span<const std::string_view> corrected_csv_columns() {
                                            kColumnCount - kRawColumnCount);
 }
 
-void write_raw_csv(const fs::path& path, std::span<const Record> records) {
-  write_file_atomically(path, [&](std::ostream& os) {
-    fmt::memory_buffer buffer;
-    append_header(buffer, kRawColumnCount);
-    for (const auto& r : records) {
-      append_record(buffer, r);
-      buffer.push_back('\n');
-      if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
-        write_buffer(os, buffer);
-        buffer.clear();
-      }
+void write_raw_csv(std::ostream& os, std::span<const Record> records) {
+  fmt::memory_buffer buffer;
+  append_header(buffer, kRawColumnCount);
+  for (const auto& r : records) {
+    append_record(buffer, r);
+    buffer.push_back('\n');
+    if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
+      write_buffer(os, buffer);
+      buffer.clear();
     }
-    write_buffer(os, buffer);
-  });
+  }
+  write_buffer(os, buffer);
+}
+
+void write_raw_csv(const fs::path& path, std::span<const Record> records) {
+  write_file_atomically(path, [&](std::ostream& os) { write_raw_csv(os, records); });
 }
 
 std::vector<Record> read_raw_csv(const fs::path& path) {
