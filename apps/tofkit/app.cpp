@@ -1,9 +1,10 @@
 #include "app.hpp"
-#include "tofkit/io/atomic_file.hpp"
 
 #include <charconv>
 #include <stdexcept>
 #include <utility>
+
+#include "tofkit/io/atomic_file.hpp"
 
 namespace tofkit::app {
 namespace {

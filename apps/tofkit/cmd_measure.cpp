@@ -137,7 +137,8 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
-  sub.add_option("--out", o->out, "raw CSV to write (- for stdout); its directory is made")->required();
+  sub.add_option("--out", o->out, "raw CSV to write (- for stdout); its directory is made")
+      ->required();
   sub.callback([o, &ctx] {
     o->count = parse_count(o->count_text);
     run_measure(*o, ctx);

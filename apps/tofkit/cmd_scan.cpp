@@ -161,7 +161,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
              "seed {}): "
              "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
              result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
-             config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
+             config.scan.rays_per_beam, scan::shots_per_beam(config, shots, pattern), o.mode,
              o.seed, points.size(), mixed, result.beams.size() - points.size(), seconds, threads,
              o.out);
 }

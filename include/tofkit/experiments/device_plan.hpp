@@ -45,8 +45,8 @@ inline constexpr double kFactorySweepStep_m = 0.003;
 /// plus the temperature run's plate swept over the field's ranges (0.5-8 m)
 /// every kFactorySweepStep_m; fitted: the chain kFactoryChain, behind a
 /// periodic step in the time of flight when the laser fires on the TDC's
-/// clock (`fit --tdc-periodic`), with its calibrated confidence. What `tofkit scan` corrects with when
-/// no --model is given, so a scan's ranges are calibrated, as a lidar's are.
+/// clock (`fit --tdc-periodic`), with its calibrated confidence. What `tofkit scan` corrects with
+/// when no --model is given, so a scan's ranges are calibrated, as a lidar's are.
 [[nodiscard]] calib::ModelFitResult factory_calibration(const device::DeviceConfig& config,
                                                         std::uint64_t seed = 1);
 
