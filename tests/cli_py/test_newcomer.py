@@ -189,3 +189,91 @@ def test_typo_in_an_option_suggests_the_option(tmp_path):
                     cwd=tmp_path, check=False)
     assert result.returncode == 2
     assert "--distnce" in result.stderr and "did you mean '--distance'" in result.stderr
+
+
+# --- the device link with a real serial client -------------------------------
+
+def crc16_ccitt_false(data):
+    """docs/link.md: polynomial 0x1021, init 0xFFFF, not reflected, no final XOR."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else crc << 1
+            crc &= 0xFFFF
+    return crc
+
+
+def decode_native(stream):
+    """Native frames, version 1, decoded from docs/link.md's byte table alone:
+    every field little-endian; CRC-16/CCITT-FALSE over bytes 0 .. 4+L-1."""
+    assert crc16_ccitt_false(b"123456789") == 0x29B1  # the table's check value
+    frames, i = [], 0
+    while i + 4 <= len(stream):
+        if stream[i] != 0x7E or stream[i + 1] != 0xD5:
+            i += 1
+            continue
+        version, length = stream[i + 2], stream[i + 3]
+        end = i + 4 + length + 2
+        if version != 1 or length < 24 or end > len(stream):
+            i += 1
+            continue
+        crc = int.from_bytes(stream[i + 4 + length:end], "little")
+        if crc != crc16_ccitt_false(stream[i:i + 4 + length]):
+            i += 1
+            continue
+        sequence, time_us, tof_fs, amplitude_uv = struct.unpack_from("<IIII", stream, i + 4)
+        width_ps, temperature, shots, flags = struct.unpack_from("<HhHH", stream, i + 20)
+        frames.append({"sequence": sequence, "time_us": time_us,
+                       "tof_ns": None if tof_fs == 0xFFFFFFFF else tof_fs * 1e-6,
+                       "amplitude": None if amplitude_uv == 0xFFFFFFFF else amplitude_uv * 1e-6,
+                       "pulse_width_ns": None if width_ps == 0xFFFF else width_ps * 1e-3,
+                       "temperature_c": None if temperature == -32768 else temperature / 128,
+                       "shots_valid": shots, "flags": flags})
+        i = end
+    return frames
+
+
+@pytest.mark.parametrize("count", [2, 120])  # 4 and 240 frames (two distances)
+def test_pyserial_opened_a_second_late_receives_every_frame(tmp_path, count):
+    serial = pytest.importorskip("serial")  # Debian python3-serial
+    frames = 2 * count
+    args = ["emulate", "--format", "native", "--rate", "100", "--distance", "2,6",
+            "--reflectance", "0.1", "--count", count, "--shots", "200", "--seed", "7"]
+    emulate = subprocess.Popen([str(BINARY), *map(str, args)], cwd=tmp_path,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        path = emulate.stdout.readline().strip()
+        assert path.startswith("/dev/pts/"), emulate.stderr.read()
+        time.sleep(1.0)  # a user starting the client by hand
+        received = bytearray()
+        with serial.Serial(path, 3000000, timeout=0.5) as port:
+            deadline = time.monotonic() + 30 + frames / 100
+            while time.monotonic() < deadline:
+                try:
+                    chunk = port.read(4096)
+                except serial.SerialException:  # the emulator closed the line: hang-up
+                    break
+                received += chunk
+                if not chunk and emulate.poll() is not None:
+                    break
+        assert emulate.wait(timeout=30) == 0, emulate.stderr.read()
+    finally:
+        if emulate.poll() is None:
+            emulate.kill()
+    decoded = decode_native(bytes(received))
+    print(f"pyserial: {len(decoded)} of {frames} frames, {len(received)} bytes",
+          [f["sequence"] for f in decoded][:3], [f["sequence"] for f in decoded][-3:])
+    assert len(received) == 30 * frames
+    assert [f["sequence"] for f in decoded] == list(range(frames))
+    # The values are measure's (same grid, order and seed), to the frame's
+    # resolution: 1 fs of time of flight, 1 ps of width.
+    grid = tofkit("measure", *args[5:9], "--count", count, "--shots", "200", "--seed", "7",
+                  "--out", "-", cwd=tmp_path).stdout.splitlines()
+    measured = list(csv.DictReader(grid))
+    for frame, row in zip(decoded, measured, strict=True):
+        assert abs(frame["tof_ns"] - float(row["tof_ns"])) <= 0.5e-6 + 1e-12
+        assert abs(frame["pulse_width_ns"] - float(row["pulse_width_ns"])) <= 0.5e-3 + 1e-12
+        assert frame["shots_valid"] == int(row["shots_valid"])
+        assert frame["flags"] == int(row["flags"])
+        assert frame["temperature_c"] == pytest.approx(float(row["temperature_c"]), abs=1 / 256)
