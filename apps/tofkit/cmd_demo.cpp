@@ -86,7 +86,7 @@ void print_table(const experiments::PaperStudyResult& r) {
   namespace paper = experiments::paper;
   fmt::print("tofkit demo: the paper's Section 5 on the virtual rangefinder\n\n");
   fmt::print("{:<44} {:>12} {:>12}\n", "figure", "paper", "tofkit");
-  fmt::print("{:<44} {:>12} {:>12.2f}\n", "range at SNR = 10, rho 0.1 (m)", "~10",
+  fmt::print("{:<44} {:>12} {:>12.2f}\n", "range at SNR = 10, rho 0.1, sunlit (m)", "~10",
              r.range_at_snr10_m);
   fmt::print("{:<44} {:>12.2f} {:>12.2f}\n", "longest achievable distance, rho 0.1 (m)",
              paper::kLongestDistance_m, r.max_range_m);
