@@ -124,8 +124,8 @@ void print_table(const experiments::PaperStudyResult& r) {
   const std::size_t rows = r.verification_rows.size();
   const std::size_t not_fitted = r.steps_not_fitted.size();
   fmt::print(
-      "every verification row within the paper's +-11 mm: {}; within a stricter +-3 mm (no paper "
-      "figure, for comparison): {}\n",
+      "every verification row within +-11 mm: {} (the paper's band); within +-3 mm, stricter than "
+      "the paper, for comparison: {}\n",
       verdict(worst, missing, rows, 11.0, not_fitted),
       verdict(worst, missing, rows, 3.0, not_fitted));
 }

@@ -44,6 +44,9 @@ struct CorrectedRow {
   ranging::Range range;
 };
 
+/// The corrected CSV into a stream (`tofkit correct --out -`: stdout).
+void write_corrected_csv(std::ostream& os, std::span<const ranging::Record> records,
+                         std::span<const ranging::Range> ranges);
 /// Write records with their corrected ranges (same length; throws
 /// std::invalid_argument otherwise), atomically.
 void write_corrected_csv(const std::filesystem::path& path,
