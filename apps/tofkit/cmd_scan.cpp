@@ -102,7 +102,12 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
   if (!pipeline && !o.raw) {
-    pipeline = experiments::factory_calibration(config).pipeline;
+    try {
+      pipeline = experiments::factory_calibration(config).pipeline;
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(std::string("the factory calibration of this device failed (") +
+                               e.what() + "): give --model FILE or --raw");
+    }
     fmt::print(stderr,
                "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
                "and a distance sweep, seed 1); --model FILE for your own, --raw for none\n");
