@@ -84,8 +84,14 @@ nlohmann::json sidecar(const std::string& file, const char* quantity, const char
   j["rows"] = r.pattern.rows;
   j["columns"] = r.pattern.columns;
   j["frame"] = "REP-103: sensor looks along +x, z up; row 0 top, column 0 left";
-  j["scan"] = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
-               {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
+  j["scan"] = {{"scene", o.scan.scene},
+               {"pattern", o.scan.pattern},
+               {"mode", o.mode},
+               {"seed", o.seed},
+               {"shots", o.shots},
+               {"model", o.raw             ? "none (--raw)"
+                         : o.model.empty() ? "factory calibration"
+                                           : o.model},
                {"beams", r.beams.size()}};
   return j;
 }
@@ -164,11 +170,11 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
-             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/\n",
+             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}\n",
              result.beams.size(), pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, shots, pattern), o.mode,
              o.seed, points.size(), mixed, result.beams.size() - points.size(), seconds, threads,
-             o.out);
+             (std::filesystem::path(o.out) / "").string());
 }
 
 const bool registered = register_command("scan", [](CLI::App& sub, AppContext& ctx) {
