@@ -220,6 +220,9 @@ TEST_F(CliTest, PlanSingleDistanceCentresThePlatesPowerSpanOnTheField) {
     std::size_t pos = 0;
     while ((pos = out.find("--distance ", pos)) != std::string::npos) {
       pos += 11;
+      // The plates' lines (--count); the closing test line spans the field.
+      const std::size_t end = out.find('\n', pos);
+      if (out.substr(pos, end - pos).find("--count") == std::string::npos) continue;
       distances.push_back(std::stod(out.substr(pos, out.find(' ', pos) - pos)));
     }
     return distances;

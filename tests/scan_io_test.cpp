@@ -331,7 +331,7 @@ TEST(ScanIo, SameBytesOnOneAndTwoThreads) {
     ++files;
     EXPECT_EQ(slurp(entry.path()), slurp(b / entry.path().filename())) << entry.path().filename();
   }
-  EXPECT_EQ(files, 11u);  // csv, 2 x (png, json, npy), ply, pcd, las, view
+  EXPECT_EQ(files, 14u);  // csv, 3 x (png, json, npy) (sigma: calibrated), ply, pcd, las, view
   fs::remove_all(a);
   fs::remove_all(b);
 }

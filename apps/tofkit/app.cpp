@@ -4,6 +4,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "tofkit/io/atomic_file.hpp"
+
 namespace tofkit::app {
 namespace {
 
@@ -50,12 +52,12 @@ device::SimulationMode simulation_mode(const std::string& mode, const AppContext
 }
 
 void require_output_directory(const std::filesystem::path& path, const std::string& option) {
-  const std::filesystem::path directory =
-      path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-  std::error_code ec;
-  if (!std::filesystem::is_directory(directory, ec)) {
-    throw std::runtime_error(option + " " + path.string() + ": directory '" + directory.string() +
-                             "' does not exist");
+  const std::filesystem::path directory = path.parent_path();
+  if (directory.empty()) return;
+  try {
+    io::create_output_directories(directory);  // removed again if the command fails
+  } catch (const std::exception& e) {
+    throw std::runtime_error(option + " " + path.string() + ": " + e.what());
   }
 }
 

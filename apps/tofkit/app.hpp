@@ -84,8 +84,10 @@ class InRange : public CLI::Range {
 inline const CLI::Validator kNotNan([](std::string& input) { return nan_refused(input); },
                                     "NUMBER");
 
-/// Throws std::runtime_error if `path`'s directory does not exist (check an
-/// output path before a long computation).
+/// Makes `path`'s directory and its parents (every command makes its output
+/// directory; a failed command removes what it made). Throws
+/// std::runtime_error naming `option` when a parent is not a directory or
+/// cannot be made. Call before a long computation.
 void require_output_directory(const std::filesystem::path& path, const std::string& option);
 
 /// The --mode option's value (CLI11 checks it is analytic or waveform).

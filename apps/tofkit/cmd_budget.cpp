@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "app.hpp"
+#include "tofkit/physics/environment.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
 namespace tofkit::app {
@@ -92,8 +93,18 @@ void run_budget(const BudgetOptions& options, const AppContext& ctx) {
         r.noise.signal_shot_a, r.noise.background_shot_a, r.noise.dark_shot_a, r.noise.thermal_a,
         r.noise.total_a, r.snr);
   }
-  fmt::print("range at SNR = {} (paper's detection criterion): {:.3f} m\n", kDetectionSnr,
-             range_snr10_m);
+  const char* light = link.environment.solar_irradiance_w_per_m2_um > 0
+                          ? "this configuration's sunlight"
+                          : "indoors, this configuration";
+  fmt::print("range at SNR = {} (paper's detection criterion), {}: {:.2f} m\n", kDetectionSnr,
+             light, range_snr10_m);
+  // The paper's Figure 3 (and the demo's headline): Table 1's sunlight, Eq. 9 as printed.
+  auto sunlit = link;
+  sunlit.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
+  sunlit.environment.eq9_as_printed = true;
+  fmt::print("range at SNR = {} in Table 1's sunlight (paper Fig. 3, tofkit demo): {:.2f} m\n",
+             kDetectionSnr,
+             physics::range_at_snr(sunlit, kDetectionSnr, options.reflectance, options.angle_deg));
   fmt::print(
       "range where the echo peak meets the {} V threshold (Eq. 7, unshaped pulse): {:.3f} m\n",
       config.discriminator.threshold_v, range_threshold_m);

@@ -99,9 +99,10 @@ void run_characterize(const CharacterizeOptions& o, const AppContext& ctx) {
   const auto it = table.find(o.name);
   if (it == table.end()) throw std::invalid_argument("unknown experiment '" + o.name + "'");
   const std::filesystem::path dir(o.out);
-  std::error_code ec;
-  if (!std::filesystem::is_directory(dir, ec)) {
-    throw std::runtime_error("--out " + o.out + ": not a directory");
+  try {
+    io::create_output_directories(dir);  // removed again if the command fails
+  } catch (const std::exception& e) {
+    throw std::runtime_error("--out " + o.out + ": " + e.what());
   }
   const device::DeviceConfig config = device_config(ctx);
   const device::VirtualRangefinder rangefinder(config);

@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include <cstdio>
+#include <iostream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -23,12 +24,17 @@ struct CorrectOptions {
 };
 
 void run_correct(const CorrectOptions& o) {
-  require_output_directory(o.out, "--out");
+  if (o.out != "-") require_output_directory(o.out, "--out");
   const ranging::Pipeline pipeline = io::load_pipeline(o.model);
   const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
   std::vector<ranging::Range> ranges(records.size());
   pipeline.apply(ranging::RawColumns::of(records), ranges);  // read in place
-  io::write_corrected_csv(o.out, records, ranges);
+  if (o.out == "-") {
+    io::write_corrected_csv(std::cout, records, ranges);
+    std::cout.flush();
+  } else {
+    io::write_corrected_csv(o.out, records, ranges);
+  }
 
   std::size_t no_echo = 0, out_of_domain = 0, non_finite = 0;
   for (const auto& r : ranges) {
@@ -39,7 +45,7 @@ void run_correct(const CorrectOptions& o) {
   fmt::print(stderr,
              "tofkit correct: {} rows ({} without echo, {} outside the model's domain, {} with a "
              "missing input) -> {}\n",
-             ranges.size(), no_echo, out_of_domain, non_finite, o.out);
+             ranges.size(), no_echo, out_of_domain, non_finite, o.out == "-" ? "stdout" : o.out);
 }
 
 const bool registered = register_command("correct", [](CLI::App& sub, AppContext& ctx) {
@@ -47,7 +53,8 @@ const bool registered = register_command("correct", [](CLI::App& sub, AppContext
   auto o = std::make_shared<CorrectOptions>();
   sub.add_option("--model", o->model, "model file (JSON, from tofkit fit)")->required();
   sub.add_option("--in", o->in, "raw CSV")->required();
-  sub.add_option("--out", o->out, "corrected CSV to write")->required();
+  sub.add_option("--out", o->out, "corrected CSV to write (- for stdout); its directory is made")
+      ->required();
   sub.callback([o, &ctx] {
     // The model / table carry everything the command uses; --config, --set
     // and --preset are still checked, so a bad key is an error, not ignored.

@@ -51,7 +51,8 @@ struct EmulateOptions {
   std::uint64_t seed = 1;
   std::string mode = "analytic";
   double corrupt = 0;
-  std::string out;  // "-": stdout; empty: a new pseudo-terminal
+  std::string out;   // "-": stdout; empty: a new pseudo-terminal
+  bool wait = true;  // pty: send nothing until a reader has opened it
 };
 
 std::atomic<bool> g_stop{false};
@@ -115,6 +116,10 @@ void send_frames(const EmulateOptions& o, std::uint64_t total, const FrameSource
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
   std::signal(SIGPIPE, SIG_IGN);
+  if (pty && o.wait && !pty->wait_for_reader(g_stop, 250)) {
+    fmt::print(stderr, "tofkit emulate: stopped before a reader opened {}\n", sink);
+    return;
+  }
 
   // Blocks of about 20 ms of frames: measured (on all cores), then written on
   // schedule (frame i is due at start + i / rate; being late does not drift).
@@ -148,8 +153,10 @@ void send_frames(const EmulateOptions& o, std::uint64_t total, const FrameSource
   }
   std::size_t unread = 0;
   if (pty) unread = pty->wait_drained(g_stop ? 0 : 10'000);
-  const double seconds =
+  const double sent_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (pty && o.wait) pty->linger(g_stop, 1'000);
+  const double seconds = sent_s;
   fmt::print(stderr,
              "tofkit emulate: {} {} frames{} at {:g} Hz in {:.2f} s (at most {:.1f} ms late){}{} "
              "-> {}\n",
@@ -185,7 +192,7 @@ void emulate_scene(const EmulateOptions& o, const AppContext& ctx) {
   const device::DeviceConfig config = ctx.load_config();
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   const scan::Scene scene = io::load_scene(o.scan.scene);
-  const int shots = scan_shots(config, o.shots);
+  const int shots = fitting_shots(o.scan, config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots);
   const auto start = std::chrono::steady_clock::now();
   const scan::ScanResult result =
@@ -248,6 +255,10 @@ const bool registered = register_command("emulate", [](CLI::App& sub, AppContext
       ->capture_default_str();
   CLI::Option* out =
       sub.add_option("--out", o->out, "'-' for stdout (default: a new pseudo-terminal)");
+  sub.add_flag("--wait,!--no-wait", o->wait,
+               "pty: send the first frame only once a reader has opened the pty (and 0.25 s "
+               "for it to set the line up); on by default")
+      ->capture_default_str();
   sub.callback([o, &ctx, plate_options, scene_options, out] {
     if (out->count() > 0 && o->out != "-") {  // '' too: not a silent pseudo-terminal
       throw std::invalid_argument(

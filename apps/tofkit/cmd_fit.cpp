@@ -24,7 +24,8 @@ namespace tofkit::app {
 namespace {
 
 struct FitOptions {
-  std::string in;
+  std::vector<std::string> inputs;  // --in, repeated: their rows in order
+  std::string in;                   // the inputs joined by ", " (messages, the model's source)
   std::string out;
   std::string chain;    // "offset,grayvalue,temperature" (any subset)
   std::string surface;  // "poly:N" or "bspline"
@@ -224,7 +225,11 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     require_output_directory(o.firmware + ".json", "--firmware");
   }
 
-  const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
+  std::vector<ranging::Record> records;
+  for (const std::string& path : o.inputs) {
+    const std::vector<ranging::Record> part = io::read_raw_csv(path);
+    records.insert(records.end(), part.begin(), part.end());
+  }
   calib::ModelFitResult fit;
   try {
     fit = calib::fit_model(records, options);
@@ -252,6 +257,14 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     firmware_note = fmt::format(" (+ {0}.json, {0}.h)", o.firmware);
   }
   fmt::print("{}{}", report, pipeline.summary());
+  if (fit.summary.chain && !fit.summary.chain->converged) {
+    fmt::print(stderr,
+               "tofkit fit: warning: the chain's backfitting did not converge after {} "
+               "iteration(s): its steps are the last iteration's, not a least-squares optimum; "
+               "the model is written (exit status 0): check its residuals (tofkit evaluate) "
+               "before use\n",
+               fit.summary.chain->backfit_iterations);
+  }
   fmt::print(stderr, "tofkit fit: {} rows from {} -> {}{}\n", records.size(), o.in, o.out,
              firmware_note);
 }
@@ -261,7 +274,12 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
       "fit a ranging pipeline (chain and/or correction surface, optional confidence) from a raw "
       "CSV with truth");
   auto o = std::make_shared<FitOptions>();
-  sub.add_option("--in", o->in, "raw CSV with ground truth (calibration data)")->required();
+  sub.add_option("--in", o->inputs,
+                 "raw CSV with ground truth (calibration data); repeat --in to fit several files' "
+                 "rows together")
+      ->required()
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
   sub.add_option("--out", o->out, "model file to write (JSON)")->required();
   sub.add_option("--chain", o->chain,
                  "chain steps to fit: any of offset,grayvalue,temperature (paper Section 5); "
@@ -320,6 +338,8 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                      "also export the chain in fixed point: STEM.json and STEM.h (C header)");
   sub.callback([o, rcond, confidence, fraction, firmware, &ctx] {
     o->firmware_given = firmware->count() > 0;
+    o->in.clear();
+    for (const std::string& path : o->inputs) o->in += (o->in.empty() ? "" : ", ") + path;
     o->rcond_given = rcond->count() > 0;
     o->confidence_given = confidence->count() > 0;
     o->confidence_fraction_given = fraction->count() > 0;

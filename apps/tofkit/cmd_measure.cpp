@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <iostream>
 #include <limits>
 #include <memory>
 #include <string>
@@ -61,7 +62,7 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   grid.count = o.count;
   grid.shots = o.shots;
   const device::DeviceConfig config = ctx.load_config();
-  require_output_directory(o.out, "--out");
+  if (o.out != "-") require_output_directory(o.out, "--out");
 
   const double rows = grid.rows();
   const auto max_rows = static_cast<double>(io::resource_limits().max_rows);
@@ -102,14 +103,21 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
-  io::write_raw_csv(o.out, records);
+  if (o.out == "-") {
+    std::cout.sync_with_stdio(false);
+    io::write_raw_csv(std::cout, records);
+    std::cout.flush();
+  } else {
+    io::write_raw_csv(o.out, records);
+  }
   const int shots = o.shots > 0 ? o.shots : config.measurement.shots;
   const auto threads =
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
   fmt::print(stderr,
              "tofkit measure: {} rows ({} shots each, {} mode, seed {}) in {:.2f} s on {} "
              "thread(s) -> {}\n",
-             records.size(), shots, o.mode, o.seed, seconds, threads, o.out);
+             records.size(), shots, o.mode, o.seed, seconds, threads,
+             o.out == "-" ? "stdout" : o.out);
 }
 
 const bool registered = register_command("measure", [](CLI::App& sub, AppContext& ctx) {
@@ -129,7 +137,8 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
-  sub.add_option("--out", o->out, "raw CSV to write")->required();
+  sub.add_option("--out", o->out, "raw CSV to write (- for stdout); its directory is made")
+      ->required();
   sub.callback([o, &ctx] {
     o->count = parse_count(o->count_text);
     run_measure(*o, ctx);

@@ -6,10 +6,12 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -53,6 +55,29 @@ struct PlanOptions {
 
 std::string number(double v) {
   return fmt::format("{:.3g}", v);
+}
+
+/// A word as a shell reads it back: quoted when it holds anything but
+/// letters, digits and -_.,:/=+@%.
+std::string shell_word(const std::string& word) {
+  const bool plain = !word.empty() && std::all_of(word.begin(), word.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) != 0 ||
+           std::string_view("-_.,:/=+@%").find(c) != std::string_view::npos;
+  });
+  if (plain) return word;
+  std::string quoted = "'";
+  for (const char c : word) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return quoted + "'";
+}
+
+/// "tofkit" and the global options that chose the device (--preset,
+/// --config, every --set in order), so a printed line measures this device.
+std::string tofkit_with_device(const AppContext& ctx) {
+  std::string line = "tofkit";
+  if (!ctx.preset.empty()) line += " --preset " + shell_word(ctx.preset);
+  if (ctx.config_file) line += " --config " + shell_word(ctx.config_file->string());
+  for (const std::string& set : ctx.overrides) line += " --set " + shell_word(set);
+  return line;
 }
 
 void run_plan(const PlanOptions& o, const AppContext& ctx) {
@@ -127,18 +152,34 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
     }
     it->second += (it->second.empty() ? "" : ",") + fmt::format("{:.4f}", p.reflectance);
   }
+  const std::string tofkit = tofkit_with_device(ctx);
+  std::string inputs;
   int part = 0;
   for (const auto& [distance, reflectances] : lines) {
-    fmt::print("tofkit measure --distance {:.4f} --reflectance {} --count {} --out plates{}.csv\n",
-               distance, reflectances, o.count, ++part);
+    fmt::print("{} measure --distance {:.4f} --reflectance {} --count {} --out plates{}.csv\n",
+               tofkit, distance, reflectances, o.count, ++part);
+    inputs += fmt::format(" --in plates{}.csv", part);
   }
   std::string temperatures;
   for (double t : plan.temperatures_c)
     temperatures += (temperatures.empty() ? "" : ",") + number(t);
   fmt::print(
-      "tofkit measure --distance {:.4f} --reflectance {:.4f} --temperature {} --count {} --out "
+      "{} measure --distance {:.4f} --reflectance {:.4f} --temperature {} --count {} --out "
       "temperature.csv\n",
-      plan.temperature_plate.distance_m, plan.temperature_plate.reflectance, temperatures, o.count);
+      tofkit, plan.temperature_plate.distance_m, plan.temperature_plate.reflectance, temperatures,
+      o.count);
+  // The fit of every file together, then a test on another seed (another
+  // power-on) over the field: targets the fit never saw.
+  fmt::print(
+      "{} fit{} --in temperature.csv --chain offset,grayvalue,temperature --out model.json\n",
+      tofkit, inputs);
+  fmt::print("{} measure --distance {}:{}:{} --reflectance {},{},{} --seed 2 --out test.csv\n",
+             tofkit, number(o.plan.range_min_m), number(o.plan.range_max_m),
+             number((o.plan.range_max_m - o.plan.range_min_m) / 10), number(o.plan.reflectance_min),
+             number(std::sqrt(o.plan.reflectance_min * o.plan.reflectance_max)),
+             number(o.plan.reflectance_max));
+  fmt::print("{} correct --model model.json --in test.csv --out test_corrected.csv\n", tofkit);
+  fmt::print("tofkit evaluate --in test_corrected.csv --by reflectance\n");
 }
 
 const bool registered = register_command("plan", [](CLI::App& sub, AppContext& ctx) {

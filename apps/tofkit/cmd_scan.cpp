@@ -20,6 +20,7 @@
 #include "scan_shard.hpp"
 #include "scene_scan.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/experiments/device_plan.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
@@ -35,6 +36,7 @@ struct ScanCliOptions {
   std::string model, mode = "analytic", write = "all", out, shard;
   int shots = 0;
   std::uint64_t seed = 1;
+  bool raw = false;  // --raw: no correction (the default is the factory calibration)
 };
 
 const std::vector<std::string>& all_outputs() {
@@ -80,13 +82,23 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::Scene scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
-  std::error_code ec;
-  if (!std::filesystem::is_directory(o.out, ec)) {
-    throw std::runtime_error("--out: '" + o.out + "' " +
-                             (std::filesystem::exists(o.out, ec) ? "is not a directory"
-                                                                 : "(a directory) does not exist"));
+  io::create_output_directories(o.out);  // removed again if the scan fails
+  const int shots = fitting_shots(o.scan, config, o.shots);
+  // Calibrated ranges by default, as a lidar's own output is: the device's
+  // factory calibration (the default plan measured at seed 1, chain fitted).
+  if (!pipeline && !o.raw) {
+    try {
+      pipeline = experiments::factory_calibration(config).pipeline;
+    } catch (const std::invalid_argument& e) {
+      throw std::runtime_error(std::string("the factory calibration of this device failed (") +
+                               e.what() + "): give --model FILE or --raw");
+    }
+    fmt::print(stderr,
+               "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
+               "and a distance sweep, seed 1); --model FILE for your own, --raw for none\n");
+  } else if (o.raw) {
+    fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
   }
-  const int shots = scan_shots(config, o.shots);
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
 
   const auto start = std::chrono::steady_clock::now();
@@ -112,8 +124,14 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   header.has_model = pipeline.has_value();
   header.ambient_c = o.scan.ambient_c;
   header.outputs = outputs;
-  header.scan_record = {{"scene", o.scan.scene},  {"pattern", o.scan.pattern}, {"mode", o.mode},
-                        {"seed", o.seed},         {"shots", o.shots},          {"model", o.model},
+  header.scan_record = {{"scene", o.scan.scene},
+                        {"pattern", o.scan.pattern},
+                        {"mode", o.mode},
+                        {"seed", o.seed},
+                        {"shots", o.shots},
+                        {"model", o.raw             ? "none (--raw)"
+                                  : o.model.empty() ? "factory calibration"
+                                                    : o.model},
                         {"beams", pattern.size()}};
   // Under mpirun, rank 0 writes; every rank measures its chunks.
   const MpiWorld world = mpi_world();
@@ -191,11 +209,11 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
-             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}/{}\n",
+             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}{}\n",
              summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
-             config.scan.rays_per_beam, scan::shots_per_beam(config, o.shots, pattern), o.mode,
+             config.scan.rays_per_beam, scan::shots_per_beam(config, shots, pattern), o.mode,
              o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,
-             threads, o.out,
+             threads, (std::filesystem::path(o.out) / "").string(),
              shard.whole() ? ""
                            : fmt::format(" (shard {}/{}: beams {}..{})", shard.index, shard.count,
                                          header.first_beam, header.last_beam));
@@ -207,8 +225,11 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   const SceneScanOptionHandles h = add_scene_scan_options(sub, o->scan);
   h.scene->required();
   h.pattern->required();
-  sub.add_option("--model", o->model,
-                 "correction model (JSON, from tofkit fit): adds range, sigma");
+  CLI::Option* model = sub.add_option(
+      "--model", o->model,
+      "correction model (JSON, from tofkit fit; default: the device's factory calibration)");
+  sub.add_flag("--raw", o->raw, "write raw ranges (no correction; fixed delays included)")
+      ->excludes(model);
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();
@@ -220,7 +241,7 @@ const bool registered = register_command("scan", [](CLI::App& sub, AppContext& c
   sub.add_option("--shard", o->shard,
                  "K/N: only beams [K n/N, (K+1) n/N) into shard.json + beams.bin, for tofkit "
                  "merge");
-  sub.add_option("--out", o->out, "output directory (must exist)")->required();
+  sub.add_option("--out", o->out, "output directory (made if missing)")->required();
   sub.callback([o, &ctx] { run_scan_command(*o, ctx); });
 });
 

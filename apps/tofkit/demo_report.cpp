@@ -113,9 +113,10 @@ std::vector<Figure> write_demo_plots(const std::filesystem::path& dir,
       pr.y.push_back(p.received_power_w);
     }
     s.series = {snr, pr, ten};
-    emit(s, fmt::format("SNR and received power vs distance; SNR = 10 at {:.2f} m (paper: about "
-                        "10 m).",
-                        r.range_at_snr10_m));
+    emit(s, fmt::format(
+                "SNR and received power vs distance in Table 1's sunlight; SNR = 10 at {:.2f} m "
+                "(paper: about 10 m).",
+                r.range_at_snr10_m));
   }
   {  // Figure 6: offset vs pulse width with the fitted hinge.
     PlotSpec s{"fig6_offset_vs_pulse_width",
@@ -318,7 +319,9 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
     << "body{font-family:sans-serif;max-width:1000px;margin:2em auto;line-height:1.4}"
     << "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.3em .6em;"
     << "text-align:right}th{background:#eee}td:first-child{text-align:left}"
-    << "img{max-width:100%;border:1px solid #ddd}figure{margin:2em 0}</style></head><body>\n"
+    << "img{max-width:100%;border:1px solid #ddd}figure{margin:2em 0}"
+    // Long lines (the fitted chain's knots and slopes) wrap to the page.
+    << "pre{white-space:pre-wrap;overflow-wrap:anywhere}</style></head><body>\n"
     << "<h1>tofkit demo: the paper's Section 5 on the virtual rangefinder</h1>\n"
     << "<p>Device: the built-in paper rangefinder (Table 1 plus documented assumptions), "
     << "indoors. Calibration, tests and the held-out grid are separate runs; the fit never "
@@ -329,7 +332,7 @@ void write_demo_report(const std::filesystem::path& dir, const experiments::Pape
     h << "<tr><td>" << html_escape(name) << "</td><td>" << p << "</td><td>"
       << fmt::format("{:.2f}", t) << "</td></tr>\n";
   };
-  row("range at SNR = 10 (m)", "~10", r.range_at_snr10_m);
+  row("range at SNR = 10, rho 0.1, sunlit (m)", "~10", r.range_at_snr10_m);
   row("longest achievable distance (m)", fmt::format("{:.2f}", paper::kLongestDistance_m),
       r.max_range_m);
   row("gray-value std at 2.355 m (mm)", fmt::format("{:.2f}", paper::kGrayvalueStd_mm),

@@ -4,15 +4,109 @@
 #include <fmt/format.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <exception>
 #include <memory>
 #include <new>
 #include <string>
+#include <vector>
 
 #include "app.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/input_file.hpp"
+
+namespace {
+
+/// Levenshtein distance: the typo's distance to a known name.
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+/// ", did you mean 'X'?" for the nearest of `known` within a third of the
+/// word's length (at least 2 edits), else "".
+std::string suggestion(const std::string& word, const std::vector<std::string>& known) {
+  std::string best;
+  std::size_t best_distance = std::max<std::size_t>(2, word.size() / 3) + 1;
+  for (const std::string& name : known) {
+    const std::size_t d = edit_distance(word, name);
+    if (d < best_distance) {
+      best = name;
+      best_distance = d;
+    }
+  }
+  return best.empty() ? "" : "; did you mean '" + best + "'?";
+}
+
+std::vector<std::string> long_option_names(const CLI::App& app) {
+  std::vector<std::string> names;
+  for (const CLI::Option* option : app.get_options()) {
+    for (const std::string& name : option->get_lnames()) names.push_back("--" + name);
+  }
+  return names;
+}
+
+/// Typo help before CLI11 parses (which would say only "A subcommand is
+/// required" or "--distance is required"): an unknown command, or an
+/// unknown --option of the command or of the globals, is named with the
+/// nearest known one. Returns the message, "" when every word is known.
+std::string unknown_word(const CLI::App& app, int argc, char** argv) {
+  static const std::vector<std::string> kGlobalsWithValue = {
+      "--threads", "--config", "--set", "--preset", "--max-rows", "--max-input-mb"};
+  const CLI::App* command = nullptr;
+  std::vector<std::string> commands;
+  std::vector<const CLI::App*> subs;
+  for (const CLI::App* sub : app.get_subcommands({})) {
+    commands.push_back(sub->get_name());
+    subs.push_back(sub);
+  }
+  for (int i = 1; i < argc; ++i) {
+    const std::string word = argv[i];
+    if (word == "--") break;
+    if (word.rfind("--", 0) == 0) {
+      const std::string name = word.substr(0, word.find('='));
+      const bool known = app.get_option_no_throw(name) != nullptr ||
+                         (command != nullptr && command->get_option_no_throw(name) != nullptr);
+      if (!known) {
+        std::vector<std::string> names = long_option_names(app);
+        if (command != nullptr) {
+          const auto own = long_option_names(*command);
+          names.insert(names.end(), own.begin(), own.end());
+        }
+        return fmt::format("tofkit{}: unknown option '{}'{}",
+                           command != nullptr ? " " + command->get_name() : "", name,
+                           suggestion(name, names));
+      }
+      // A global option's value is the next word (unless given as --x=v).
+      if (command == nullptr && word.find('=') == std::string::npos &&
+          std::find(kGlobalsWithValue.begin(), kGlobalsWithValue.end(), name) !=
+              kGlobalsWithValue.end())
+        ++i;
+      continue;
+    }
+    if (command != nullptr || word.rfind('-', 0) == 0) continue;
+    if (std::find(commands.begin(), commands.end(), word) == commands.end()) {
+      return fmt::format("tofkit: unknown command '{}'{} (tofkit --help lists them)", word,
+                         suggestion(word, commands));
+    }
+    command = subs[static_cast<std::size_t>(std::find(commands.begin(), commands.end(), word) -
+                                            commands.begin())];
+  }
+  return "";
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using tofkit::app::AppContext;
@@ -65,6 +159,10 @@ int main(int argc, char** argv) {
     fmt::print(stderr, "tofkit{}: error: {}\n", command, message);
     return 1;
   };
+  if (const std::string unknown = unknown_word(app, argc, argv); !unknown.empty()) {
+    fmt::print(stderr, "{}\n", unknown);
+    return 2;
+  }
   try {
     app.parse(argc, argv);
     outputs.commit();

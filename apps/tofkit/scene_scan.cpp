@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -81,6 +83,22 @@ scan::BeamPattern make_scan_pattern(const SceneScanOptions& o, const device::Dev
 
 int scan_shots(const device::DeviceConfig& config, int shots) {
   return shots > 0 ? shots : config.measurement.shots;
+}
+
+int fitting_shots(const SceneScanOptions& o, const device::DeviceConfig& config, int shots) {
+  if (shots > 0 || o.pattern == "raster" || o.pattern == "line") return scan_shots(config, shots);
+  // The beams' times do not depend on the shots for these patterns: the
+  // closest pair sets how many shots one beam's measurement can average.
+  const scan::BeamPattern timing = make_scan_pattern(o, config, 1);
+  double gap_s = 0;
+  for (std::size_t i = 1; i < timing.beams.size(); ++i) {
+    const double gap = timing.beams[i].time_s - timing.beams[i - 1].time_s;
+    if (gap > 0 && (gap_s == 0 || gap < gap_s)) gap_s = gap;
+  }
+  const int configured = config.measurement.shots;
+  if (gap_s == 0) return configured;
+  const double fit = std::floor(gap_s * config.link.laser.repetition_hz * (1 + 1e-9));
+  return std::max(1, static_cast<int>(std::min<double>(configured, fit)));
 }
 
 scan::ScanResult run_scene_scan(const SceneScanOptions& o, const scan::Scene& scene,

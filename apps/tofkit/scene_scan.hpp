@@ -53,6 +53,12 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
 /// Shots per beam before the pattern's multiplier: `shots`, or the config's.
 [[nodiscard]] int scan_shots(const device::DeviceConfig& config, int shots);
 
+/// Shots per beam: `shots` when given (> 0); else the config's, fewer when a
+/// mirror, spherical or spinning pattern's beams come closer in time than
+/// that many shots (so a default scan is never refused for its default shots).
+[[nodiscard]] int fitting_shots(const SceneScanOptions& o, const device::DeviceConfig& config,
+                                int shots);
+
 /// The scan `tofkit scan` makes: `pattern` over `scene` (loaded from the
 /// options' file by the caller, io::load_scene) through the virtual
 /// rangefinder, beam i on random stream i of `seed`.

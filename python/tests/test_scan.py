@@ -26,7 +26,9 @@ def read_ply(path):
 
 def cli_scan(cli, out, *args):
     out.mkdir()
-    cli("scan", "--scene", BLOCKS, *args, "--write", "npy,ply", "--out", out)
+    # Python's scan() without a model is raw: the CLI's default corrects (factory calibration).
+    raw = [] if "--model" in args else ["--raw"]
+    cli("scan", "--scene", BLOCKS, *args, *raw, "--write", "npy,ply", "--out", out)
     return {name: np.load(out / f"{name}.npy") for name in ("range", "intensity", "sigma")
             if (out / f"{name}.npy").exists()}, read_ply(out / "points.ply")
 

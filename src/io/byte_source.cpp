@@ -196,6 +196,34 @@ std::size_t PseudoTerminal::wait_drained(int timeout_ms) const {
   }
 }
 
+bool PseudoTerminal::wait_for_reader(const std::atomic<bool>& stop, int settle_ms) {
+  // While no one holds the slave open the master reports POLLHUP; our own
+  // descriptor is closed for the wait (the line's raw settings stay with the
+  // pair) and opened again once a reader has come, for wait_drained.
+  if (slave_ >= 0) ::close(slave_);
+  slave_ = -1;
+  for (;;) {
+    if (stop) return false;
+    pollfd p{master_, POLLOUT, 0};
+    if (::poll(&p, 1, 10) > 0 && (p.revents & POLLHUP) == 0) break;
+    if ((p.revents & POLLHUP) != 0) ::usleep(10'000);  // poll returns at once on a hang-up
+  }
+  slave_ = ::open(slave_path_.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC);
+  if (slave_ < 0) throw system_error(slave_path_);
+  for (int waited = 0; waited < settle_ms && !stop; waited += 10) ::usleep(10'000);
+  return !stop;
+}
+
+void PseudoTerminal::linger(const std::atomic<bool>& stop, int linger_ms) {
+  if (slave_ >= 0) ::close(slave_);  // our descriptor must not hold the line up
+  slave_ = -1;
+  for (int waited = 0; waited < linger_ms && !stop; waited += 10) {
+    pollfd p{master_, POLLIN, 0};
+    if (::poll(&p, 1, 0) > 0 && (p.revents & POLLHUP) != 0) return;  // the reader closed
+    ::usleep(10'000);
+  }
+}
+
 PseudoTerminal::~PseudoTerminal() {
   if (slave_ >= 0) ::close(slave_);
   if (master_ >= 0) ::close(master_);

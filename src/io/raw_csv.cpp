@@ -277,20 +277,22 @@ std::span<const std::string_view> corrected_csv_columns() {
                                            kColumnCount - kRawColumnCount);
 }
 
-void write_raw_csv(const fs::path& path, std::span<const Record> records) {
-  write_file_atomically(path, [&](std::ostream& os) {
-    fmt::memory_buffer buffer;
-    append_header(buffer, kRawColumnCount);
-    for (const auto& r : records) {
-      append_record(buffer, r);
-      buffer.push_back('\n');
-      if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
-        write_buffer(os, buffer);
-        buffer.clear();
-      }
+void write_raw_csv(std::ostream& os, std::span<const Record> records) {
+  fmt::memory_buffer buffer;
+  append_header(buffer, kRawColumnCount);
+  for (const auto& r : records) {
+    append_record(buffer, r);
+    buffer.push_back('\n');
+    if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
+      write_buffer(os, buffer);
+      buffer.clear();
     }
-    write_buffer(os, buffer);
-  });
+  }
+  write_buffer(os, buffer);
+}
+
+void write_raw_csv(const fs::path& path, std::span<const Record> records) {
+  write_file_atomically(path, [&](std::ostream& os) { write_raw_csv(os, records); });
 }
 
 std::vector<Record> read_raw_csv(const fs::path& path) {
@@ -301,29 +303,36 @@ std::vector<Record> read_raw_csv(const fs::path& path) {
   return records;
 }
 
+void write_corrected_csv(std::ostream& os, std::span<const Record> records,
+                         std::span<const Range> ranges) {
+  if (records.size() != ranges.size()) {
+    throw std::invalid_argument(fmt::format("write_corrected_csv: {} records but {} ranges",
+                                            records.size(), ranges.size()));
+  }
+  fmt::memory_buffer buffer;
+  append_header(buffer, kColumnCount);
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    append_record(buffer, records[i]);
+    buffer.push_back(',');
+    append_number(buffer, ranges[i].distance_m);
+    buffer.push_back(',');
+    append_number(buffer, ranges[i].sigma_m);
+    fmt::format_to(std::back_inserter(buffer), ",{}\n", ranges[i].correction_flags);
+    if (buffer.size() > (1u << 20)) {
+      write_buffer(os, buffer);
+      buffer.clear();
+    }
+  }
+  write_buffer(os, buffer);
+}
+
 void write_corrected_csv(const fs::path& path, std::span<const Record> records,
                          std::span<const Range> ranges) {
   if (records.size() != ranges.size()) {
     throw std::invalid_argument(fmt::format("write_corrected_csv({}): {} records but {} ranges",
                                             path.string(), records.size(), ranges.size()));
   }
-  write_file_atomically(path, [&](std::ostream& os) {
-    fmt::memory_buffer buffer;
-    append_header(buffer, kColumnCount);
-    for (std::size_t i = 0; i < records.size(); ++i) {
-      append_record(buffer, records[i]);
-      buffer.push_back(',');
-      append_number(buffer, ranges[i].distance_m);
-      buffer.push_back(',');
-      append_number(buffer, ranges[i].sigma_m);
-      fmt::format_to(std::back_inserter(buffer), ",{}\n", ranges[i].correction_flags);
-      if (buffer.size() > (1u << 20)) {
-        write_buffer(os, buffer);
-        buffer.clear();
-      }
-    }
-    write_buffer(os, buffer);
-  });
+  write_file_atomically(path, [&](std::ostream& os) { write_corrected_csv(os, records, ranges); });
 }
 
 std::vector<CorrectedRow> read_corrected_csv(const fs::path& path) {

@@ -316,7 +316,7 @@ BeamPattern make_pattern(const std::string& name, const PatternSettings& s, cons
       char text[240];
       std::snprintf(text, sizeof text,
                     "%s: beams %.4g ms apart, less than one measurement (%.4g ms of shots): use "
-                    "fewer shots, a lower rate or a coarser angle step",
+                    "fewer shots (--shots), a lower rate (--rate) or a coarser angle step",
                     name.c_str(), gap * 1e3, measurement_period_s * 1e3);
       throw std::invalid_argument(text);
     }

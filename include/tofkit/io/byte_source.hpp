@@ -3,6 +3,7 @@
 /// terminal, a capture file or stdin in chunks as they arrive, and creating a
 /// pseudo-terminal for an emulated device to write to. POSIX only.
 
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -65,6 +66,15 @@ class PseudoTerminal {
   /// the line and could discard them.
   std::size_t wait_drained(int timeout_ms) const;
   [[nodiscard]] int master_fd() const { return master_; }
+  /// Waits until a reader opens the slave (the line is up), then `settle_ms`
+  /// more for it to set the line up: a reader such as pyserial flushes its
+  /// input queue on open, and bytes written before would be lost. Returns
+  /// false when `stop` became true first (checked every 10 ms).
+  bool wait_for_reader(const std::atomic<bool>& stop, int settle_ms);
+  /// After wait_drained: keeps the line up until the reader closes it, at
+  /// most `linger_ms`, so a read in progress (pyserial's read(n) waits for n
+  /// bytes or its timeout) returns its bytes instead of failing on a hang-up.
+  void linger(const std::atomic<bool>& stop, int linger_ms);
 
  private:
   int master_ = -1;

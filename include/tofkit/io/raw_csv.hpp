@@ -16,6 +16,7 @@
 /// Errors (std::runtime_error) name the file, line and column.
 
 #include <filesystem>
+#include <ostream>
 #include <span>
 #include <string_view>
 #include <vector>
@@ -30,6 +31,8 @@ namespace tofkit::io {
 /// The three columns the corrected table adds after the raw ones.
 [[nodiscard]] std::span<const std::string_view> corrected_csv_columns();
 
+/// The raw CSV (header and a row per record) into a stream (`measure --out -`: stdout).
+void write_raw_csv(std::ostream& os, std::span<const ranging::Record> records);
 /// Write records atomically (temporary file + rename).
 void write_raw_csv(const std::filesystem::path& path, std::span<const ranging::Record> records);
 
@@ -41,6 +44,9 @@ struct CorrectedRow {
   ranging::Range range;
 };
 
+/// The corrected CSV into a stream (`tofkit correct --out -`: stdout).
+void write_corrected_csv(std::ostream& os, std::span<const ranging::Record> records,
+                         std::span<const ranging::Range> ranges);
 /// Write records with their corrected ranges (same length; throws
 /// std::invalid_argument otherwise), atomically.
 void write_corrected_csv(const std::filesystem::path& path,
