@@ -249,7 +249,7 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "extra edge jitter per neper of receiver overdrive (erratic in saturation)"),
       field("oscillator.flicker_delay_ps", &config.oscillator.flicker_delay_ps, 0, 1e6,
             "rms of the loop delay's slow wander, drawn per output (averaging floor)"),
-      field("oscillator.duty_wander", &config.oscillator.duty_wander, 0, 0.5, kClosed,
+      field("oscillator.duty_wander", &config.oscillator.duty_wander, 0, 0.5,
             "rms of the loop duty's slow wander per output (share); the AC-coupled baseline "
             "follows it, and the edges' slopes turn it into time (grows on weak returns)"),
   };
