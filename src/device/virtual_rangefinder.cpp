@@ -293,6 +293,11 @@ struct MeasurementValues {
   double edge_independence = 1;   // sqrt(1 - correlation^2): the fall's noise's own share
   double recovery_ns = 0;         // extra clip time of an overdriven amplifier
   bool saturated = false;
+  // AC-coupled receiver (memory.time_constant_ms > 0): the comparator's
+  // effective level is the threshold plus the coupling's baseline, settled on
+  // this echo train (baseline_v) plus an unrecovered offset that relaxes over
+  // the shots (comparator_level).
+  double baseline_v = 0, baseline_offset_v = 0;
   double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
   double tdc_bin_scale = 1;   // fine-bin width relative to nominal (timing board temperature)
   double temperature_reading_c = 0;
@@ -383,6 +388,9 @@ struct VirtualRangefinder::Impl {
   std::uint64_t id;                  // tags the per-thread caches of this device
   std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
   bool background_free = false;  // no sun, no sky: no background light on any surface
+  bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
+  double shots_per_time_constant = 0;  // pulses per coupling time constant
+  double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -401,6 +409,45 @@ struct VirtualRangefinder::Impl {
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
     // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
     background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
+    coupled = config.memory.time_constant_ms > 0.0;
+    shots_per_time_constant =
+        config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
+    for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
+      pulse_area_ns += pulse(t) * kCompositeStepNs;
+  }
+
+  /// The comparator's effective level for shot `shot` of a measurement: the
+  /// threshold plus the AC coupling's baseline (the comparator sees the echo
+  /// minus the capacitor's voltage), whose unrecovered offset relaxes as
+  /// exp(-shot / (f_rep tau)) over the measurement's shots.
+  [[nodiscard]] double comparator_level(const MeasurementSetup& m, std::uint32_t shot) const {
+    const double threshold = config.discriminator.threshold_v;
+    if (!coupled) return threshold;
+    double offset = m.baseline_offset_v;
+    if (offset != 0.0 && shot > 0)
+      offset *= std::exp(-static_cast<double>(shot) / shots_per_time_constant);
+    return threshold + m.baseline_v + offset;
+  }
+
+  /// The coupling's settled baseline on this echo train: its capacitor charges
+  /// to the train's mean, the charge of one echo as the amplifier passes it
+  /// (linear up to saturation_v, then clipped and stretched by the recovery)
+  /// times the repetition rate, times the coupling's share. The comparator's
+  /// level tables are widened to the levels the baseline can put it at.
+  void set_baseline(MeasurementSetup& m, double amplitude_sum_v) const {
+    if (!coupled) return;
+    const auto& rx = config.link.receiver;
+    double charge_v_ns = amplitude_sum_v * pulse_area_ns;
+    if (m.peak_v > rx.saturation_v)
+      charge_v_ns = charge_v_ns * rx.saturation_v / m.peak_v + rx.saturation_v * m.recovery_ns;
+    m.baseline_v =
+        config.memory.coupling_share * charge_v_ns * config.link.laser.repetition_hz * 1e-9;
+    const double threshold = config.discriminator.threshold_v;
+    const double sigma = m.noise_at_threshold_v;
+    const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);
+    const double hi = m.baseline_v + std::max(m.baseline_offset_v, 0.0);
+    m.level_begin_v = std::max(threshold + lo - kLevelSpanSigma * sigma, 0.05 * threshold);
+    m.level_end_v = threshold + hi + kLevelSpanSigma * sigma;
   }
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
@@ -605,6 +652,7 @@ struct VirtualRangefinder::Impl {
     m.temperature_reading_c = c.temperature_reading_c;
     m.amplitude_noise_rel = rx.amplitude_noise_rel;
     m.turn_on_start_ms = cond.ms_since_laser_on;
+    m.baseline_offset_v = coupled ? cond.baseline_offset_v : 0.0;
     // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
     const double sigma = m.noise_at_threshold_v;
     m.level_begin_v = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
@@ -659,6 +707,7 @@ struct VirtualRangefinder::Impl {
     m.saturated = m.peak_v > rx.saturation_v;
     m.recovery_ns =
         m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    set_baseline(m, e.amplitude_v);
   }
 
   /// Fast path: time over the threshold of the noise-free echo (0 if it stays below).
@@ -705,7 +754,6 @@ struct VirtualRangefinder::Impl {
     const auto& rx = config.link.receiver;
     const ConditionState& c = condition_state(cond);
     const double threshold = config.discriminator.threshold_v;
-    const double level_lo = m.level_begin_v, level_hi = m.level_end_v;
     const double crosstalk_v = crosstalk_at(c);
     thread_local std::vector<EchoComponent> comps;
     components(target, c, comps);
@@ -758,6 +806,10 @@ struct VirtualRangefinder::Impl {
     // (charge storage): recovery ~ tau ln(V_peak / V_sat).
     m.recovery_ns =
         m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    double amplitude_sum_v = 0;
+    for (const auto& comp : comps) amplitude_sum_v += comp.amplitude_v;
+    set_baseline(m, amplitude_sum_v);
+    const double level_lo = m.level_begin_v, level_hi = m.level_end_v;
 
     // Crossing tables: for each comparator level L (threshold shifted by the
     // noise), the first upcrossing and the following downcrossing of the echo.
@@ -990,9 +1042,8 @@ struct VirtualRangefinder::Impl {
   /// The comparator's effective levels at the rising and the falling crossing
   /// for the noise z_rise there and z_fall_ind independent of it (the noise at
   /// the fall is correlated with the rise's through the receiver bandwidth).
-  void analytic_levels(const MeasurementSetup& m, double z_rise, double z_fall_ind,
-                       double& level_rise, double& level_fall) const {
-    const double threshold = config.discriminator.threshold_v;
+  void analytic_levels(const MeasurementSetup& m, double threshold, double z_rise,
+                       double z_fall_ind, double& level_rise, double& level_fall) const {
     level_rise = crossing_level(m, threshold, z_rise);
     const double z_fall = m.edge_correlation * z_rise + m.edge_independence * z_fall_ind;
     level_fall = crossing_level(m, threshold, z_fall);
@@ -1018,6 +1069,9 @@ struct VirtualRangefinder::Impl {
     if (!m.fast && m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
     const double threshold = config.discriminator.threshold_v;
+    // The AC coupling's baseline at this shot: the comparator sees the
+    // amplifier's output (which clips) minus it.
+    const double baseline = comparator_level(m, shot) - threshold;
     const double dt = waveform_dt_ns;
     const double tau = pulse.pole_time_constant_ns();
     const double a = std::exp(-dt / tau);
@@ -1063,7 +1117,7 @@ struct VirtualRangefinder::Impl {
     auto refine = [&](double t_a, double t_b, double n_a, double n_b, double level) {
       auto f = [&](double t) {
         const double w = (t - t_a) / dt;
-        return input_at(t, n_a + w * (n_b - n_a)) - level;
+        return input_at(t, n_a + w * (n_b - n_a)) - baseline - level;
       };
       double fa = f(t_a), fb = f(t_b);
       for (int it = 0; it < 8 && t_b - t_a > 1e-6; ++it) {
@@ -1086,7 +1140,8 @@ struct VirtualRangefinder::Impl {
       y2 = a * y2 + (1.0 - a) * y1;
       const double t = t0 + static_cast<double>(k) * dt;
       const double unit_noise = norm * y2;
-      const double v = input_at(t, unit_noise);
+      const double amplifier_v = input_at(t, unit_noise);
+      const double v = amplifier_v - baseline;
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
@@ -1094,9 +1149,9 @@ struct VirtualRangefinder::Impl {
           // strong echo of a long pulse crosses before the pulse's centre, t = 0).
           above = m.blanking_ns <= 0.0 || rise >= m.blanking_ns;
         } else if (above) {
-          if (v > rx.saturation_v) {
+          if (amplifier_v > rx.saturation_v) {
             clipped = true;
-            peak_v = std::max(peak_v, v);
+            peak_v = std::max(peak_v, amplifier_v);
           }
           if (prev_v >= threshold && v < threshold) {
             fall = refine(prev_t, t, prev_n, unit_noise, threshold);
@@ -1215,7 +1270,7 @@ struct VirtualRangefinder::Impl {
     } else if (!m.sampled) {
       const auto z = normal_pair(r[0], r[1]);
       double level_rise = 0, level_fall = 0;
-      analytic_levels(m, z[0], z[1], level_rise, level_fall);
+      analytic_levels(m, comparator_level(m, index), z[0], z[1], level_rise, level_fall);
       echo = analytic_crossings(m, level_rise, level_fall, rise, fall);
     } else {
       echo = crossings_waveform(m, rng, stream, index, unit_open(r[0]), rise, fall);
@@ -1337,8 +1392,8 @@ struct VirtualRangefinder::Impl {
       }
       for (std::size_t k = 0; k < n; ++k) {
         if (!m[k].sampled)
-          analytic_levels(m[k], lanes.z[k][0], lanes.z[k][1], lanes.level_rise[k],
-                          lanes.level_fall[k]);
+          analytic_levels(m[k], comparator_level(m[k], 0), lanes.z[k][0], lanes.z[k][1],
+                          lanes.level_rise[k], lanes.level_fall[k]);
       }
       for (std::size_t k = 0; k < n; ++k) {
         double& rise = lanes.rise[k];
@@ -1521,6 +1576,15 @@ void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests,
                         i = j;
                       }
                     });
+}
+
+double VirtualRangefinder::coupling_baseline_v(const Target& target,
+                                               const Conditions& conditions) const {
+  // (The loop's comparator does not take the baseline yet.)
+  if (!impl_->coupled || oscillator_) return 0.0;
+  Conditions settled = conditions;
+  settled.baseline_offset_v = 0.0;
+  return impl_->setup(target, settled).baseline_v;
 }
 
 double VirtualRangefinder::tof_to_distance_m(double tof_ns) const {

@@ -109,12 +109,22 @@ struct ScanConfig {
 };
 
 /// Receiver memory in a time-ordered sequence of measurements (a scan), see
-/// device/echo_memory.hpp. All zero: no memory (the paper device).
+/// device/echo_memory.hpp: an AC coupling between the amplifier and the
+/// comparator. Its capacitor's voltage (the baseline) is a first-order low-pass
+/// of the echo train; the comparator sees the echo minus it, so the effective
+/// threshold follows the echoes of the last few time constants. Zero time
+/// constant: DC coupled, no memory (the paper device: the paper reports none).
 struct MemoryConfig {
-  double time_constant_ms = 0.0;  ///< recovery of the receiver's operating point (0: none)
-  double strength_gain_mm_per_neper = 0.0;  ///< range error per neper of unrecovered
-                                            ///< echo-strength step (+: a rise reads short)
-  double distance_gain = 0.0;  ///< share of an unrecovered distance step the timing lags by
+  double time_constant_ms = 0.0;  ///< AC coupling's time constant (0: DC coupled, no memory)
+  double coupling_share = 1.0;    ///< share of the echo train's mean the baseline takes (1: a
+                                  ///< plain coupling capacitor; a baseline restorer leaves less)
+  /// The self-oscillating loop (oscillator.enabled) only, until its comparator
+  /// takes the baseline itself: a stand-in with a correction's form (range
+  /// error per neper of unrecovered echo-strength step, +: a rise reads short)
+  /// and the share of a distance step the loop lags by, decaying with
+  /// time_constant_ms. Ignored by the pulsed core.
+  double strength_gain_mm_per_neper = 0.0;
+  double distance_gain = 0.0;
 };
 
 /// The self-oscillating loop of an AccuRange-like unit (device/oscillator_loop.hpp):

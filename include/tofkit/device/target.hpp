@@ -44,6 +44,11 @@ struct Conditions {
   double ambient_c = 20.0;              ///< ambient (air) temperature
   double minutes_since_power_on = 1e9;  ///< electronics warm-up (large: warmed up)
   double ms_since_laser_on = 1e9;       ///< laser turn-on transient (large: settled)
+  /// AC-coupled receiver (memory.time_constant_ms > 0): the baseline at the
+  /// first shot minus its settled value on this target, V (a scan's memory,
+  /// device/echo_memory.hpp); it relaxes over the shots with the coupling's
+  /// time constant. 0: settled.
+  double baseline_offset_v = 0.0;
 };
 
 }  // namespace tofkit::device
