@@ -137,7 +137,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
   const auto& cfg = device_->config();
   const double tau_s = cfg.memory.time_constant_ms * 1e-3;
   const bool loop = cfg.oscillator.enabled;
-  const bool memory_on = !loop && tau_s > 0;
+  const bool memory_on = !loop && tau_s > 0 && cfg.memory.coupling_share > 0;
   const auto starts = segments(items);
 
   // The loop's stand-in (device_config.hpp, MemoryConfig): its comparator does

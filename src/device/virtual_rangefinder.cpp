@@ -42,6 +42,12 @@ constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;   // per-measurement 
 constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-on) draws
 constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
 constexpr double kFlickerLowestHz = 1e-3;
+// Random delay wander: kWanderLevels random processes whose correlation times
+// grow by kWanderLevelRatio (two octaves) from kWanderShortestS, equal power each.
+constexpr int kWanderLevels = 12;  // 1 ms ... 4^11 ms (70 min)
+constexpr double kWanderShortestS = 1e-3;
+constexpr double kWanderLevelRatio = 4.0;
+constexpr std::uint64_t kWanderStream = ~std::uint64_t{0} - 1;  // level k: kWanderStream - k
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 // Analytic crossings need the noise frozen over each edge: at most this many
 // extra (chatter) crossings per edge on average, else the noise is sampled.
@@ -409,7 +415,7 @@ struct VirtualRangefinder::Impl {
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
     // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
     background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
-    coupled = config.memory.time_constant_ms > 0.0;
+    coupled = config.memory.time_constant_ms > 0.0 && config.memory.coupling_share > 0.0;
     shots_per_time_constant =
         config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
     for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
@@ -1199,18 +1205,59 @@ struct VirtualRangefinder::Impl {
   }
 
   /// Delay offset (ns) common to every shot of one measurement: the run's
-  /// power-on offset plus the slow 1/f wander at the measurement's time
-  /// (stream i starts i measurement periods after power-on).
-  [[nodiscard]] double slow_offset_ns(const RunDraws& run, std::uint64_t stream) const {
+  /// power-on offset plus the slow 1/f flicker and the random wander at the
+  /// measurement's time (stream i starts i measurement periods after power-on).
+  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, const RunDraws& run,
+                                      std::uint64_t stream) const {
     double offset = 0;
-    slow_offsets_ns(run, stream, 1, &offset);
+    slow_offsets_ns(rng, run, stream, 1, &offset);
     return offset;
   }
 
-  /// The offsets of n <= kLanes consecutive streams from stream0 (in stages
-  /// over the streams: the octaves' sum vectorizes).
-  void slow_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
-                       double* offsets) const {
+  /// Knot j of wander level k: a standard normal of the run (seed), level and
+  /// knot only, so any output reads the same knots on any thread or grouping.
+  /// The last two knots of each level are kept per thread (consecutive outputs
+  /// share them).
+  [[nodiscard]] static const std::array<double, 2>& wander_knots(const CounterRng& rng,
+                                                                 std::uint64_t device, int level,
+                                                                 std::uint64_t j) {
+    struct Knots {
+      std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
+      std::array<double, 2> g{};
+    };
+    thread_local std::array<Knots, kWanderLevels> cache;
+    auto& c = cache[static_cast<std::size_t>(level)];
+    if (c.device != device || c.seed != rng.seed() || c.j != j) {
+      auto knot = [&](std::uint64_t index) {
+        const auto r =
+            rng.draw(kWanderStream - static_cast<std::uint64_t>(level),
+                     static_cast<std::uint32_t>(index), static_cast<std::uint32_t>(index >> 32));
+        return normal_pair(r[0], r[1])[0];
+      };
+      // A step of one knot reuses the shared one.
+      c.g = c.device == device && c.seed == rng.seed() && c.j + 1 == j
+                ? std::array<double, 2>{c.g[1], knot(j + 1)}
+                : std::array<double, 2>{knot(j), knot(j + 1)};
+      c.device = device;
+      c.seed = rng.seed();
+      c.j = j;
+    }
+    return c.g;
+  }
+
+  /// cos(pi w / 2) for w in [0, 1] (Taylor to w^10: within 5e-7).
+  static double cos_quarter_turn(double w) {
+    constexpr double h = kPi / 2;
+    const double x = h * h * w * w;
+    return 1.0 + x * (-1.0 / 2 +
+                      x * (1.0 / 24 + x * (-1.0 / 720 + x * (1.0 / 40320 + x * (-1.0 / 3628800)))));
+  }
+
+  /// The power-on offset plus the 1/f flicker (measurement.flicker_delay_ps)
+  /// of n <= kLanes consecutive streams from stream0 (in stages over the
+  /// streams: the octaves' sum vectorizes).
+  void flicker_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
+                          double* offsets) const {
     const auto& mc = config.measurement;
     if (mc.flicker_delay_ps <= 0.0) {
       std::fill(offsets, offsets + n, run.offset);
@@ -1240,6 +1287,49 @@ struct VirtualRangefinder::Impl {
       }
       offsets[i] = run.offset + amplitude * wander;
     }
+  }
+
+  /// Adds the random delay wander (measurement.delay_wander_ps) of n <= kLanes
+  /// consecutive streams from stream0 to offsets: a sum of kWanderLevels
+  /// processes of equal power whose
+  /// correlation times s_k grow by kWanderLevelRatio (two octaves) from
+  /// kWanderShortestS: level k passes from one independent normal knot to the
+  /// next over s_k as cos(pi w / 2) g_j + sin(pi w / 2) g_j+1 (its variance
+  /// stays 1 at every w, and it decorrelates after s_k). Equal power per two
+  /// octaves: a 1/f spectrum from 1 / s_max to 1 / s_0, so averaging over
+  /// longer runs stops helping. Each output's value depends on its time and
+  /// the seed only.
+  void add_wander_ns(const CounterRng& rng, std::uint64_t stream0, std::size_t n,
+                     double* offsets) const {
+    const auto& mc = config.measurement;
+    const double amplitude =
+        mc.delay_wander_ps * 1e-3 / std::sqrt(static_cast<double>(kWanderLevels));
+    const double period_s = static_cast<double>(mc.shots) / config.link.laser.repetition_hz;
+    std::array<double, kLanes> t_s, wander;
+    for (std::size_t i = 0; i < n; ++i) {
+      t_s[i] = static_cast<double>(stream0 + i) * period_s;
+      wander[i] = 0.0;
+    }
+    double inv_scale = 1.0 / kWanderShortestS;
+    for (int level = 0; level < kWanderLevels; ++level) {
+      for (std::size_t i = 0; i < n; ++i) {
+        const double u = t_s[i] * inv_scale;
+        const double floor_u = std::floor(u);
+        const double w = u - floor_u;
+        const auto& g = wander_knots(rng, id, level, static_cast<std::uint64_t>(floor_u));
+        wander[i] += cos_quarter_turn(w) * g[0] + cos_quarter_turn(1.0 - w) * g[1];
+      }
+      inv_scale /= kWanderLevelRatio;
+    }
+    for (std::size_t i = 0; i < n; ++i) offsets[i] += amplitude * wander[i];
+  }
+
+  /// The offsets of n <= kLanes consecutive streams from stream0: power-on
+  /// offset, 1/f flicker, random wander.
+  void slow_offsets_ns(const CounterRng& rng, const RunDraws& run, std::uint64_t stream0,
+                       std::size_t n, double* offsets) const {
+    flicker_offsets_ns(run, stream0, n, offsets);
+    if (config.measurement.delay_wander_ps > 0.0) add_wander_ns(rng, stream0, n, offsets);
   }
 
   /// Noise alone firing the comparator before the echo (a false alarm) when
@@ -1307,7 +1397,7 @@ struct VirtualRangefinder::Impl {
     }
     const CounterRng rng(seed);
     const auto m = setup(target, cond);
-    const double offset_ns = slow_offset_ns(run_draws(rng), stream);
+    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
@@ -1385,7 +1475,7 @@ struct VirtualRangefinder::Impl {
       }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
-      slow_offsets_ns(run, stream0, n, lanes.offsets.data());
+      slow_offsets_ns(rng, run, stream0, n, lanes.offsets.data());
       for (std::size_t k = 0; k < n; ++k) {
         lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
         lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
@@ -1512,8 +1602,9 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   const auto m = impl_->setup(target, conditions);
   Shot s;
   double start = 0, rise = 0, fall = 0;
-  s.echo = impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
-                       impl_->slow_offset_ns(impl_->run_draws(rng), stream), start, rise, fall);
+  s.echo =
+      impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
+                  impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream), start, rise, fall);
   if (s.echo) {
     s.tof_ns = rise - start;
     s.pulse_width_ns = fall - rise;
