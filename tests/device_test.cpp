@@ -142,7 +142,11 @@ TEST(Device, SingleShotSpreadGrowsWithRange) {
 }
 
 TEST(Device, AveragingShrinksSpreadAsOneOverSqrtN) {
-  const VirtualRangefinder dev(preset("paper"));
+  // The shots' own noise (the wander common to a measurement's shots is tested
+  // apart: DelayWanderIsOneOverFAcrossTheRunsTime).
+  auto cfg = preset("paper");
+  cfg.measurement.delay_wander_ps = 0;
+  const VirtualRangefinder dev(cfg);
   const auto target = Target::plate(7.0, 0.1);
   const auto e = dev.echo(target, {});
   const double jitter_ns = e.noise_at_rise_v / e.rise_slope_v_per_ns;
@@ -236,6 +240,7 @@ TEST(Device, TdcBinTempcoErrorIsPeriodicInRange) {
   // The wander is common to both; the fine codes' INL would move with the
   // drifting bins (another code at the same time): off, to see the drift alone.
   cfg.measurement.flicker_delay_ps = 0.0;
+  cfg.measurement.delay_wander_ps = 0.0;
   cfg.tdc.inl_lsb = 0.0;
   auto no_tempco = cfg;
   no_tempco.tdc.bin_tempco_ppm_per_c = 0.0;
@@ -398,6 +403,7 @@ TEST(Device, AveragingHasAFloorAndPowerOnsDiffer) {
   auto ideal = preset("paper");
   ideal.measurement.power_on_offset_ps = 0;
   ideal.measurement.flicker_delay_ps = 0;
+  ideal.measurement.delay_wander_ps = 0;
   ideal.tdc.laser_sync = false;
   const VirtualRangefinder ideal_dev(ideal);
   double s = 0, s2 = 0;
@@ -410,6 +416,62 @@ TEST(Device, AveragingHasAFloorAndPowerOnsDiffer) {
   EXPECT_LT(std::sqrt((s2 / 12 - m * m) * 12 / 11), sd4 / 2.0);
 }
 
+TEST(Device, DelayWanderIsOneOverFAcrossTheRunsTime) {
+  // The random wander (measurement.delay_wander_ps): 12 levels of equal power
+  // whose correlation times grow 4x from 1 ms, each passing between
+  // independent knots as cos / sin of a quarter turn. Oracles from that
+  // construction:
+  //  - over independent times (far beyond the slowest level, 70 min) the
+  //    outputs scatter by the configured rms;
+  //  - outputs one level-0 time (1 ms) apart (on its knots: independent
+  //    values) differ by 2 F^2 / 12 from level 0 and by (pi/2)^2 (1 ms / s_k)^2
+  //    F^2 / 12 from each slower level: 0.1804 F^2 in all (lag-1
+  //    autocorrelation 0.91);
+  //  - the values depend on the output's time and the seed only: a block of
+  //    outputs reads the same as each output alone.
+  auto cfg = preset("paper");
+  cfg.measurement.power_on_offset_ps = 0;
+  cfg.measurement.flicker_delay_ps = 0;  // the slow sinusoids (tested apart)
+  cfg.tdc.laser_sync = false;            // the TDC's INL and quantization average out
+  cfg.tdc.inl_lsb = 0;
+  cfg.measurement.delay_wander_ps = 30.0;  // the paper's Fig. 7 scatter
+  const double flicker_ns = cfg.measurement.delay_wander_ps * 1e-3;
+  const VirtualRangefinder dev(cfg);
+  const auto target = Target::plate(2.0, 0.5);
+  constexpr int kShots = 400;  // jitter and TDC averaged to ~1 ps, far below the wander
+  // Stream i starts i x 1 ms after power-on (measurement.shots at 1 MHz).
+  auto tof = [&](std::uint64_t stream) {
+    return dev.measure(target, {}, 3, stream, kShots).tof_ns;
+  };
+  double s = 0, s2 = 0;
+  constexpr int kFar = 400;
+  for (int i = 0; i < kFar; ++i) {
+    const double t = tof(static_cast<std::uint64_t>(i) * 20'000'000);  // 5.6 h apart
+    s += t;
+    s2 += t * t;
+  }
+  const double var = (s2 - s * s / kFar) / (kFar - 1);
+  EXPECT_NEAR(std::sqrt(var) / flicker_ns, 1.0, 0.12);
+  double d2 = 0;
+  constexpr int kNear = 3000;
+  double previous = tof(0);
+  for (int i = 1; i <= kNear; ++i) {
+    const double t = tof(static_cast<std::uint64_t>(i));
+    d2 += (t - previous) * (t - previous);
+    previous = t;
+  }
+  EXPECT_NEAR(d2 / kNear / (flicker_ns * flicker_ns), 0.1804, 0.1 * 0.1804);
+  // Single-shot outputs in blocks (lanes) read each output's own wander.
+  std::vector<Target> targets(150, target);
+  std::vector<Conditions> conditions(150);
+  std::vector<ranging::RawMeasurement> block(150);
+  dev.measure(targets, conditions, 8, 990, 1, block);
+  for (std::size_t k = 0; k < block.size(); ++k) {
+    const auto one = dev.measure(target, {}, 8, 990 + k, 1);
+    EXPECT_EQ(std::memcmp(&one, &block[k], sizeof(one)), 0) << k;
+  }
+}
+
 TEST(Device, SynchronousLaserLeavesTheTdcInlPeriodicInRange) {
   // A 5 mm-step sweep over 3 m. With the laser fired on the clock, the stop's
   // phase in the coarse period is set by the range, so the INL appears as an
@@ -418,6 +480,7 @@ TEST(Device, SynchronousLaserLeavesTheTdcInlPeriodicInRange) {
   auto cfg = preset("paper");
   cfg.measurement.power_on_offset_ps = 0;
   cfg.measurement.flicker_delay_ps = 0;
+  cfg.measurement.delay_wander_ps = 0;
   auto async_cfg = cfg;
   async_cfg.tdc.laser_sync = false;
   const VirtualRangefinder sync_dev(cfg), async_dev(async_cfg);

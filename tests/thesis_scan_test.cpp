@@ -15,6 +15,7 @@
 #include "tofkit/device/echo_memory.hpp"
 #include "tofkit/experiments/scan_memory.hpp"
 #include "tofkit/experiments/thesis_line_scan.hpp"
+#include "tofkit/physics/pulse_template.hpp"
 #include "tofkit/ranging/memory_correction.hpp"
 
 namespace tofkit {
@@ -40,11 +41,20 @@ std::vector<device::SequenceItem> step_sequence(const device::VirtualRangefinder
   return items;
 }
 
-device::DeviceConfig memory_config(double tau_ms, double gain_mm) {
-  auto c = device::accurange_preset();
+/// The paper device with an AC coupling of time constant tau_ms before its comparator.
+device::DeviceConfig coupled_config(double tau_ms, double share = 1.0) {
+  device::DeviceConfig c;
   c.memory.time_constant_ms = tau_ms;
-  c.memory.strength_gain_mm_per_neper = gain_mm;
+  c.memory.coupling_share = share;
   return c;
+}
+
+/// Mean time of flight of one measurement (ns) with the baseline offset `offset_v`.
+double mean_tof_ns(const device::VirtualRangefinder& dev, const device::Target& target,
+                   double offset_v, int shots = 1000) {
+  device::Conditions c;
+  c.baseline_offset_v = offset_v;
+  return dev.measure(target, c, 21, 4, shots).tof_ns;
 }
 
 TEST(ThesisScanMemory, PaperDeviceHasNoMemoryAndMatchesMeasureBatch) {
@@ -62,30 +72,92 @@ TEST(ThesisScanMemory, PaperDeviceHasNoMemoryAndMatchesMeasureBatch) {
   }
 }
 
-TEST(ThesisScanMemory, StepErrorDecaysAsTheClosedForm) {
-  // Same streams with and without memory: the difference is the memory alone:
-  // error_j = -G (x_b - x_a) exp(-j T / tau) (tau / T)(1 - exp(-T / tau)).
-  const double tau_ms = 0.4, gain_mm = 5.0;
-  const device::VirtualRangefinder with(memory_config(tau_ms, gain_mm));
-  const device::VirtualRangefinder without(memory_config(0, 0));
+TEST(ThesisScanMemory, SettledBaselineIsTheEchoTrainsMean) {
+  // A coupling capacitor charges to the mean of what passes it: an unsaturated
+  // echo of peak A and a Gaussian pulse (sigma) through the receiver's
+  // unit-area filter has the area A sigma sqrt(2 pi) / g (g: the filter's peak
+  // gain on the pulse), once per 1 / f_rep.
+  const auto cfg = coupled_config(0.5, 0.6);
+  const device::VirtualRangefinder dev(cfg);
+  const auto target = device::Target::plate(6.0, 0.1);
+  const auto e = dev.echo(target, {});
+  ASSERT_TRUE(e.detected);
+  ASSERT_FALSE(e.saturated);
+  const physics::PulseTemplate pulse(cfg.link.laser.pulse_width_ns,
+                                     cfg.link.receiver.bandwidth_mhz);
+  const double sigma_ns = cfg.link.laser.pulse_width_ns / (2.0 * std::sqrt(2.0 * std::log(2.0)));
+  const double area_v_ns = e.peak_v * sigma_ns * std::sqrt(2.0 * M_PI) / pulse.peak_gain();
+  const double expected = 0.6 * area_v_ns * cfg.link.laser.repetition_hz * 1e-9;
+  EXPECT_NEAR(dev.coupling_baseline_v(target, {}), expected, 0.01 * expected);
+  // DC coupled: no baseline.
+  EXPECT_EQ(device::VirtualRangefinder(device::DeviceConfig{}).coupling_baseline_v(target, {}),
+            0.0);
+}
+
+TEST(ThesisScanMemory, StepBaselineIsTheHighPassClosedForm) {
+  // A step from a dark to a bright plate: the capacitor relaxes from the dark
+  // plate's baseline b_a to the bright one's b_b, so the mean unrecovered
+  // offset over output j is (b_a - b_b) exp(-j T / tau) (tau / T)(1 - exp(-T / tau)).
+  const double tau_ms = 0.4;
+  const device::VirtualRangefinder with(coupled_config(tau_ms));
   const int before = 20, after = 30;
   const auto items = step_sequence(with, before, after, 0.05, 0.8);
-  std::vector<ranging::RawMeasurement> a(items.size()), b(items.size());
-  const device::EchoMemory memory(with);
-  device::EchoMemory(with).measure_sequence(items, 3, a);
-  device::EchoMemory(without).measure_sequence(items, 3, b);
-  const double xa = memory.echo_strength(items.front().path[0], {});
-  const double xb = memory.echo_strength(items.back().path[0], {});
-  ASSERT_GT(xb - xa, 1.0);  // a real step
-  const double t = memory.window_s(0), tau = tau_ms * 1e-3;
+  std::vector<ranging::RawMeasurement> a(items.size());
+  std::vector<device::MemoryTrace> trace(items.size());
+  device::EchoMemory(with).measure_sequence(items, 3, a, trace);
+  const double ba = with.coupling_baseline_v(items.front().path[0], {});
+  const double bb = with.coupling_baseline_v(items.back().path[0], {});
+  ASSERT_GT(bb - ba, 1e-3);  // a real step (volts)
+  const double t = device::EchoMemory(with).window_s(0), tau = tau_ms * 1e-3;
   const double mean_share = tau / t * (1 - std::exp(-t / tau));
-  for (int i = 0; i < before; ++i) EXPECT_NEAR(a[i].distance_raw_m, b[i].distance_raw_m, 1e-12);
+  for (int i = 0; i < before; ++i) EXPECT_EQ(trace[i].baseline_offset_v, 0.0) << i;
   for (int j = 0; j < after; ++j) {
-    const double expected = -gain_mm * 1e-3 * (xb - xa) * std::exp(-j * t / tau) * mean_share;
-    EXPECT_NEAR(a[before + j].distance_raw_m - b[before + j].distance_raw_m, expected, 1e-9) << j;
+    const double expected = (ba - bb) * std::exp(-j * t / tau) * mean_share;
+    EXPECT_NEAR(trace[before + j].baseline_offset_v, expected, 1e-12) << j;
+    EXPECT_EQ(trace[before + j].settled_baseline_v, bb) << j;
   }
-  // A step up reads short (a negative range spike, thesis Figs. 3.4-3.5).
-  EXPECT_LT(a[before].distance_raw_m - b[before].distance_raw_m, -1e-3);
+  // A step up reads short (a negative range spike, thesis Figs. 3.4-3.5); the
+  // settled steady state carries no memory (the same walk as a lone measurement
+  // of the coupled device).
+  EXPECT_LT(a[before].distance_raw_m - a[before + after - 1].distance_raw_m, -1e-3);
+  const auto settled = with.measure(items.back().path[0], {}, 3, before + after - 1);
+  EXPECT_NEAR(a[before + after - 1].distance_raw_m, settled.distance_raw_m, 1e-5);
+}
+
+TEST(ThesisScanMemory, BaselineMovesTheComparatorLevelInBothModes) {
+  // An unrecovered baseline offset d (no decay over the window: tau >> 1 ms) is
+  // the comparator at threshold + b + d: the same mean time of flight change as
+  // the noise-free echo's rising crossing of a DC-coupled comparator moved from
+  // threshold + b to threshold + b + d.
+  auto cfg = coupled_config(1e5);
+  const device::VirtualRangefinder dev(cfg);
+  const auto target = device::Target::plate(3.0, 0.3);
+  const double b = dev.coupling_baseline_v(target, {});
+  const double d = 0.02;  // 20 mV
+  auto rise_at = [&](double level) {
+    auto c = device::DeviceConfig{};
+    c.discriminator.threshold_v = level;
+    return device::VirtualRangefinder(c).echo(target, {}).rise_crossing_ns;
+  };
+  const double th = cfg.discriminator.threshold_v;
+  const double expected = rise_at(th + b + d) - rise_at(th + b);
+  ASSERT_GT(expected, 0.03);  // tens of ps: well above the TDC's dithered LSB in the mean
+  const double analytic = mean_tof_ns(dev, target, d) - mean_tof_ns(dev, target, 0);
+  EXPECT_NEAR(analytic, expected, 0.05 * expected + 0.005);
+  // The waveform mode subtracts the baseline from the sampled signal.
+  const device::VirtualRangefinder wave(cfg, device::SimulationMode::kWaveform);
+  const double sampled = mean_tof_ns(wave, target, d, 300) - mean_tof_ns(wave, target, 0, 300);
+  EXPECT_NEAR(sampled, expected, 0.1 * expected + 0.01);
+  // A high enough baseline hides a weak echo: missed shots, then no echo at all.
+  const auto weak = device::Target::plate(7.0, 0.1);
+  const double margin = dev.echo(weak, {}).peak_v - th - dev.coupling_baseline_v(weak, {});
+  ASSERT_GT(margin, 0.0);
+  device::Conditions high;
+  high.baseline_offset_v = margin + 0.05;
+  EXPECT_TRUE(dev.measure(weak, {}, 5, 1).has_echo());
+  EXPECT_FALSE(dev.measure(weak, high, 5, 1).has_echo());
+  const device::VirtualRangefinder wave_weak(cfg, device::SimulationMode::kWaveform);
+  EXPECT_FALSE(wave_weak.measure(weak, high, 5, 1, 50).has_echo());
 }
 
 TEST(ThesisScanMemory, SameBytesOnOneAndTwoThreads) {
@@ -124,40 +196,45 @@ TEST(ThesisScanMemory, MemoryKeysAreValidated) {
   auto c = device::accurange_preset();
   EXPECT_TRUE(device::validate(c).empty());
   c.memory.time_constant_ms = -1;
-  c.memory.distance_gain = 2;
+  c.memory.coupling_share = 2;
   const auto messages = device::validate(c);
   ASSERT_EQ(messages.size(), 2u);
   EXPECT_NE(messages[0].find("memory.time_constant_ms"), std::string::npos);
-  EXPECT_NE(messages[1].find("memory.distance_gain"), std::string::npos);
+  EXPECT_NE(messages[1].find("memory.coupling_share"), std::string::npos);
 }
 
-TEST(ThesisScanMemory, FitRecoversTimeConstantAndGain) {
-  // Other devices than the preset: a slower receiver and a stronger memory.
-  const double tau_ms = 0.3, gain_mm = 9.0;
-  auto cfg = memory_config(tau_ms, gain_mm);
+TEST(ThesisScanMemory, FitRecoversTheCouplingTimeConstant) {
+  // Other devices than the preset: a slower receiver on the pulsed core. With
+  // a baseline small against the echoes (a restorer leaving 10 % of the
+  // coupling), the walk is linear in the offset and the memory correction's
+  // exponential finds the coupling's time constant.
+  const double tau_ms = 0.3;
+  auto cfg = coupled_config(tau_ms, 0.4);
   cfg.link.receiver.bandwidth_mhz = 40;
+  cfg.measurement.shots = 100;
   const device::VirtualRangefinder dev(cfg);
   std::vector<device::SequenceItem> items;
   const double window = device::EchoMemory(dev).window_s(0);
-  for (int cycle = 0; cycle < 20; ++cycle) {
+  for (int cycle = 0; cycle < 60; ++cycle) {
     for (int i = 0; i < 60; ++i) {
       device::SequenceItem it;
-      it.path = {device::Target::plate(0.5, (i / 30) % 2 ? 0.6 : 0.08)};
+      it.path = {device::Target::plate(2.0, (i / 30) % 2 ? 0.6 : 0.15)};
       it.time_s = (cycle * 60 + i) * window;
       items.push_back(it);
     }
   }
   std::vector<ranging::RawMeasurement> raw(items.size());
-  device::EchoMemory(dev).measure_sequence(items, 5, raw);
+  device::EchoMemory(dev).measure_sequence(items, 8, raw);
   std::vector<double> time, truth;
   for (const auto& it : items) {
     time.push_back(it.time_s);
-    truth.push_back(0.5);
+    truth.push_back(2.0);
   }
-  const auto fit = calib::fit_memory_correction(time, raw, truth);
+  // The fit's grid finer than the tolerance (0.025 decade a step).
+  calib::MemoryFitOptions options;
+  options.candidates = 241;
+  const auto fit = calib::fit_memory_correction(time, raw, truth, options);
   EXPECT_NEAR(fit.correction.time_constant_s, tau_ms * 1e-3, 0.15 * tau_ms * 1e-3);
-  const double share = tau_ms * 1e-3 / window * (1 - std::exp(-window / (tau_ms * 1e-3)));
-  EXPECT_NEAR(fit.correction.gain_m_per_neper, gain_mm * 1e-3 * share, 0.15 * gain_mm * 1e-3);
 }
 
 TEST(ThesisScanMemory, MirrorScansAreTheSameOnOneAndTwoThreads) {

@@ -207,6 +207,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "1 sigma delay offset drawn at each power-on (a run's seed). Assumption"),
       field("measurement.flicker_delay_ps", &m.flicker_delay_ps, 0, 1e6,
             "rms of a slow 1/f delay wander (averaging floor). Assumption"),
+      field("measurement.delay_wander_ps", &m.delay_wander_ps, 0, 1e6,
+            "rms of a random 1/f delay wander over the run's time (1 ms - 70 min). Assumption: "
+            "the paper's Fig. 7 scatter"),
       field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6,
             "false-stop rejection: drop stops this far from the median stop (0: off). Assumption"),
       field("measurement.window_ns", &m.window_ns, 0.01, 1e5,
@@ -225,11 +228,16 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
 
       // memory: receiver recovery in a scan sequence (device/echo_memory.hpp)
       field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6,
-            "recovery time constant of the AC-coupled receiver / AGC after an echo step (0: none)"),
+            "AC coupling time constant before the comparator: the baseline follows the echo "
+            "train (0: DC coupled, no memory)"),
+      field("memory.coupling_share", &config.memory.coupling_share, 0, 1,
+            "share of the echo train's mean the coupling's baseline takes (1: plain capacitor; 0: "
+            "DC coupled)"),
       field("memory.strength_gain_mm_per_neper", &config.memory.strength_gain_mm_per_neper, -1e4,
-            1e4, "range error per neper of echo-strength step not yet recovered"),
+            1e4,
+            "loop devices only (stand-in): range error per neper of unrecovered strength step"),
       field("memory.distance_gain", &config.memory.distance_gain, 0, 1,
-            "share of a distance step the timing loop still lags by, decaying likewise"),
+            "loop devices only (stand-in): share of a distance step the loop still lags by"),
 
       // oscillator: the self-oscillating loop principle (device/oscillator_loop.hpp)
       field("oscillator.enabled", &config.oscillator.enabled,

@@ -136,13 +136,17 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
   }
   const auto& cfg = device_->config();
   const double tau_s = cfg.memory.time_constant_ms * 1e-3;
-  const double strength_gain_m = cfg.memory.strength_gain_mm_per_neper * 1e-3;
-  const double distance_gain = cfg.memory.distance_gain;
-  const bool memory_on = tau_s > 0 && (strength_gain_m != 0 || distance_gain != 0);
-  const double ns_per_m = 1.0 / (device_->tof_to_distance_m(1.0) - device_->tof_to_distance_m(0.0));
+  const bool loop = cfg.oscillator.enabled;
+  const bool memory_on = !loop && tau_s > 0 && cfg.memory.coupling_share > 0;
   const auto starts = segments(items);
 
-  auto run_segment = [&](std::size_t begin, std::size_t end) {
+  // The loop's stand-in (device_config.hpp, MemoryConfig): its comparator does
+  // not take the baseline yet; a correction-shaped lag instead.
+  const double strength_gain_m = cfg.memory.strength_gain_mm_per_neper * 1e-3;
+  const double distance_gain = cfg.memory.distance_gain;
+  const bool loop_memory_on = loop && tau_s > 0 && (strength_gain_m != 0 || distance_gain != 0);
+  const double ns_per_m = 1.0 / (device_->tof_to_distance_m(1.0) - device_->tof_to_distance_m(0.0));
+  auto loop_segment = [&](std::size_t begin, std::size_t end) {
     double strength_state = 0, distance_state = ranging::kNaN;
     std::vector<ranging::RawMeasurement> parts;
     for (std::size_t i = begin; i < end; ++i) {
@@ -160,7 +164,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
             k_count == 1 ? i : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) | k);
         auto& m = parts[static_cast<std::size_t>(k)];
         m = device_->measure(target, item.conditions, seed, stream, sub_shots);
-        if (!memory_on) continue;
+        if (!loop_memory_on) continue;
         const double x = echo_strength(target, item.conditions);
         const double d = mean_distance_m(target);
         if (i == begin && k == 0) {  // a fresh segment: the memory has decayed
@@ -186,7 +190,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
         if (!std::isnan(d)) distance_state = d + (distance_state - d) * decay;
       }
       out[i] = k_count == 1 ? parts.front() : combine(parts);
-      if (memory_on) {
+      if (loop_memory_on) {
         // Between windows the beam stays on the last target until the next output.
         if (i + 1 < end) {
           const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
@@ -209,12 +213,68 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       }
     }
   };
+  auto run_segment = [&](std::size_t begin, std::size_t end) {
+    double baseline_v = ranging::kNaN;  // the coupling capacitor's voltage
+    std::vector<ranging::RawMeasurement> parts;
+    for (std::size_t i = begin; i < end; ++i) {
+      const SequenceItem& item = items[i];
+      const int shots = item.shots > 0 ? item.shots : cfg.measurement.shots;
+      const auto k_count = static_cast<int>(item.path.size());
+      const double sub_window = window_s(shots) / k_count;
+      const double remaining = mean_remaining(sub_window, tau_s);
+      parts.assign(item.path.size(), {});
+      double settled_sum = 0, offset_sum = 0, strength_sum = 0;
+      for (int k = 0; k < k_count; ++k) {
+        const Target& target = item.path[static_cast<std::size_t>(k)];
+        // Shots shared among the swept targets, the remainder to the first ones.
+        const int sub_shots = std::max(1, shots / k_count + (k < shots % k_count ? 1 : 0));
+        const std::uint64_t stream =
+            k_count == 1 ? i : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) | k);
+        auto& m = parts[static_cast<std::size_t>(k)];
+        if (!memory_on) {
+          m = device_->measure(target, item.conditions, seed, stream, sub_shots);
+          continue;
+        }
+        // The baseline this target's echo train would settle at, and how far
+        // the capacitor still is from it (a fresh segment: settled).
+        const double settled_v = device_->coupling_baseline_v(target, item.conditions);
+        if (std::isnan(baseline_v)) baseline_v = settled_v;
+        const double offset_v = baseline_v - settled_v;
+        Conditions conditions = item.conditions;
+        conditions.baseline_offset_v = offset_v;  // the core relaxes it shot by shot
+        m = device_->measure(target, conditions, seed, stream, sub_shots);
+        settled_sum += settled_v;
+        offset_sum += offset_v * remaining;
+        if (!trace.empty()) strength_sum += echo_strength(target, item.conditions);
+        // The capacitor relaxes towards this target's baseline over the sub-window.
+        baseline_v = settled_v + offset_v * std::exp(-sub_window / tau_s);
+      }
+      out[i] = k_count == 1 ? parts.front() : combine(parts);
+      // Between windows the beam stays on the last target until the next output.
+      if (memory_on && i + 1 < end) {
+        const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
+        if (idle > 0) {
+          const double settled_v = device_->coupling_baseline_v(item.path.back(), item.conditions);
+          baseline_v = settled_v + (baseline_v - settled_v) * std::exp(-idle / tau_s);
+        }
+      }
+      if (!trace.empty()) {
+        auto& t = trace[i];
+        t.strength_neper = strength_sum / k_count;
+        t.settled_baseline_v = settled_sum / k_count;
+        t.baseline_offset_v = offset_sum / k_count;
+      }
+    }
+  };
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, starts.size(), 1),
                     [&](const tbb::blocked_range<std::size_t>& range) {
                       for (std::size_t s = range.begin(); s != range.end(); ++s) {
                         const std::size_t end =
                             s + 1 < starts.size() ? starts[s + 1] : items.size();
-                        run_segment(starts[s], end);
+                        if (loop)
+                          loop_segment(starts[s], end);
+                        else
+                          run_segment(starts[s], end);
                       }
                     });
 }

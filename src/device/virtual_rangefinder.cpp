@@ -42,6 +42,12 @@ constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;   // per-measurement 
 constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-on) draws
 constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
 constexpr double kFlickerLowestHz = 1e-3;
+// Random delay wander: kWanderLevels random processes whose correlation times
+// grow by kWanderLevelRatio (two octaves) from kWanderShortestS, equal power each.
+constexpr int kWanderLevels = 12;  // 1 ms ... 4^11 ms (70 min)
+constexpr double kWanderShortestS = 1e-3;
+constexpr double kWanderLevelRatio = 4.0;
+constexpr std::uint64_t kWanderStream = ~std::uint64_t{0} - 1;  // level k: kWanderStream - k
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 // Analytic crossings need the noise frozen over each edge: at most this many
 // extra (chatter) crossings per edge on average, else the noise is sampled.
@@ -293,6 +299,11 @@ struct MeasurementValues {
   double edge_independence = 1;   // sqrt(1 - correlation^2): the fall's noise's own share
   double recovery_ns = 0;         // extra clip time of an overdriven amplifier
   bool saturated = false;
+  // AC-coupled receiver (memory.time_constant_ms > 0): the comparator's
+  // effective level is the threshold plus the coupling's baseline, settled on
+  // this echo train (baseline_v) plus an unrecovered offset that relaxes over
+  // the shots (comparator_level).
+  double baseline_v = 0, baseline_offset_v = 0;
   double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
   double tdc_bin_scale = 1;   // fine-bin width relative to nominal (timing board temperature)
   double temperature_reading_c = 0;
@@ -383,6 +394,9 @@ struct VirtualRangefinder::Impl {
   std::uint64_t id;                  // tags the per-thread caches of this device
   std::shared_ptr<const SpreadEchoTable> shapes;  // analytic mode: one surface's echoes
   bool background_free = false;  // no sun, no sky: no background light on any surface
+  bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
+  double shots_per_time_constant = 0;  // pulses per coupling time constant
+  double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -401,6 +415,45 @@ struct VirtualRangefinder::Impl {
       shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
     // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
     background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
+    coupled = config.memory.time_constant_ms > 0.0 && config.memory.coupling_share > 0.0;
+    shots_per_time_constant =
+        config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
+    for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
+      pulse_area_ns += pulse(t) * kCompositeStepNs;
+  }
+
+  /// The comparator's effective level for shot `shot` of a measurement: the
+  /// threshold plus the AC coupling's baseline (the comparator sees the echo
+  /// minus the capacitor's voltage), whose unrecovered offset relaxes as
+  /// exp(-shot / (f_rep tau)) over the measurement's shots.
+  [[nodiscard]] double comparator_level(const MeasurementSetup& m, std::uint32_t shot) const {
+    const double threshold = config.discriminator.threshold_v;
+    if (!coupled) return threshold;
+    double offset = m.baseline_offset_v;
+    if (offset != 0.0 && shot > 0)
+      offset *= std::exp(-static_cast<double>(shot) / shots_per_time_constant);
+    return threshold + m.baseline_v + offset;
+  }
+
+  /// The coupling's settled baseline on this echo train: its capacitor charges
+  /// to the train's mean, the charge of one echo as the amplifier passes it
+  /// (linear up to saturation_v, then clipped and stretched by the recovery)
+  /// times the repetition rate, times the coupling's share. The comparator's
+  /// level tables are widened to the levels the baseline can put it at.
+  void set_baseline(MeasurementSetup& m, double amplitude_sum_v) const {
+    if (!coupled) return;
+    const auto& rx = config.link.receiver;
+    double charge_v_ns = amplitude_sum_v * pulse_area_ns;
+    if (m.peak_v > rx.saturation_v)
+      charge_v_ns = charge_v_ns * rx.saturation_v / m.peak_v + rx.saturation_v * m.recovery_ns;
+    m.baseline_v =
+        config.memory.coupling_share * charge_v_ns * config.link.laser.repetition_hz * 1e-9;
+    const double threshold = config.discriminator.threshold_v;
+    const double sigma = m.noise_at_threshold_v;
+    const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);
+    const double hi = m.baseline_v + std::max(m.baseline_offset_v, 0.0);
+    m.level_begin_v = std::max(threshold + lo - kLevelSpanSigma * sigma, 0.05 * threshold);
+    m.level_end_v = threshold + hi + kLevelSpanSigma * sigma;
   }
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
@@ -605,6 +658,7 @@ struct VirtualRangefinder::Impl {
     m.temperature_reading_c = c.temperature_reading_c;
     m.amplitude_noise_rel = rx.amplitude_noise_rel;
     m.turn_on_start_ms = cond.ms_since_laser_on;
+    m.baseline_offset_v = coupled ? cond.baseline_offset_v : 0.0;
     // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
     const double sigma = m.noise_at_threshold_v;
     m.level_begin_v = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
@@ -659,6 +713,7 @@ struct VirtualRangefinder::Impl {
     m.saturated = m.peak_v > rx.saturation_v;
     m.recovery_ns =
         m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    set_baseline(m, e.amplitude_v);
   }
 
   /// Fast path: time over the threshold of the noise-free echo (0 if it stays below).
@@ -705,7 +760,6 @@ struct VirtualRangefinder::Impl {
     const auto& rx = config.link.receiver;
     const ConditionState& c = condition_state(cond);
     const double threshold = config.discriminator.threshold_v;
-    const double level_lo = m.level_begin_v, level_hi = m.level_end_v;
     const double crosstalk_v = crosstalk_at(c);
     thread_local std::vector<EchoComponent> comps;
     components(target, c, comps);
@@ -758,6 +812,10 @@ struct VirtualRangefinder::Impl {
     // (charge storage): recovery ~ tau ln(V_peak / V_sat).
     m.recovery_ns =
         m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    double amplitude_sum_v = 0;
+    for (const auto& comp : comps) amplitude_sum_v += comp.amplitude_v;
+    set_baseline(m, amplitude_sum_v);
+    const double level_lo = m.level_begin_v, level_hi = m.level_end_v;
 
     // Crossing tables: for each comparator level L (threshold shifted by the
     // noise), the first upcrossing and the following downcrossing of the echo.
@@ -990,9 +1048,8 @@ struct VirtualRangefinder::Impl {
   /// The comparator's effective levels at the rising and the falling crossing
   /// for the noise z_rise there and z_fall_ind independent of it (the noise at
   /// the fall is correlated with the rise's through the receiver bandwidth).
-  void analytic_levels(const MeasurementSetup& m, double z_rise, double z_fall_ind,
-                       double& level_rise, double& level_fall) const {
-    const double threshold = config.discriminator.threshold_v;
+  void analytic_levels(const MeasurementSetup& m, double threshold, double z_rise,
+                       double z_fall_ind, double& level_rise, double& level_fall) const {
     level_rise = crossing_level(m, threshold, z_rise);
     const double z_fall = m.edge_correlation * z_rise + m.edge_independence * z_fall_ind;
     level_fall = crossing_level(m, threshold, z_fall);
@@ -1018,6 +1075,9 @@ struct VirtualRangefinder::Impl {
     if (!m.fast && m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
     const double threshold = config.discriminator.threshold_v;
+    // The AC coupling's baseline at this shot: the comparator sees the
+    // amplifier's output (which clips) minus it.
+    const double baseline = comparator_level(m, shot) - threshold;
     const double dt = waveform_dt_ns;
     const double tau = pulse.pole_time_constant_ns();
     const double a = std::exp(-dt / tau);
@@ -1063,7 +1123,7 @@ struct VirtualRangefinder::Impl {
     auto refine = [&](double t_a, double t_b, double n_a, double n_b, double level) {
       auto f = [&](double t) {
         const double w = (t - t_a) / dt;
-        return input_at(t, n_a + w * (n_b - n_a)) - level;
+        return input_at(t, n_a + w * (n_b - n_a)) - baseline - level;
       };
       double fa = f(t_a), fb = f(t_b);
       for (int it = 0; it < 8 && t_b - t_a > 1e-6; ++it) {
@@ -1086,7 +1146,8 @@ struct VirtualRangefinder::Impl {
       y2 = a * y2 + (1.0 - a) * y1;
       const double t = t0 + static_cast<double>(k) * dt;
       const double unit_noise = norm * y2;
-      const double v = input_at(t, unit_noise);
+      const double amplifier_v = input_at(t, unit_noise);
+      const double v = amplifier_v - baseline;
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
@@ -1094,9 +1155,9 @@ struct VirtualRangefinder::Impl {
           // strong echo of a long pulse crosses before the pulse's centre, t = 0).
           above = m.blanking_ns <= 0.0 || rise >= m.blanking_ns;
         } else if (above) {
-          if (v > rx.saturation_v) {
+          if (amplifier_v > rx.saturation_v) {
             clipped = true;
-            peak_v = std::max(peak_v, v);
+            peak_v = std::max(peak_v, amplifier_v);
           }
           if (prev_v >= threshold && v < threshold) {
             fall = refine(prev_t, t, prev_n, unit_noise, threshold);
@@ -1144,18 +1205,59 @@ struct VirtualRangefinder::Impl {
   }
 
   /// Delay offset (ns) common to every shot of one measurement: the run's
-  /// power-on offset plus the slow 1/f wander at the measurement's time
-  /// (stream i starts i measurement periods after power-on).
-  [[nodiscard]] double slow_offset_ns(const RunDraws& run, std::uint64_t stream) const {
+  /// power-on offset plus the slow 1/f flicker and the random wander at the
+  /// measurement's time (stream i starts i measurement periods after power-on).
+  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, const RunDraws& run,
+                                      std::uint64_t stream) const {
     double offset = 0;
-    slow_offsets_ns(run, stream, 1, &offset);
+    slow_offsets_ns(rng, run, stream, 1, &offset);
     return offset;
   }
 
-  /// The offsets of n <= kLanes consecutive streams from stream0 (in stages
-  /// over the streams: the octaves' sum vectorizes).
-  void slow_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
-                       double* offsets) const {
+  /// Knot j of wander level k: a standard normal of the run (seed), level and
+  /// knot only, so any output reads the same knots on any thread or grouping.
+  /// The last two knots of each level are kept per thread (consecutive outputs
+  /// share them).
+  [[nodiscard]] static const std::array<double, 2>& wander_knots(const CounterRng& rng,
+                                                                 std::uint64_t device, int level,
+                                                                 std::uint64_t j) {
+    struct Knots {
+      std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
+      std::array<double, 2> g{};
+    };
+    thread_local std::array<Knots, kWanderLevels> cache;
+    auto& c = cache[static_cast<std::size_t>(level)];
+    if (c.device != device || c.seed != rng.seed() || c.j != j) {
+      auto knot = [&](std::uint64_t index) {
+        const auto r =
+            rng.draw(kWanderStream - static_cast<std::uint64_t>(level),
+                     static_cast<std::uint32_t>(index), static_cast<std::uint32_t>(index >> 32));
+        return normal_pair(r[0], r[1])[0];
+      };
+      // A step of one knot reuses the shared one.
+      c.g = c.device == device && c.seed == rng.seed() && c.j + 1 == j
+                ? std::array<double, 2>{c.g[1], knot(j + 1)}
+                : std::array<double, 2>{knot(j), knot(j + 1)};
+      c.device = device;
+      c.seed = rng.seed();
+      c.j = j;
+    }
+    return c.g;
+  }
+
+  /// cos(pi w / 2) for w in [0, 1] (Taylor to w^10: within 5e-7).
+  static double cos_quarter_turn(double w) {
+    constexpr double h = kPi / 2;
+    const double x = h * h * w * w;
+    return 1.0 + x * (-1.0 / 2 +
+                      x * (1.0 / 24 + x * (-1.0 / 720 + x * (1.0 / 40320 + x * (-1.0 / 3628800)))));
+  }
+
+  /// The power-on offset plus the 1/f flicker (measurement.flicker_delay_ps)
+  /// of n <= kLanes consecutive streams from stream0 (in stages over the
+  /// streams: the octaves' sum vectorizes).
+  void flicker_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
+                          double* offsets) const {
     const auto& mc = config.measurement;
     if (mc.flicker_delay_ps <= 0.0) {
       std::fill(offsets, offsets + n, run.offset);
@@ -1187,6 +1289,49 @@ struct VirtualRangefinder::Impl {
     }
   }
 
+  /// Adds the random delay wander (measurement.delay_wander_ps) of n <= kLanes
+  /// consecutive streams from stream0 to offsets: a sum of kWanderLevels
+  /// processes of equal power whose
+  /// correlation times s_k grow by kWanderLevelRatio (two octaves) from
+  /// kWanderShortestS: level k passes from one independent normal knot to the
+  /// next over s_k as cos(pi w / 2) g_j + sin(pi w / 2) g_j+1 (its variance
+  /// stays 1 at every w, and it decorrelates after s_k). Equal power per two
+  /// octaves: a 1/f spectrum from 1 / s_max to 1 / s_0, so averaging over
+  /// longer runs stops helping. Each output's value depends on its time and
+  /// the seed only.
+  void add_wander_ns(const CounterRng& rng, std::uint64_t stream0, std::size_t n,
+                     double* offsets) const {
+    const auto& mc = config.measurement;
+    const double amplitude =
+        mc.delay_wander_ps * 1e-3 / std::sqrt(static_cast<double>(kWanderLevels));
+    const double period_s = static_cast<double>(mc.shots) / config.link.laser.repetition_hz;
+    std::array<double, kLanes> t_s, wander;
+    for (std::size_t i = 0; i < n; ++i) {
+      t_s[i] = static_cast<double>(stream0 + i) * period_s;
+      wander[i] = 0.0;
+    }
+    double inv_scale = 1.0 / kWanderShortestS;
+    for (int level = 0; level < kWanderLevels; ++level) {
+      for (std::size_t i = 0; i < n; ++i) {
+        const double u = t_s[i] * inv_scale;
+        const double floor_u = std::floor(u);
+        const double w = u - floor_u;
+        const auto& g = wander_knots(rng, id, level, static_cast<std::uint64_t>(floor_u));
+        wander[i] += cos_quarter_turn(w) * g[0] + cos_quarter_turn(1.0 - w) * g[1];
+      }
+      inv_scale /= kWanderLevelRatio;
+    }
+    for (std::size_t i = 0; i < n; ++i) offsets[i] += amplitude * wander[i];
+  }
+
+  /// The offsets of n <= kLanes consecutive streams from stream0: power-on
+  /// offset, 1/f flicker, random wander.
+  void slow_offsets_ns(const CounterRng& rng, const RunDraws& run, std::uint64_t stream0,
+                       std::size_t n, double* offsets) const {
+    flicker_offsets_ns(run, stream0, n, offsets);
+    if (config.measurement.delay_wander_ps > 0.0) add_wander_ns(rng, stream0, n, offsets);
+  }
+
   /// Noise alone firing the comparator before the echo (a false alarm) when
   /// the shot's uniform u_false falls below the window's probability: its
   /// first threshold upcrossing after the comparator is armed (at emission) is
@@ -1215,7 +1360,7 @@ struct VirtualRangefinder::Impl {
     } else if (!m.sampled) {
       const auto z = normal_pair(r[0], r[1]);
       double level_rise = 0, level_fall = 0;
-      analytic_levels(m, z[0], z[1], level_rise, level_fall);
+      analytic_levels(m, comparator_level(m, index), z[0], z[1], level_rise, level_fall);
       echo = analytic_crossings(m, level_rise, level_fall, rise, fall);
     } else {
       echo = crossings_waveform(m, rng, stream, index, unit_open(r[0]), rise, fall);
@@ -1252,7 +1397,7 @@ struct VirtualRangefinder::Impl {
     }
     const CounterRng rng(seed);
     const auto m = setup(target, cond);
-    const double offset_ns = slow_offset_ns(run_draws(rng), stream);
+    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
@@ -1330,15 +1475,15 @@ struct VirtualRangefinder::Impl {
       }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
-      slow_offsets_ns(run, stream0, n, lanes.offsets.data());
+      slow_offsets_ns(rng, run, stream0, n, lanes.offsets.data());
       for (std::size_t k = 0; k < n; ++k) {
         lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
         lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
       }
       for (std::size_t k = 0; k < n; ++k) {
         if (!m[k].sampled)
-          analytic_levels(m[k], lanes.z[k][0], lanes.z[k][1], lanes.level_rise[k],
-                          lanes.level_fall[k]);
+          analytic_levels(m[k], comparator_level(m[k], 0), lanes.z[k][0], lanes.z[k][1],
+                          lanes.level_rise[k], lanes.level_fall[k]);
       }
       for (std::size_t k = 0; k < n; ++k) {
         double& rise = lanes.rise[k];
@@ -1464,8 +1609,9 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   const auto m = impl_->setup(target, conditions);
   Shot s;
   double start = 0, rise = 0, fall = 0;
-  s.echo = impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
-                       impl_->slow_offset_ns(impl_->run_draws(rng), stream), start, rise, fall);
+  s.echo =
+      impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
+                  impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream), start, rise, fall);
   if (s.echo) {
     s.tof_ns = rise - start;
     s.pulse_width_ns = fall - rise;
@@ -1528,6 +1674,15 @@ void VirtualRangefinder::measure_batch(std::span<const MeasureRequest> requests,
                         i = j;
                       }
                     });
+}
+
+double VirtualRangefinder::coupling_baseline_v(const Target& target,
+                                               const Conditions& conditions) const {
+  // (The loop's comparator does not take the baseline yet.)
+  if (!impl_->coupled || oscillator_) return 0.0;
+  Conditions settled = conditions;
+  settled.baseline_offset_v = 0.0;
+  return impl_->setup(target, settled).baseline_v;
 }
 
 double VirtualRangefinder::tof_to_distance_m(double tof_ns) const {

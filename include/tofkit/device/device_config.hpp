@@ -90,6 +90,13 @@ struct MeasurementConfig {
                                      ///< on different "days" differ by this. Assumption (1.5 mm).
   double flicker_delay_ps = 5.0;     ///< rms of a slow 1/f delay wander (eight octaves from 1 mHz
                                      ///< to 0.26 Hz), so averaging stops improving. Assumption.
+  double delay_wander_ps = 0.0;      ///< rms of a random delay wander over the run's time (12
+                                     ///< levels of correlation time 1 ms ... 70 min, equal power
+                                     ///< each, drawn per level and time from the seed: a 1/f
+                                     ///< spectrum; supply, reference-clock and board-temperature
+                                     ///< fluctuations). 0: off. 30 ps reproduces the scatter of the
+                                     ///< paper's gray-value test at 2.355 m (Fig. 7: 4.60 mm std,
+                                     ///< +-9 mm after the correction; 4.26 mm, +-8.7 mm here).
   double stop_gate_ns = 2.0;         ///< firmware's false-stop rejection: stops farther than this
                               ///< from the median stop are dropped before averaging (0: off).
                               ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).
@@ -109,12 +116,24 @@ struct ScanConfig {
 };
 
 /// Receiver memory in a time-ordered sequence of measurements (a scan), see
-/// device/echo_memory.hpp. All zero: no memory (the paper device).
+/// device/echo_memory.hpp: an AC coupling between the amplifier and the
+/// comparator. Its capacitor's voltage (the baseline) is a first-order low-pass
+/// of the echo train; the comparator sees the echo minus it, so the effective
+/// threshold follows the echoes of the last few time constants. A zero time
+/// constant or share: DC coupled, no memory (the paper device: the paper
+/// reports none).
 struct MemoryConfig {
-  double time_constant_ms = 0.0;  ///< recovery of the receiver's operating point (0: none)
-  double strength_gain_mm_per_neper = 0.0;  ///< range error per neper of unrecovered
-                                            ///< echo-strength step (+: a rise reads short)
-  double distance_gain = 0.0;  ///< share of an unrecovered distance step the timing lags by
+  double time_constant_ms = 0.0;  ///< AC coupling's time constant (0: DC coupled, no memory)
+  double coupling_share = 0.0;    ///< share of the echo train's mean the baseline takes (1: a
+                                  ///< plain coupling capacitor; a baseline restorer leaves less;
+                                  ///< 0: none, DC coupled)
+  /// The self-oscillating loop (oscillator.enabled) only, until its comparator
+  /// takes the baseline itself: a stand-in with a correction's form (range
+  /// error per neper of unrecovered echo-strength step, +: a rise reads short)
+  /// and the share of a distance step the loop lags by, decaying with
+  /// time_constant_ms. Ignored by the pulsed core.
+  double strength_gain_mm_per_neper = 0.0;
+  double distance_gain = 0.0;
 };
 
 /// The self-oscillating loop of an AccuRange-like unit (device/oscillator_loop.hpp):

@@ -3,20 +3,26 @@
 /// scan produces), where what the receiver saw a moment ago still biases what
 /// it reports now (DESIGN.md item 7b; thesis Figs. 3.4-3.5 and 4.28).
 ///
-/// Causes, each a key of the `[memory]` section (all zero on the paper device):
-///  - **Strength memory** (`memory.time_constant_ms`, `memory.strength_gain_mm_per_neper`):
-///    the receiver's operating point follows the echo strength with a first-order
-///    lag: an AC-coupled amplifier's baseline shifts with the charge of the echo
-///    train passing its coupling capacitor (and an overdriven amplifier recovers
-///    slowly); an AGC settles with its loop time constant. Right after a step up
-///    the comparator sees a larger echo than in steady state, so the echo crosses
-///    the threshold early and reads short (negative spike); after a step down it
-///    reads long (positive spike). The unrecovered part decays as exp(-t / tau).
-///    The state variable is the echo's charge proxy ln(clipped peak x time over
-///    threshold): a clipped amplifier passes no more than that to the coupling.
-///  - **Distance memory** (`memory.distance_gain`): a timing loop that tracks the
-///    echo (a self-oscillating or phase-locked loop) lags a range step by a share
-///    of it, decaying with the same time constant.
+/// Cause (the `[memory]` section; none on the paper device): an **AC
+/// coupling** between the amplifier and the comparator. The coupling
+/// capacitor's voltage, the baseline, is a first-order low-pass (time constant
+/// `memory.time_constant_ms`) of the echo train the amplifier passes; the
+/// comparator sees the echo minus it. On a still target the baseline settles
+/// at the train's mean (VirtualRangefinder::coupling_baseline_v, part of every
+/// measurement's walk). After a step it is still where the previous targets
+/// left it, and relaxes as exp(-t / tau): after a step up the baseline is low,
+/// the effective threshold too, the echo crosses early and reads short (a
+/// negative spike); after a step down the level is high, a weak echo crosses
+/// late, or not at all (missed shots), and reads long. The error is the walk
+/// of the shifted level on this echo, not a law of its own: the pulsed core
+/// moves every shot's comparator level (analytic mode) or subtracts the
+/// baseline from the sampled waveform (waveform mode).
+///
+/// The loop (oscillator.enabled) does not take the baseline yet: it keeps a
+/// stand-in with a correction's form (memory.strength_gain_mm_per_neper: range
+/// error per neper of unrecovered ln(peak x width) step, decaying with
+/// time_constant_ms; memory.distance_gain: a lagged share of a distance step),
+/// to be replaced when device/oscillator_loop.cpp takes the baseline.
 ///  - **Motion**: a beam moving during the averaging window sweeps several
 ///    targets (`SequenceItem::path`); the shots are shared among them, the window
 ///    reports the valid-shot average of their times, widths and amplitudes (the
@@ -48,11 +54,13 @@ struct SequenceItem {
   int shots = 0;      ///< 0: the config's measurement.shots
 };
 
-/// What the memory added to one output (diagnostics and tests).
+/// The memory's state over one output (diagnostics and tests).
 struct MemoryTrace {
-  double strength_neper = 0;  ///< echo charge proxy of the window, ln(V ns)
-  double lag_neper = 0;       ///< mean unrecovered strength step over the window
-  double error_m = 0;         ///< range error the memory added to distance_raw_m
+  double strength_neper = 0;      ///< echo charge proxy of the window, ln(V ns)
+  double settled_baseline_v = 0;  ///< the coupling's baseline settled on this window's targets
+  double baseline_offset_v = 0;   ///< mean unrecovered baseline over the window (0: settled)
+  double lag_neper = 0;           ///< the loop's stand-in: mean unrecovered strength step
+  double error_m = 0;             ///< the loop's stand-in: range error it added
 };
 
 /// Gap, in time constants, after which a sequence splits into independent segments.

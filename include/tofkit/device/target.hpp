@@ -48,6 +48,11 @@ struct Conditions {
   /// acquisition's consecutive outputs share but points taken apart do not
   /// (the loop's duty wander) follows it.
   double session_time_s = 0.0;
+  /// AC-coupled receiver (memory.time_constant_ms > 0): the baseline at the
+  /// first shot minus its settled value on this target, V (a scan's memory,
+  /// device/echo_memory.hpp); it relaxes over the shots with the coupling's
+  /// time constant. 0: settled.
+  double baseline_offset_v = 0.0;
 };
 
 }  // namespace tofkit::device

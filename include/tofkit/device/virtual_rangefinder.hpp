@@ -87,6 +87,14 @@ class VirtualRangefinder {
   void measure_batch(std::span<const MeasureRequest> requests, std::uint64_t seed,
                      std::span<ranging::RawMeasurement> out) const;
 
+  /// The AC coupling's settled baseline (V) on a target's echo train
+  /// (memory.time_constant_ms > 0; else 0): the mean of the amplifier's output,
+  /// one echo's charge as the amplifier passes it times the repetition rate,
+  /// times memory.coupling_share. 0 for the loop (oscillator.enabled), whose
+  /// comparator does not take the baseline yet.
+  [[nodiscard]] double coupling_baseline_v(const Target& target,
+                                           const Conditions& conditions) const;
+
   /// Distance the device reports for a time of flight (nominal c in air).
   [[nodiscard]] double tof_to_distance_m(double tof_ns) const;
 
