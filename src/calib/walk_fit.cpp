@@ -349,19 +349,13 @@ WalkFitResult fit_walk(std::span<const double> pulse_width_ns, std::span<const d
   if (problem.amplitude_rows.size() < kMinAmplitudeRows) problem.amplitude_rows.clear();
   {
     // The amplitude readings pin the shape: readings of one or two values pin
-    // nothing, and the search over shapes then wandered for minutes (a
-    // constant amplitude column: over 120 s) before fitting noise.
+    // nothing (a constant column had sent the search over shapes wandering for
+    // minutes), so such a block is dropped as a too-small one is.
     std::vector<double> readings;
     for (std::size_t i : problem.amplitude_rows) readings.push_back(amplitude[i]);
     std::sort(readings.begin(), readings.end());
     readings.erase(std::unique(readings.begin(), readings.end()), readings.end());
-    if (!problem.amplitude_rows.empty() && readings.size() < 3) {
-      throw std::invalid_argument(
-          "walk fit: amplitude takes " + std::to_string(readings.size()) +
-          " distinct value(s) on " + std::to_string(problem.amplitude_rows.size()) +
-          " unclipped rows (a degenerate column): the walk's shape needs echoes of different "
-          "strength");
-    }
+    if (readings.size() < 3) problem.amplitude_rows.clear();
   }
   std::vector<std::size_t> fitted = clear;
   fitted.insert(fitted.end(), clipped.begin(), clipped.end());
