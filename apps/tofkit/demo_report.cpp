@@ -6,6 +6,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "html.hpp"
 #include "tofkit/experiments/paper_reference.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/plot.hpp"
@@ -25,26 +26,6 @@ const ranging::Step* find_step(const ranging::Pipeline& p, ranging::StepKind kin
 
 double step_value(const ranging::Step* step, double x) {
   return step ? step->function(x) : 0.0;
-}
-
-std::string html_escape(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '&':
-        out += "&amp;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
 }
 
 /// The thesis protocol's Fig. 4.18 table and confidence coverage, from

@@ -7,6 +7,7 @@
 #include <tuple>
 #include <vector>
 
+#include "html.hpp"
 #include "tofkit/device/accurange_preset.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/plot.hpp"
@@ -124,21 +125,6 @@ void write_picture(const std::filesystem::path& file, int rows, int columns,
     for (int y = 0; y < bar; ++y)
       put(rows * py + gap + y, x, colour(lo + (hi - lo) * x / std::max(1, width - 1)));
   io::write_file_atomically(file, io::encode_png_rgb(height, width, rgb));
-}
-
-std::string html_escape(const std::string& s) {
-  std::string out;
-  for (const char c : s) {
-    if (c == '<')
-      out += "&lt;";
-    else if (c == '>')
-      out += "&gt;";
-    else if (c == '&')
-      out += "&amp;";
-    else
-      out += c;
-  }
-  return out;
 }
 
 std::string cell(double v, int digits) {

@@ -14,25 +14,10 @@
 
 #include "app.hpp"
 #include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/edit_distance.hpp"
 #include "tofkit/io/input_file.hpp"
 
 namespace {
-
-/// Levenshtein distance: the typo's distance to a known name.
-std::size_t edit_distance(const std::string& a, const std::string& b) {
-  std::vector<std::size_t> row(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    std::size_t diagonal = row[0];
-    row[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j) {
-      const std::size_t up = row[j];
-      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
-      diagonal = up;
-    }
-  }
-  return row[b.size()];
-}
 
 /// ", did you mean 'X'?" for the nearest of `known` within a third of the
 /// word's length (at least 2 edits), else "".
@@ -40,7 +25,7 @@ std::string suggestion(const std::string& word, const std::vector<std::string>& 
   std::string best;
   std::size_t best_distance = std::max<std::size_t>(2, word.size() / 3) + 1;
   for (const std::string& name : known) {
-    const std::size_t d = edit_distance(word, name);
+    const std::size_t d = tofkit::io::edit_distance(word, name);
     if (d < best_distance) {
       best = name;
       best_distance = d;

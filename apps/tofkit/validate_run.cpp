@@ -9,6 +9,7 @@
 #include <map>
 #include <sstream>
 
+#include "html.hpp"
 #include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/config_file.hpp"
 #include "tofkit/io/plot.hpp"
@@ -28,29 +29,6 @@ using experiments::ValidationRole;
 
 nlohmann::json number(double v) {
   return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr);
-}
-
-std::string html_escape(const std::string& s) {
-  std::string out;
-  for (const char c : s) {
-    switch (c) {
-      case '<':
-        out += "&lt;";
-        break;
-      case '>':
-        out += "&gt;";
-        break;
-      case '&':
-        out += "&amp;";
-        break;
-      case '"':
-        out += "&quot;";
-        break;
-      default:
-        out += c;
-    }
-  }
-  return out;
 }
 
 std::string csv_field(const std::string& s) {

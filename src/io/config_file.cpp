@@ -14,6 +14,7 @@
 #include <utility>
 
 #include "tofkit/device/config_limits.hpp"
+#include "tofkit/io/edit_distance.hpp"
 #include "tofkit/io/input_file.hpp"
 
 namespace tofkit::io {
@@ -41,22 +42,6 @@ std::string section_of(std::string_view key) {
 std::string member_of(std::string_view key) {
   const auto dot = key.find('.');
   return std::string(dot == std::string_view::npos ? key : key.substr(dot + 1));
-}
-
-// Levenshtein edit distance, for "did you mean" suggestions.
-std::size_t edit_distance(std::string_view a, std::string_view b) {
-  std::vector<std::size_t> row(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    std::size_t diagonal = row[0];
-    row[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j) {
-      const std::size_t above = row[j];
-      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0u : 1u)});
-      diagonal = above;
-    }
-  }
-  return row[b.size()];
 }
 
 // Closest known name, if close enough to be a likely typo; an exact member
