@@ -4,6 +4,7 @@
 /// fixture giving each test a fresh working directory.
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -11,9 +12,12 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <sstream>
 #include <string>
 #include <utility>
+#include <vector>
 
 namespace tofkit::test {
 
@@ -80,6 +84,58 @@ class CliFixture : public ::testing::Test {
 
  private:
   std::string prefix_;
+};
+
+/// A fixture for bad input: a refused command must exit 1 with a message that
+/// names what was wrong, and leave the directory under test as it was.
+class RefusalFixture : public CliFixture {
+ protected:
+  using CliFixture::CliFixture;
+
+  /// Stdout discarded; stderr outside the directory under test.
+  CliResult run(const std::string& args) const {
+    return run_tofkit(dir_, args, "/dev/null", scratch() / "stderr.txt");
+  }
+
+  std::filesystem::path scratch() const {
+    std::filesystem::path p = dir_;
+    p += "_scratch";
+    std::filesystem::create_directories(p);
+    return p;
+  }
+
+  /// Every entry (hidden ones too): its type, and for files size, mtime and a
+  /// hash of the content. (A directory's own mtime changes when a temporary
+  /// comes and goes; its entries are what must stay the same.)
+  std::map<std::string, std::string> snapshot() const {
+    std::map<std::string, std::string> entries;
+    for (const auto& e : std::filesystem::recursive_directory_iterator(dir_)) {
+      struct stat info {};
+      ::lstat(e.path().c_str(), &info);
+      std::string state = std::to_string(info.st_mode);
+      if (S_ISREG(info.st_mode)) {
+        state += " " + std::to_string(info.st_size) + " " + std::to_string(info.st_mtim.tv_sec) +
+                 "." + std::to_string(info.st_mtim.tv_nsec) + " " +
+                 std::to_string(std::hash<std::string>{}(read_file(e.path())));
+      }
+      entries[std::filesystem::relative(e.path(), dir_).string()] = state;
+    }
+    return entries;
+  }
+
+  /// Status 1, a message with every needle, the directory untouched.
+  void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
+    const auto before = snapshot();
+    const CliResult r = run(args);
+    EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
+    EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
+    for (const auto& needle : needles) {
+      EXPECT_NE(r.err.find(needle), std::string::npos)
+          << args << "\nmessage lacks '" << needle << "':\n"
+          << r.err;
+    }
+    EXPECT_EQ(snapshot(), before) << args << ": the directory changed";
+  }
 };
 
 }  // namespace tofkit::test

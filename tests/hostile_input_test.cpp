@@ -34,52 +34,9 @@ using tofkit::test::CliResult;
 
 namespace {
 
-class Hostile : public tofkit::test::CliFixture {
+class Hostile : public tofkit::test::RefusalFixture {
  protected:
-  Hostile() : CliFixture("tofkit_hostile3_") {}
-
-  // Stdout discarded; stderr outside the directory under test.
-  CliResult run(const std::string& args) const {
-    return tofkit::test::run_tofkit(dir_, args, "/dev/null", scratch() / "stderr.txt");
-  }
-
-  fs::path scratch() const {
-    fs::path p = dir_;
-    p += "_scratch";
-    fs::create_directories(p);
-    return p;
-  }
-
-  // Every entry with its type, size, mtime and content hash.
-  std::map<std::string, std::string> snapshot() const {
-    std::map<std::string, std::string> entries;
-    for (const auto& e : fs::recursive_directory_iterator(dir_)) {
-      struct stat info {};
-      ::lstat(e.path().c_str(), &info);
-      std::string state = std::to_string(info.st_mode);
-      if (S_ISREG(info.st_mode)) {
-        state += " " + std::to_string(info.st_size) + " " + std::to_string(info.st_mtim.tv_sec) +
-                 "." + std::to_string(info.st_mtim.tv_nsec) + " " +
-                 std::to_string(std::hash<std::string>{}(tofkit::test::read_file(e.path())));
-      }
-      entries[fs::relative(e.path(), dir_).string()] = state;
-    }
-    return entries;
-  }
-
-  // Status 1, a message with every needle, the directory untouched.
-  void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
-    const auto before = snapshot();
-    const CliResult r = run(args);
-    EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
-    EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
-    for (const auto& needle : needles) {
-      EXPECT_NE(r.err.find(needle), std::string::npos)
-          << args << "\nmessage lacks '" << needle << "':\n"
-          << r.err;
-    }
-    EXPECT_EQ(snapshot(), before) << args << ": the directory changed";
-  }
+  Hostile() : RefusalFixture("tofkit_hostile3_") {}
 
   // Seconds a run takes.
   static double seconds_of(const std::function<void()>& f) {

@@ -26,66 +26,15 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class Robustness : public tofkit::test::CliFixture {
+class Robustness : public tofkit::test::RefusalFixture {
  protected:
-  Robustness() : CliFixture("tofkit_robustness_") {}
-
-  // Stdout discarded; stderr outside the directory under test.
-  tofkit::test::CliResult run(const std::string& args) const {
-    return tofkit::test::run_tofkit(dir_, args, "/dev/null", scratch() / "stderr.txt");
-  }
-
-  fs::path scratch() const {
-    fs::path p = dir_;
-    p += "_scratch";
-    fs::create_directories(p);
-    return p;
-  }
-
-  // Every entry (hidden ones too): its type, and for files size, mtime and a
-  // hash of the content. (A directory's own mtime changes when a temporary
-  // comes and goes; its entries are what must stay the same.)
-  std::map<std::string, std::string> snapshot() const {
-    std::map<std::string, std::string> entries;
-    for (const auto& e : fs::recursive_directory_iterator(dir_)) {
-      struct stat info {};
-      ::lstat(e.path().c_str(), &info);
-      std::string state = std::to_string(info.st_mode);
-      if (S_ISREG(info.st_mode)) {
-        state += " " + std::to_string(info.st_size) + " " + std::to_string(info.st_mtim.tv_sec) +
-                 "." + std::to_string(info.st_mtim.tv_nsec);
-        if (info.st_size < (1 << 20)) {
-          std::ifstream in(e.path(), std::ios::binary);
-          std::ostringstream s;
-          s << in.rdbuf();
-          state += " " + std::to_string(std::hash<std::string>{}(s.str()));
-        }
-      }
-      entries[fs::relative(e.path(), dir_).string()] = state;
-    }
-    return entries;
-  }
+  Robustness() : RefusalFixture("tofkit_robustness_") {}
 
   // plate.toml: one 1 x 1 m plate 2 m ahead.
   void write_plate_scene() const {
     write("plate.toml",
           "[[surface]]\nkind = \"plane\"\ncenter_m = [2, 0, 0]\nnormal = [-1, 0, 0]\n"
           "size_m = [1, 1]\nreflectance = 0.5\n");
-  }
-
-  // The case must fail with status 1, a message containing every `needles`,
-  // and leave the directory untouched.
-  void expect_refused(const std::string& args, const std::vector<std::string>& needles) const {
-    const auto before = snapshot();
-    const tofkit::test::CliResult r = run(args);
-    EXPECT_EQ(r.status, 1) << args << "\n" << r.err;
-    EXPECT_NE(r.err.find("error: "), std::string::npos) << args << "\n" << r.err;
-    for (const auto& needle : needles) {
-      EXPECT_NE(r.err.find(needle), std::string::npos)
-          << args << "\nmessage lacks '" << needle << "':\n"
-          << r.err;
-    }
-    EXPECT_EQ(snapshot(), before) << args << ": the directory changed";
   }
 
   // A small calibration table and a model fitted on it.
