@@ -15,6 +15,19 @@ namespace {
 constexpr std::uint64_t kPathStreamBit = 1ull << 63;
 constexpr int kMaxPathElements = 256;
 
+/// Path element k of n in a moving window: its shots (shared, the remainder
+/// to the first elements) and its random stream (item i's own when still).
+struct PathElement {
+  int shots;
+  std::uint64_t stream;
+};
+PathElement path_element(std::size_t i, int k, int n, int shots) {
+  return {std::max(1, shots / n + (k < shots % n ? 1 : 0)),
+          n == 1 ? i
+                 : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) |
+                    static_cast<std::uint64_t>(k))};
+}
+
 /// The share of a lag present at a window's start that remains on average over
 /// the window: (1/T) integral_0^T exp(-t / tau) dt.
 double mean_remaining(double window_s, double tau_s) {
@@ -158,10 +171,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       double lag_sum = 0, strength_sum = 0, error_sum = 0, error_weight = 0;
       for (int k = 0; k < k_count; ++k) {
         const Target& target = item.path[static_cast<std::size_t>(k)];
-        // Shots shared among the swept targets, the remainder to the first ones.
-        const int sub_shots = std::max(1, shots / k_count + (k < shots % k_count ? 1 : 0));
-        const std::uint64_t stream =
-            k_count == 1 ? i : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) | k);
+        const auto [sub_shots, stream] = path_element(i, k, k_count, shots);
         auto& m = parts[static_cast<std::size_t>(k)];
         m = device_->measure(target, item.conditions, seed, stream, sub_shots);
         if (!loop_memory_on) continue;
@@ -226,10 +236,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       double settled_sum = 0, offset_sum = 0, strength_sum = 0;
       for (int k = 0; k < k_count; ++k) {
         const Target& target = item.path[static_cast<std::size_t>(k)];
-        // Shots shared among the swept targets, the remainder to the first ones.
-        const int sub_shots = std::max(1, shots / k_count + (k < shots % k_count ? 1 : 0));
-        const std::uint64_t stream =
-            k_count == 1 ? i : (kPathStreamBit | (static_cast<std::uint64_t>(i) << 8) | k);
+        const auto [sub_shots, stream] = path_element(i, k, k_count, shots);
         auto& m = parts[static_cast<std::size_t>(k)];
         if (!memory_on) {
           m = device_->measure(target, item.conditions, seed, stream, sub_shots);

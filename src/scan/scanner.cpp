@@ -145,6 +145,17 @@ void measure_beams(const RayCaster& caster, const Footprint& footprint,
       });
 }
 
+// The pattern's description without its beams: each beam is kept once, in its
+// BeamResult (world frame).
+void describe_pattern(const BeamPattern& pattern, BeamPattern& description) {
+  description.name = pattern.name;
+  description.rows = pattern.rows;
+  description.columns = pattern.columns;
+  description.shots_multiplier = pattern.shots_multiplier;
+  description.column_positions_m = pattern.column_positions_m;
+  description.sample_extent_m = pattern.sample_extent_m;
+}
+
 }  // namespace
 
 int shots_per_beam(const device::DeviceConfig& config, int shots, const BeamPattern& pattern) {
@@ -175,14 +186,7 @@ void run_scan(const RayCaster& caster, const Footprint& footprint,
               const device::VirtualRangefinder& device, const BeamPattern& pattern,
               const ScanOptions& options, ScanResult& result) {
   result.has_model = false;
-  // The pattern's description without its beams: each beam is kept once, in
-  // its BeamResult (world frame).
-  result.pattern.name = pattern.name;
-  result.pattern.rows = pattern.rows;
-  result.pattern.columns = pattern.columns;
-  result.pattern.shots_multiplier = pattern.shots_multiplier;
-  result.pattern.column_positions_m = pattern.column_positions_m;
-  result.pattern.sample_extent_m = pattern.sample_extent_m;
+  describe_pattern(pattern, result.pattern);
   result.pattern.beams.clear();
   result.sensor = caster.scene().sensor;
   const RigidTransform pose = result.sensor.to_world();
@@ -248,12 +252,7 @@ void run_scan_blocks(const RayCaster& caster, const Footprint& footprint,
 
 ScanResult describe_scan(const BeamPattern& pattern, const Scene& scene) {
   ScanResult result;
-  result.pattern.name = pattern.name;
-  result.pattern.rows = pattern.rows;
-  result.pattern.columns = pattern.columns;
-  result.pattern.shots_multiplier = pattern.shots_multiplier;
-  result.pattern.column_positions_m = pattern.column_positions_m;
-  result.pattern.sample_extent_m = pattern.sample_extent_m;
+  describe_pattern(pattern, result.pattern);
   result.sensor = scene.sensor;
   return result;
 }
