@@ -169,27 +169,41 @@ TEST(ThesisProtocol, CorrectionSurfacesMeetTheAcceptance) {
     best_poly = std::max(best_poly, row.rms_improvement_pct);
     EXPECT_GT(row.rank, 0u);
     EXPECT_LE(row.rank, row.parameters);
-    // B-spline at least as good as every polynomial order.
-    EXPECT_LE(r.row("bspline").test.rms_m, row.test.rms_m) << order;
   }
   // Best polynomial >= 70 % held-out RMS improvement (thesis: 70.8 % with order 4).
   EXPECT_GE(best_poly, 70.0);
   EXPECT_GE(best_poly, thesis_best - 1.0);
   EXPECT_DOUBLE_EQ(best_poly,
                    r.row("poly" + std::to_string(r.best_polynomial_order)).rms_improvement_pct);
-  // The B-spline (the thesis's future work) does much better: >= 90 %.
-  EXPECT_GE(r.row("bspline").rms_improvement_pct, 90.0);
+  // The B-spline (the thesis's future work) meets the thesis's conclusion, 'at
+  // least 55 %', and stays within 10 % of the best polynomial's RMS. (It no longer
+  // beats every order by far: at 19 in, inside the training domain, both are
+  // limited by what no (range, intensity) surface removes, the per-point duty
+  // wander and the test session's temperature, thesis Fig. 4.18's 0.26 in bias
+  // and 0.06 in^2 variance; the 90 % it reached had measured a too-clean twin.)
+  EXPECT_GE(r.row("bspline").rms_improvement_pct, 55.0);
+  EXPECT_LT(r.row("bspline").test.rms_m,
+            1.1 * r.row("poly" + std::to_string(r.best_polynomial_order)).test.rms_m);
   // Every grey level improves with the B-spline (Fig. 4.19).
   for (const auto& g : r.per_grey) EXPECT_LT(g.bspline_rms_m, 0.5 * g.raw_rms_m) << g.grey;
-  // Section 4.8: the relative error of corrected ranges is roughly constant in range.
+  // Section 4.8: the relative error of corrected ranges is roughly constant in
+  // range: the thesis's four values (0.0117 ... 0.0046) span a factor 2.5.
   const auto& rel = r.relative_error_by_training_distance;
   ASSERT_EQ(rel.size(), 4u);
   EXPECT_LT(*std::max_element(rel.begin(), rel.end()),
-            2.0 * *std::min_element(rel.begin(), rel.end()));
+            2.6 * *std::min_element(rel.begin(), rel.end()));
 }
 
 TEST(ThesisProtocol, CalibratedConfidenceCoversHeldOutData) {
-  const auto& r = result();
+  // Coverage is a claim about held-out data of the session the confidence was
+  // fitted in: the test scan taken at the training's temperature (the default
+  // protocol's warmer test session adds a bias no confidence fit can know).
+  static const ThesisProtocolResult r = [] {
+    auto o = test_options();
+    o.test_ambient_offset_c = 0.0;
+    o.test_temperature_offsets_c = {};
+    return run_thesis_protocol(accurange(), o, 2024);
+  }();
   const auto& cal = r.coverage_of("calibrated");
   const auto& thesis = r.coverage_of("thesis");
   ASSERT_EQ(cal.within_2_sigma.rows, r.test_rows.size());
@@ -221,11 +235,12 @@ TEST(ThesisProtocol, PlotDataAndSummary) {
   const auto& g = r.surface_grid;
   ASSERT_EQ(g.bspline_m.size(), g.range_m.size() * g.amplitude.size());
   ASSERT_EQ(g.best_polynomial_m.size(), g.bspline_m.size());
-  // The B-spline surface follows the walk: largest correction (most negative: dark
-  // reads long) at the lowest intensity.
+  // The B-spline surface follows the walk: the correction true - measured differs
+  // by more than 20 mm between the lowest and the highest intensity, largest at
+  // the lowest (thesis: grey 255, black, has the largest error).
   const std::size_t na = g.amplitude.size();
   const std::size_t mid = g.range_m.size() / 2;
-  EXPECT_LT(g.bspline_m[mid * na], g.bspline_m[mid * na + na - 1] - 20e-3);
+  EXPECT_GT(g.bspline_m[mid * na], g.bspline_m[mid * na + na - 1] + 20e-3);
   const auto tables = r.tables();
   ASSERT_EQ(tables.size(), 5u);
   EXPECT_EQ(tables[0].name, "models");
@@ -253,14 +268,53 @@ TEST(ThesisProtocol, WarmerTestScansExplainTheThesisResidual) {
   ASSERT_EQ(r.temperature.size(), r.options.test_temperature_offsets_c.size());
   const double mm_per_c =
       accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0 * 1e3;
+  // The repeats are warmer than the training by offset_c; the test scan itself by
+  // test_ambient_offset_c (a separate session). Each shift is measured against
+  // the test scan, within 10 % plus 3 standard errors of the two scans' means
+  // (every point carries its own duty-wander draw).
+  const auto& test = r.row("raw").test;
   for (const auto& t : r.temperature) {
-    const double expected_shift_m = -mm_per_c * 1e-3 * t.offset_c;  // true - measured rises
-    const double raw_shift = t.raw.bias_m - r.row("raw").test.bias_m;
+    const double dt = t.offset_c - r.options.test_ambient_offset_c;
+    const double expected_shift_m = -mm_per_c * 1e-3 * dt;  // true - measured rises
+    const double se =
+        std::sqrt(t.raw.variance_m2 / double(t.raw.rows) + test.variance_m2 / double(test.rows));
+    const double raw_shift = t.raw.bias_m - test.bias_m;
     const double spline_shift = t.bspline.bias_m - r.row("bspline").test.bias_m;
-    EXPECT_NEAR(raw_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
-    EXPECT_NEAR(spline_shift, expected_shift_m, 0.1 * std::abs(expected_shift_m)) << t.offset_c;
-    const double in_per_10c = m_to_inches(raw_shift) * 10.0 / t.offset_c;
+    const double tol = 0.1 * std::abs(expected_shift_m) + 3 * se;
+    EXPECT_NEAR(raw_shift, expected_shift_m, tol) << t.offset_c;
+    EXPECT_NEAR(spline_shift, expected_shift_m, tol) << t.offset_c;
+    if (std::abs(dt) < 3.0) continue;  // too small a step for the thesis's rate
+    const double in_per_10c = m_to_inches(raw_shift) * 10.0 / dt;
     EXPECT_GT(in_per_10c, 0.25);
     EXPECT_LT(in_per_10c, 0.60);
   }
+}
+
+TEST(ThesisProtocol, ChartPointsSitInTheLasersTurnOnTransient) {
+  // Thesis: point by point, 'laser on -> N samples -> averaged -> move'. Every
+  // chart point switches the laser on, so its samples carry the turn-on transient's
+  // mean over the point's window W = samples x shots / repetition rate (the loop:
+  // b tau / W (1 - exp(-W / tau))). Oracle: that closed form against the raw bias
+  // of the same protocol (same seed: same points, draws and counts) with the
+  // transient switched off. Error = true - measured, so a short reading raises it.
+  ThesisProtocolOptions o;
+  o.training_points_per_grey = 40;
+  o.confidence_points_per_grey = 40;
+  o.test_points_per_grey = 40;
+  o.test_temperature_offsets_c = {};
+  auto off = device::accurange_preset();
+  off.link.laser.turn_on_bias_mm = 0.0;
+  const auto with = run_thesis_protocol(accurange(), o, 7);
+  const auto without = run_thesis_protocol(device::VirtualRangefinder(off), o, 7);
+  const auto& laser = accurange().config().link.laser;
+  const double shots = o.samples_per_point * accurange().config().measurement.shots;
+  const double w_ms = 1e3 * shots / laser.repetition_hz;
+  const double tau = laser.turn_on_time_constant_ms;
+  const double expected_m = -1e-3 * laser.turn_on_bias_mm * tau / w_ms * -std::expm1(-w_ms / tau);
+  EXPECT_NEAR(with.row("raw").test.bias_m - without.row("raw").test.bias_m, expected_m,
+              0.02 * std::abs(expected_m));
+  // The transient is common to every point, so the corrections fitted on the
+  // training scan (taken the same way) remove it: corrected biases hardly move.
+  EXPECT_NEAR(with.row("poly4").test.bias_m, without.row("poly4").test.bias_m,
+              0.1 * std::abs(expected_m));
 }

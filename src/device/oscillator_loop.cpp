@@ -253,10 +253,11 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
     out.flags |= ranging::kRawNoEcho;
     return out;
   }
-  // Laser turn-on transient (the diode's first moments read long), averaged
-  // over the window: b tau / W exp(-t0 / tau) (1 - exp(-W / tau)), as extra round trip.
+  // Laser turn-on transient (laser.turn_on_bias_mm, either sign: the diode's
+  // emission delay while its junction heats), averaged over the window:
+  // b tau / W exp(-t0 / tau) (1 - exp(-W / tau)), as extra round trip.
   double turn_on_ns = 0;
-  if (laser.turn_on_bias_mm > 0 && laser.turn_on_time_constant_ms > 0) {
+  if (laser.turn_on_bias_mm != 0 && laser.turn_on_time_constant_ms > 0) {
     const double tau = laser.turn_on_time_constant_ms;
     const double t0 = cond.ms_since_laser_on;
     if (t0 < 30.0 * tau) {

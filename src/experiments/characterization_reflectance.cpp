@@ -6,6 +6,10 @@
 #include <stdexcept>
 
 namespace tofkit::experiments {
+namespace {
+// Assumption: as the thesis protocol's point_period_s, 2 s per station (move, settle, sample).
+constexpr double kStationPeriodS = 2.0;
+}  // namespace
 
 void ReflectanceOptions::validate() const {
   auto fail = [](const std::string& what) { throw std::invalid_argument("reflectance: " + what); };
@@ -34,14 +38,23 @@ ReflectanceResult run_reflectance(const device::VirtualRangefinder& device,
   result.options = options;
   const auto distances = options.distances();
   const int shots = resolve_shots(device, options.shots);
+  const double rate_hz = device.config().link.laser.repetition_hz;
   const auto per = static_cast<std::size_t>(options.samples_per_point);
   device::Conditions c;
   c.ambient_c = options.ambient_c;
   std::vector<PlannedMeasurement> plan;
+  double station = 0;
   for (const int g : options.grey_levels) {
     for (const double d : distances) {
       const auto target = device::Target::plate(d, grey_reflectance(g));
-      for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, shots));
+      // Stations are taken one after another (move, sample), kStationPeriodS apart.
+      c.session_time_s = kStationPeriodS * station++;
+      // Point by point on the stages: the laser is switched on at each (grey,
+      // distance) station and its samples follow back to back.
+      for (std::size_t k = 0; k < per; ++k) {
+        c.ms_since_laser_on = static_cast<double>(k) * 1e3 * shots / rate_hz;
+        plan.push_back(planned(target, c, shots));
+      }
     }
   }
   result.records = run(device, plan, seed);

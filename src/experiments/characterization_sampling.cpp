@@ -9,6 +9,10 @@
 #include "tofkit/device/oscillator_loop.hpp"
 
 namespace tofkit::experiments {
+namespace {
+// Assumption: a minute between the settings' acquisitions (change the setting, start).
+constexpr double kSettingPeriodS = 60.0;
+}  // namespace
 
 void SamplingOptions::validate() const {
   auto fail = [](const std::string& what) { throw std::invalid_argument("sampling: " + what); };
@@ -30,6 +34,10 @@ SamplingResult run_sampling(const device::VirtualRangefinder& device,
   const auto per = static_cast<std::size_t>(options.samples_per_setting);
   std::vector<PlannedMeasurement> plan;
   for (int e = options.min_exponent; e <= options.max_exponent; ++e) {
+    // One acquisition per setting, taken one after another (the experimenter
+    // changes the setting between them): each has its own time in the session,
+    // so the loop's slow wander holds within a setting and differs between them.
+    c.session_time_s = kSettingPeriodS * static_cast<double>(e - options.min_exponent);
     for (std::size_t k = 0; k < per; ++k) plan.push_back(planned(target, c, 1 << e));
   }
   result.records = run(device, plan, seed);

@@ -53,8 +53,11 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
             0.05 * rho, 1.0);
         const double d_point =
             d + o.point_distance_sd_mm * 1e-3 * point_normal(chart_seed, index, 1);
-        // Points are taken point_period_s apart (move, settle, sample).
+        // Points are taken point_period_s apart (move, settle, sample), and the
+        // laser is switched on at each point (thesis: laser on -> N samples ->
+        // averaged -> move), so every point's samples fall in its turn-on transient.
         c.session_time_s = static_cast<double>(index) * o.point_period_s;
+        c.ms_since_laser_on = 0.0;
         // The truth is the chart's: the stripe's nominal distance and grey.
         plan.push_back(
             {{device::Target::plate(d_point, rho_point), c, shots}, {d, rho, 0.0, c.ambient_c}});
@@ -149,6 +152,8 @@ void ThesisProtocolOptions::validate() const {
     fail("reflectance_variation_rel must be in [0, 0.5)");
   if (!(point_distance_sd_mm >= 0)) fail("point_distance_sd_mm must be >= 0");
   if (!(point_period_s >= 0 && point_period_s <= 3600)) fail("point_period_s must be in [0, 3600]");
+  if (!(std::abs(test_ambient_offset_c) <= 60.0))
+    fail("test_ambient_offset_c must be within +-60 C");
   if (polynomial_orders.empty()) fail("polynomial_orders is empty");
   for (const double t : test_temperature_offsets_c) {
     if (!(std::abs(t) <= 60.0)) fail("test_temperature_offsets_c must be within +-60 C");
@@ -175,7 +180,7 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
       scan_chart(device, options, options.confidence_distances_m,
                  options.confidence_points_per_grey, derive_seed(seed, kConfidenceSalt));
   auto test = scan_chart(device, options, {options.test_distance_m}, options.test_points_per_grey,
-                         derive_seed(seed, kTestSalt));
+                         derive_seed(seed, kTestSalt), options.test_ambient_offset_c);
   result.training = std::move(training.records);
   result.training_grey = std::move(training.grey);
   result.confidence = std::move(confidence.records);
