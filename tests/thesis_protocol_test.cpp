@@ -170,9 +170,13 @@ TEST(ThesisProtocol, CorrectionSurfacesMeetTheAcceptance) {
     EXPECT_GT(row.rank, 0u);
     EXPECT_LE(row.rank, row.parameters);
   }
-  // Best polynomial >= 70 % held-out RMS improvement (thesis: 70.8 % with order 4).
-  EXPECT_GE(best_poly, 70.0);
-  EXPECT_GE(best_poly, thesis_best - 1.0);
+  // Best polynomial's held-out RMS improvement as the thesis's: 'at least 55 %'
+  // (Section 4.6), best 70.8 % with order 4; issue 30's acceptance reads 50-80 %.
+  // (It had to reach the thesis's 70.8 % on a twin whose raw error was almost all
+  // a smooth function of range and intensity: 95 %.)
+  EXPECT_GE(best_poly, 55.0);
+  EXPECT_LE(best_poly, 80.0);
+  EXPECT_NEAR(best_poly, thesis_best, 10.0);
   EXPECT_DOUBLE_EQ(best_poly,
                    r.row("poly" + std::to_string(r.best_polynomial_order)).rms_improvement_pct);
   // The B-spline (the thesis's future work) meets the thesis's conclusion, 'at
