@@ -72,8 +72,17 @@ TEST(OscillatorLoop, WeakReturnsAreSlowerAndTooWeakStopsTheLoop) {
     ASSERT_TRUE(s.saturated) << rho;
     EXPECT_LT(s.on_detect_ns + s.off_detect_ns, last_latency) << rho;
   }
-  // Far enough, black's (grey 255) swing no longer lifts above the threshold: no echo.
-  const auto far = device::Target::plate(1.5, experiments::grey_reflectance(255));
+  // Far enough, black's (grey 255) swing no longer lifts above the threshold: no
+  // echo. Oracle: the loop runs while (1 - coupling duty) x swing > threshold, the
+  // swing (unclipped) falling as 1 / R^2 (extended target, coaxial optics): the
+  // limit R = 1 m x sqrt(swing(1 m) (1 - duty) / threshold).
+  const auto& c = loop.config();
+  const double rho = experiments::grey_reflectance(255);
+  const double swing_1m = loop.state(device::Target::plate(1.0, rho), {}).swing_v;
+  const double limit_m =
+      std::sqrt(swing_1m * (1.0 - c.oscillator.coupling_duty) / c.discriminator.threshold_v);
+  EXPECT_TRUE(loop.state(device::Target::plate(0.9 * limit_m, rho), {}).oscillates);
+  const auto far = device::Target::plate(1.1 * limit_m, rho);
   EXPECT_FALSE(loop.state(far, {}).oscillates);
   const auto m = loop.measure(far, {}, 1, 0);
   EXPECT_FALSE(m.has_echo());
