@@ -13,6 +13,7 @@
 #include "tofkit/calib/memory_fit.hpp"
 #include "tofkit/device/accurange_preset.hpp"
 #include "tofkit/device/echo_memory.hpp"
+#include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/experiments/scan_memory.hpp"
 #include "tofkit/experiments/thesis_line_scan.hpp"
 #include "tofkit/physics/pulse_template.hpp"
@@ -158,6 +159,69 @@ TEST(ThesisScanMemory, BaselineMovesTheComparatorLevelInBothModes) {
   EXPECT_FALSE(dev.measure(weak, high, 5, 1).has_echo());
   const device::VirtualRangefinder wave_weak(cfg, device::SimulationMode::kWaveform);
   EXPECT_FALSE(wave_weak.measure(weak, high, 5, 1, 50).has_echo());
+}
+
+// ------------------------------------------------ the loop's memory (accurange)
+
+/// A still beam at 19 in stepping between two greys after `before` outputs.
+std::vector<device::SequenceItem> loop_step(const device::VirtualRangefinder& dev, int before,
+                                            int after, int grey_a, int grey_b) {
+  const double window = device::EchoMemory(dev).window_s(0);
+  std::vector<device::SequenceItem> items;
+  for (int i = 0; i < before + after; ++i) {
+    device::SequenceItem item;
+    item.path = {device::Target::plate(
+        inches_to_m(19), experiments::grey_reflectance(i < before ? grey_a : grey_b))};
+    item.time_s = i * window;
+    items.push_back(item);
+  }
+  return items;
+}
+
+TEST(ThesisScanMemory, LoopSettledIsTheLoneMeasurementAndAStepDownLosesLock) {
+  const auto c = device::accurange_preset();
+  ASSERT_GT(c.memory.time_constant_ms, 0);
+  const device::VirtualRangefinder dev(c);
+  const device::OscillatorLoop loop(c);
+  const int before = 40, after = 200;
+  const auto items = loop_step(dev, before, after, 128, 255);  // mid grey to black (Fig. 4.28)
+  std::vector<ranging::RawMeasurement> out(items.size());
+  std::vector<device::MemoryTrace> trace(items.size());
+  device::EchoMemory(dev).measure_sequence(items, 9, out, trace);
+  // Settled on mid grey: no memory, the same bytes as a lone measurement.
+  for (int i = 0; i < before; ++i) {
+    const auto lone = dev.measure(items[i].path[0], {}, 9, static_cast<std::uint64_t>(i));
+    EXPECT_EQ(out[i].tof_ns, lone.tof_ns) << i;
+    EXPECT_EQ(trace[i].stall_s, 0.0) << i;
+  }
+  // The coupling's baseline sits at coupling_duty of mid grey's swing; on black the
+  // comparator's level (baseline + threshold) is above black's swing until the
+  // baseline has relaxed to swing - threshold: lock is lost for
+  // tau ln((b_grey - b_black) / (swing_black - threshold - b_black)).
+  const double duty = c.oscillator.coupling_duty, vth = c.discriminator.threshold_v;
+  const double s_grey = loop.state(items.front().path[0], {}).swing_v;
+  const double s_black = loop.state(items.back().path[0], {}).swing_v;
+  const double tau = c.memory.time_constant_ms * 1e-3;
+  const double expected_stall =
+      tau * std::log(duty * (s_grey - s_black) / (s_black - vth - duty * s_black));
+  ASSERT_GT(expected_stall, 0);
+  double stall = 0;
+  for (int i = before; i < before + after; ++i) stall += trace[i].stall_s;
+  // The loop re-locks when the noise first lifts the swing over the level: the
+  // stall is the closed form within a few noise sigmas' worth of the baseline's decay.
+  const double noise_v = loop.state(items.back().path[0], {}).noise_v;
+  ASSERT_GT(noise_v, 0);
+  EXPECT_NEAR(stall, expected_stall, tau * 5 * noise_v / (s_black - vth - duty * s_black));
+  // While lock is lost the windows have no echo; after it the range reads long
+  // (the level still high: a late rise) and relaxes to the settled walk.
+  const double window = device::EchoMemory(dev).window_s(0);
+  const int lost = static_cast<int>(expected_stall / window);
+  for (int i = before; i < before + lost; ++i) EXPECT_FALSE(out[i].has_echo()) << i;
+  const auto settled = dev.measure(items.back().path[0], {}, 9, before + after - 1);
+  const int first = before + lost + 1;
+  ASSERT_TRUE(out[first].has_echo());
+  EXPECT_GT(out[first].distance_raw_m - settled.distance_raw_m, 0.02);  // > 0.8 in long
+  EXPECT_NEAR(out[before + after - 1].distance_raw_m, settled.distance_raw_m, 2e-3);
 }
 
 TEST(ThesisScanMemory, SameBytesOnOneAndTwoThreads) {
@@ -307,28 +371,31 @@ TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
   }
 }
 
-TEST(ThesisScanFigures, MirrorEdgeSpikesAndColourTransitionAreCorrected) {
+TEST(ThesisScanFigures, MirrorEdgeSpikesAndColourTransitionLoseLockAndReadLong) {
   const auto& m = memory_result();
-  // The fit finds the preset's time constant (1 ms) from the step-edge scan.
-  EXPECT_NEAR(m.fit.correction.time_constant_s, 1e-3, 0.15e-3);
+  // The memory correction (a signed lag filter, tofkit's) is still fitted on the
+  // step-edge scan; the loop's memory (a baseline that moves the comparator's
+  // level, lock lost after a step down) does not have its form, so no claim
+  // that it removes the spikes.
+  EXPECT_GT(m.fit.correction.time_constant_s, 0.0);
   ASSERT_EQ(m.mirror_edges.edges.size(), 4u);
   for (const auto& e : m.mirror_edges.edges) {
-    // error = true - measured: onto a block (strength up) the range reads short
-    // (a negative range spike), off it long (positive), Figs. 3.4-3.5.
-    if (e.rising) {
-      EXPECT_GT(e.spike_before_m, 3e-3);
-    } else {
-      EXPECT_LT(e.spike_before_m, -3e-3);
-    }
+    // Figs. 3.4-3.5: a spike at every mirror-swept edge. In the loop both ways
+    // read long (error = true - measured < 0): its period is shortest with the
+    // coupling's baseline settled at the duty share of the swing, a level left
+    // low by a weaker return delays the fall, one left high the rise.
+    EXPECT_LT(e.spike_before_m, -3e-3) << e.elevation_deg;
   }
-  EXPECT_LE(m.mirror_edges.spike_after_m, 0.2 * m.mirror_edges.spike_before_m);
-  EXPECT_LT(m.mirror_edges.rms_near_edges_after_m, m.mirror_edges.rms_near_edges_before_m);
-  // Fig. 4.28: mid grey into black reads long, the correction tames the swing.
+  // Fig. 4.28: mid grey into black: the loop loses lock first (no echo right
+  // after the edge on one revolution), then reads long while the baseline relaxes.
   const auto& t = m.color_transition;
   ASSERT_EQ(t.edges.size(), 1u);
   EXPECT_FALSE(t.edges[0].rising);
   EXPECT_LT(t.edges[0].spike_before_m, -5e-3);
-  EXPECT_LT(std::abs(t.edges[0].spike_after_m), 0.5 * std::abs(t.edges[0].spike_before_m));
+  std::size_t edge = 0;
+  while (edge < t.elevation_deg.size() && t.elevation_deg[edge] < t.edges[0].elevation_deg) ++edge;
+  ASSERT_LT(edge + 1, t.single_before_m.size());
+  EXPECT_TRUE(std::isnan(t.single_before_m[edge + 1]));
 }
 
 // The raw scans read long, as the thesis's line and checkerboard tables do.

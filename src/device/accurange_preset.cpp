@@ -123,18 +123,12 @@ DeviceConfig accurange_preset() {
 
   // --------------------------------------------------------------- memory
   // Thesis Figs. 3.4-3.5 and 4.28: spikes at every edge swept by the mirror and
-  // swings after a mid-grey-to-black transition, decaying exponentially.
-  // Assumption: an AC-coupled receiver whose baseline (and AGC) recovers with a
-  // 1 ms time constant (a ~160 Hz coupling corner), and 10 mm of range per neper
-  // of unrecovered echo-strength step (the strength being ln(intensity x comparator
-  // high time) in the loop): spikes of about 15 mm at the mirror's edges, 20-25 mm
-  // after the colour transition. (At 6-8 mm per neper the loop's own walk, not
-  // linear in that strength across saturated and unsaturated surfaces, pulls the
-  // memory fit to 1.26 ms on most seeds.) No distance memory: the loop re-locks
-  // within a period (~23 ns), far below the 1 ms.
+  // erratic swings on black after mid grey. Assumption: the loop's AC coupling
+  // (its baseline at coupling_duty of the square wave's swing) recovers with a
+  // 1 ms time constant (a ~160 Hz corner): after a stronger return the level
+  // stays high (weak returns read long or lose lock, device/loop_window.hpp),
+  // after a weaker one low (reads short).
   c.memory.time_constant_ms = 1.0;
-  c.memory.strength_gain_mm_per_neper = 10.0;
-  c.memory.distance_gain = 0.0;
 
   // ----------------------------------------------------------- the loop
   // Thesis Section 3.1, Fig. 3.2: the AccuRange 3000 is a self-oscillating loop

@@ -185,8 +185,12 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
         strength[static_cast<std::size_t>(k0)] > strength[static_cast<std::size_t>(k_prev)];
     double best_b = 0, best_a = 0;
     int seen = 0;
+    // The first spike_columns columns with a reading: where the loop lost lock
+    // after the edge (no echo on any revolution) the spike is where it re-locks.
     for (int k = k0; k < k_end && seen < o.spike_columns; ++k) {
-      if (surfaces[static_cast<std::size_t>(k)] != 1) continue;
+      if (surfaces[static_cast<std::size_t>(k)] != 1 ||
+          !std::isfinite(p.error_before_m[static_cast<std::size_t>(k)]))
+        continue;
       ++seen;
       const double db = p.error_before_m[static_cast<std::size_t>(k)] - settled_at(k, false);
       const double da = p.error_after_m[static_cast<std::size_t>(k)] - settled_at(k, true);

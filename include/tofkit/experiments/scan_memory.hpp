@@ -2,10 +2,12 @@
 /// \file The thesis's uncorrected scanning errors and their correction
 /// (reference/characterization_thesis.md; thesis Figs. 3.4-3.5 and 4.28):
 ///  - mirror edges: a profile swept by the rotating 45-degree mirror across
-///    blocks in front of a wall: a negative spike where the beam steps onto a
-///    (brighter, nearer) block, a positive one where it steps off, each decaying
-///    exponentially;
-///  - colour transition: a profile from mid grey into black swings long, then settles;
+///    blocks in front of a wall: a spike at every edge, decaying exponentially
+///    (on the loop device both ways read long: its period is shortest with the
+///    coupling's baseline settled, device/echo_memory.hpp; after a large step
+///    down the loop first loses lock, no echo, and the spike is where it re-locks);
+///  - colour transition: a profile from mid grey into black: lock lost, then long
+///    readings that settle;
 ///  - beyond the thesis, the memory correction: a causal filter
 ///    (ranging/memory_correction.hpp) whose time constant and gain are fitted
 ///    on a separate step-edge scan (one block), then applied to both profiles;
