@@ -225,6 +225,31 @@ TEST(ThesisScanMemory, LoopSettledIsTheLoneMeasurementAndAStepDownLosesLock) {
   EXPECT_NEAR(out[before + after - 1].distance_raw_m, settled.distance_raw_m, 2e-3);
 }
 
+TEST(ThesisScanMemory, LoopMovingWindowIsCountedOverItsGate) {
+  // A DC-coupled loop (no memory) whose beam moves from white onto black during
+  // an output: the board counts during the first gate_fraction (0.5) of the
+  // window only, so a window split half and half reads the white target's
+  // period, not the average of both (device/loop_window.hpp).
+  auto c = device::accurange_preset();
+  c.memory.time_constant_ms = 0.0;
+  ASSERT_EQ(c.oscillator.gate_fraction, 0.5);
+  const device::VirtualRangefinder dev(c);
+  const device::OscillatorLoop loop(c);
+  const auto white = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(0));
+  const auto black = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(255));
+  device::SequenceItem item;
+  item.path = {white, black};
+  item.shots = 1 << 14;
+  std::vector<device::SequenceItem> items{item};
+  std::vector<ranging::RawMeasurement> out(1);
+  device::EchoMemory(dev).measure_sequence(items, 4, out);
+  ASSERT_TRUE(out[0].has_echo());
+  const double zero = c.oscillator.zero_half_period_ns;
+  const double t_white = loop.state(white, {}).period_ns, t_black = loop.state(black, {}).period_ns;
+  ASSERT_GT(t_black - t_white, 0.3);
+  EXPECT_NEAR(2 * (out[0].tof_ns + zero), t_white, 0.02);
+}
+
 TEST(ThesisScanMemory, SameBytesOnOneAndTwoThreads) {
   const device::VirtualRangefinder dev(device::accurange_preset());
   // Gaps of 100 tau split the sequence into segments that run in parallel.

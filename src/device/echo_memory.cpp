@@ -163,21 +163,23 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
   const double threshold_v = cfg.discriminator.threshold_v;
   auto loop_segment = [&](std::size_t begin, std::size_t end) {
     double baseline_v = ranging::kNaN;  // the loop's coupling capacitor voltage
-    std::vector<ranging::RawMeasurement> parts;
     std::vector<LoopStretch> stretches;
     for (std::size_t i = begin; i < end; ++i) {
       const SequenceItem& item = items[i];
       const int shots = item.shots > 0 ? item.shots : cfg.measurement.shots;
       const auto k_count = static_cast<int>(item.path.size());
       const double sub_window = window_s(shots) / k_count;
-      if (!loop_memory_on) {
-        parts.assign(item.path.size(), {});
-        for (int k = 0; k < k_count; ++k) {
-          const auto [sub_shots, stream] = path_element(i, k, k_count, shots);
-          parts[static_cast<std::size_t>(k)] = device_->measure(
-              item.path[static_cast<std::size_t>(k)], item.conditions, seed, stream, sub_shots);
+      if (!loop_memory_on) {  // DC coupled: no stalls, the window still counts its targets
+        const auto [first_shots, first_stream] = path_element(i, 0, k_count, shots);
+        if (k_count == 1) {
+          out[i] =
+              device_->measure(item.path.front(), item.conditions, seed, first_stream, first_shots);
+          continue;
         }
-        out[i] = k_count == 1 ? parts.front() : combine(parts);
+        stretches.clear();
+        for (const Target& target : item.path)
+          stretches.push_back({target, item.conditions, sub_window * 1e9, 0.0});
+        out[i] = count_loop_window(*loop_, stretches, seed, first_stream, shots);
         continue;
       }
       stretches.clear();

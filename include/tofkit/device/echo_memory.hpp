@@ -35,6 +35,8 @@
 ///    reports the valid-shot average of their times, widths and amplitudes (the
 ///    time-over-threshold walk does not average linearly: a mixed window is not
 ///    the window of the mixed target), and the memory evolves within the window.
+///    The loop's board counts such a window as one span of periods
+///    (device/loop_window.hpp: a time-weighted harmonic mean, stalls included).
 ///
 /// Evaluation: each independent segment of a sequence (split where the time gap
 /// exceeds kDecayedTimeConstants time constants, so the memory has decayed to
