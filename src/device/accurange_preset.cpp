@@ -136,19 +136,18 @@ DeviceConfig accurange_preset() {
   c.measurement.reference_temperature_c = 20.0;
 
   // --------------------------------------------------------------- memory
-  // Thesis Figs. 3.4-3.5 and 4.28: spikes at every edge swept by the mirror and
-  // swings after a mid-grey-to-black transition, decaying exponentially.
-  // Assumption: an AC-coupled receiver whose baseline (and AGC) recovers with a
-  // 1 ms time constant (a ~160 Hz coupling corner), and 10 mm of range per neper
-  // of unrecovered echo-strength step (the strength being ln(intensity x comparator
-  // high time) in the loop): spikes of about 15 mm at the mirror's edges, 20-25 mm
-  // after the colour transition. (At 6-8 mm per neper the loop's own walk, not
-  // linear in that strength across saturated and unsaturated surfaces, pulls the
-  // memory fit to 1.26 ms on most seeds.) No distance memory: the loop re-locks
-  // within a period (~23 ns), far below the 1 ms.
-  c.memory.time_constant_ms = 1.0;
-  c.memory.strength_gain_mm_per_neper = 10.0;
-  c.memory.distance_gain = 0.0;
+  // Thesis Fig. 4.28 (in its line-scan section): on black after mid grey the
+  // range swings erratically (15.65-23.91 in) over half the black area.
+  // Assumption: the loop's AC coupling (its baseline at coupling_duty of the
+  // square wave's swing) recovers with a 30 ms time constant (a ~5 Hz corner):
+  // after a stronger return the comparator's level stays high, a weak return
+  // reads long or loses lock (device/echo_memory.hpp, device/loop_window.hpp).
+  // At the line scans' 0.15 m/s that is about 5 mm of a 2 in black area:
+  // a 6.3-6.8 in swing over three seeds. The same state gives the mirror's edge
+  // spikes (Figs. 3.4-3.5, ~6 mm) and, held out, the line and checkerboard
+  // scans' larger raw spread (Figs. 4.23, 4.27; the checkerboard's random
+  // steps the most).
+  c.memory.time_constant_ms = 30.0;
 
   // ----------------------------------------------------------- the loop
   // Thesis Section 3.1, Fig. 3.2: the AccuRange 3000 is a self-oscillating loop

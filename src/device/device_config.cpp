@@ -229,15 +229,10 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       // memory: receiver recovery in a scan sequence (device/echo_memory.hpp)
       field("memory.time_constant_ms", &config.memory.time_constant_ms, 0, 1e6,
             "AC coupling time constant before the comparator: the baseline follows the echo "
-            "train (0: DC coupled, no memory)"),
+            "train, or the loop's square wave (0: DC coupled, no memory)"),
       field("memory.coupling_share", &config.memory.coupling_share, 0, 1,
             "share of the echo train's mean the coupling's baseline takes (1: plain capacitor; 0: "
             "DC coupled)"),
-      field("memory.strength_gain_mm_per_neper", &config.memory.strength_gain_mm_per_neper, -1e4,
-            1e4,
-            "loop devices only (stand-in): range error per neper of unrecovered strength step"),
-      field("memory.distance_gain", &config.memory.distance_gain, 0, 1,
-            "loop devices only (stand-in): share of a distance step the loop still lags by"),
 
       // oscillator: the self-oscillating loop principle (device/oscillator_loop.hpp)
       field("oscillator.enabled", &config.oscillator.enabled,

@@ -7,6 +7,9 @@
 #include <stdexcept>
 #include <string>
 
+#include "random_draws.hpp"
+#include "tofkit/device/loop_window.hpp"
+
 namespace tofkit::device {
 namespace {
 
@@ -14,6 +17,8 @@ namespace {
 // top bit keeps them apart from the streams of still beams (stream i).
 constexpr std::uint64_t kPathStreamBit = 1ull << 63;
 constexpr int kMaxPathElements = 256;
+// Salt of the loop's re-lock draws (apart from the measurement's blocks).
+constexpr std::uint32_t kRelockBlock = 0x524C434Bu;  // "RLCK"
 
 /// Path element k of n in a moving window: its shots (shared, the remainder
 /// to the first elements) and its random stream (item i's own when still).
@@ -35,16 +40,6 @@ double mean_remaining(double window_s, double tau_s) {
   const double x = window_s / tau_s;
   if (x < 1e-9) return 1.0;
   return (1.0 - std::exp(-x)) / x;
-}
-
-/// Fraction-weighted distance of a target's surfaces (NaN for a miss).
-double mean_distance_m(const Target& target) {
-  double sum = 0, weight = 0;
-  for (const auto& s : target.surfaces) {
-    sum += s.fraction * s.distance_m;
-    weight += s.fraction;
-  }
-  return weight > 0 ? sum / weight : ranging::kNaN;
 }
 
 /// Valid-shot weighted average of the sub-measurements of a moving window.
@@ -90,7 +85,10 @@ ranging::RawMeasurement combine(std::span<const ranging::RawMeasurement> parts) 
 
 }  // namespace
 
-EchoMemory::EchoMemory(const VirtualRangefinder& device) : device_(&device) {}
+EchoMemory::EchoMemory(const VirtualRangefinder& device) : device_(&device) {
+  if (device.config().oscillator.enabled)
+    loop_ = std::make_shared<const OscillatorLoop>(device.config());
+}
 
 double EchoMemory::window_s(int shots) const {
   const auto& c = device_->config();
@@ -153,73 +151,98 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
   const bool memory_on = !loop && tau_s > 0 && cfg.memory.coupling_share > 0;
   const auto starts = segments(items);
 
-  // The loop's stand-in (device_config.hpp, MemoryConfig): its comparator does
-  // not take the baseline yet; a correction-shaped lag instead.
-  const double strength_gain_m = cfg.memory.strength_gain_mm_per_neper * 1e-3;
-  const double distance_gain = cfg.memory.distance_gain;
-  const bool loop_memory_on = loop && tau_s > 0 && (strength_gain_m != 0 || distance_gain != 0);
-  const double ns_per_m = 1.0 / (device_->tof_to_distance_m(1.0) - device_->tof_to_distance_m(0.0));
+  // The loop (device/oscillator_loop.hpp): its comparator fires the threshold
+  // above the AC coupling's baseline, which on a still target settles at
+  // coupling_duty of the swing and in a scan follows the swings of the last
+  // time constants. A baseline left high by a stronger return raises the level:
+  // the rise comes later, the fall earlier (reads long), and where the level
+  // reaches the swing's top the loop loses lock until the baseline has come down
+  // (device/loop_window.hpp counts the window around the stall).
+  const bool loop_memory_on = loop && tau_s > 0;
+  const double duty = cfg.oscillator.coupling_duty;
+  const double threshold_v = cfg.discriminator.threshold_v;
   auto loop_segment = [&](std::size_t begin, std::size_t end) {
-    double strength_state = 0, distance_state = ranging::kNaN;
-    std::vector<ranging::RawMeasurement> parts;
+    double baseline_v = ranging::kNaN;  // the loop's coupling capacitor voltage
+    std::vector<LoopStretch> stretches;
     for (std::size_t i = begin; i < end; ++i) {
       const SequenceItem& item = items[i];
       const int shots = item.shots > 0 ? item.shots : cfg.measurement.shots;
       const auto k_count = static_cast<int>(item.path.size());
       const double sub_window = window_s(shots) / k_count;
-      parts.assign(item.path.size(), {});
-      double lag_sum = 0, strength_sum = 0, error_sum = 0, error_weight = 0;
+      if (!loop_memory_on) {  // DC coupled: no stalls, the window still counts its targets
+        const auto [first_shots, first_stream] = path_element(i, 0, k_count, shots);
+        if (k_count == 1) {
+          out[i] =
+              device_->measure(item.path.front(), item.conditions, seed, first_stream, first_shots);
+          continue;
+        }
+        stretches.clear();
+        for (const Target& target : item.path)
+          stretches.push_back({target, item.conditions, sub_window * 1e9, 0.0});
+        out[i] = count_loop_window(*loop_, stretches, seed, first_stream, shots);
+        continue;
+      }
+      stretches.clear();
+      double settled_sum = 0, offset_sum = 0, stall_sum = 0, strength_sum = 0;
       for (int k = 0; k < k_count; ++k) {
         const Target& target = item.path[static_cast<std::size_t>(k)];
-        const auto [sub_shots, stream] = path_element(i, k, k_count, shots);
-        auto& m = parts[static_cast<std::size_t>(k)];
-        m = device_->measure(target, item.conditions, seed, stream, sub_shots);
-        if (!loop_memory_on) continue;
-        const double x = echo_strength(target, item.conditions);
-        const double d = mean_distance_m(target);
-        if (i == begin && k == 0) {  // a fresh segment: the memory has decayed
-          strength_state = x;
-          distance_state = d;
+        // The baseline this target's square wave would settle at (a miss or a
+        // return too weak to lock on: the watchdog keeps toggling the laser, the
+        // baseline still goes to the duty share of what comes back).
+        const LoopState settled_state = loop_->state(target, item.conditions);
+        const double settled_v = duty * settled_state.swing_v;
+        if (std::isnan(baseline_v)) baseline_v = settled_v;  // a fresh segment: settled
+        const double offset_v = baseline_v - settled_v;
+        // Lock needs the level (baseline + threshold) below the swing's top; the
+        // loop re-locks when the receiver's noise first lifts the swing over it,
+        // so within a few noise sigmas of the top which side the level is on is a
+        // draw (thesis Fig. 4.28: the range on black after mid grey is erratic).
+        double margin_v = settled_state.swing_v - threshold_v - settled_v;
+        double stall_s = 0;
+        if (!settled_state.oscillates) {
+          stall_s = sub_window;
+        } else if (offset_v > 0) {
+          const auto r =
+              detail::CounterRng(seed).draw(i, static_cast<std::uint32_t>(k), kRelockBlock);
+          margin_v += settled_state.noise_v * detail::normal_pair(r[0], r[1])[0];
+          if (!(margin_v > 0))
+            stall_s = sub_window;
+          else if (offset_v >= margin_v)
+            stall_s = std::min(sub_window, tau_s * std::log(offset_v / margin_v));
         }
-        if (std::isnan(distance_state)) distance_state = d;
-        const double remaining = mean_remaining(sub_window, tau_s);
-        const double lag = (x - strength_state) * remaining;
-        double error_m = -strength_gain_m * lag;
-        if (!std::isnan(d)) error_m += -distance_gain * (d - distance_state) * remaining;
-        if (m.has_echo()) {
-          m.distance_raw_m += error_m;
-          m.tof_ns += error_m * ns_per_m;
-          error_sum += m.shots_valid * error_m;
-          error_weight += m.shots_valid;
-        }
-        lag_sum += lag;
-        strength_sum += x;
-        // The operating point relaxes towards this target's strength over the sub-window.
-        const double decay = std::exp(-sub_window / tau_s);
-        strength_state = x + (strength_state - x) * decay;
-        if (!std::isnan(d)) distance_state = d + (distance_state - d) * decay;
+        const double locked_s = sub_window - stall_s;
+        Conditions conditions = item.conditions;
+        conditions.baseline_offset_v =
+            offset_v * std::exp(-stall_s / tau_s) * mean_remaining(locked_s, tau_s);
+        stretches.push_back({target, conditions, sub_window * 1e9, stall_s * 1e9});
+        settled_sum += settled_v;
+        offset_sum += conditions.baseline_offset_v;
+        stall_sum += stall_s;
+        if (!trace.empty()) strength_sum += echo_strength(target, item.conditions);
+        // The capacitor relaxes towards this target's baseline over the sub-window.
+        baseline_v = settled_v + offset_v * std::exp(-sub_window / tau_s);
       }
-      out[i] = k_count == 1 ? parts.front() : combine(parts);
-      if (loop_memory_on) {
-        // Between windows the beam stays on the last target until the next output.
-        if (i + 1 < end) {
-          const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
-          if (idle > 0) {
-            const double decay = std::exp(-idle / tau_s);
-            const Target& last = item.path.back();
-            const double x = echo_strength(last, item.conditions);
-            strength_state = x + (strength_state - x) * decay;
-            const double d = mean_distance_m(last);
-            if (!std::isnan(d) && !std::isnan(distance_state))
-              distance_state = d + (distance_state - d) * decay;
-          }
+      const auto [first_shots, first_stream] = path_element(i, 0, k_count, shots);
+      if (k_count == 1 && stall_sum == 0) {
+        out[i] = device_->measure(stretches.front().target, stretches.front().conditions, seed,
+                                  first_stream, first_shots);
+      } else {
+        out[i] = count_loop_window(*loop_, stretches, seed, first_stream, shots);
+      }
+      // Between windows the beam stays on the last target until the next output.
+      if (i + 1 < end) {
+        const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
+        if (idle > 0) {
+          const double settled_v = duty * loop_->state(item.path.back(), item.conditions).swing_v;
+          baseline_v = settled_v + (baseline_v - settled_v) * std::exp(-idle / tau_s);
         }
       }
       if (!trace.empty()) {
         auto& t = trace[i];
         t.strength_neper = strength_sum / k_count;
-        t.lag_neper = lag_sum / k_count;
-        t.error_m = error_weight > 0 ? error_sum / error_weight : 0.0;
+        t.settled_baseline_v = settled_sum / k_count;
+        t.baseline_offset_v = offset_sum / k_count;
+        t.stall_s = stall_sum;
       }
     }
   };

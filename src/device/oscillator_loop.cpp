@@ -137,7 +137,10 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond,
   // strong ones, without a kink at the onset of saturation.
   s.swing_v = rx.saturation_v * std::tanh(s.amplitude_v / rx.saturation_v);
   s.saturated = s.amplitude_v > rx.saturation_v;
-  const double level = (osc.coupling_duty + duty_offset) * s.swing_v + threshold;
+  // In a scan the coupling may not have settled on this target yet
+  // (device/echo_memory.hpp): its unrecovered baseline moves the level too.
+  const double level =
+      (osc.coupling_duty + duty_offset) * s.swing_v + threshold + cond.baseline_offset_v;
   if (!(s.swing_v > level)) return s;  // too weak: the loop cannot oscillate
   const auto on = crossing(steps, true, 0.0, level, rx.saturation_v, tau_ns_);
   // The falling edge starts from the limited swing; while returns are still

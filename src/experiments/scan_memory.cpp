@@ -14,7 +14,8 @@
 namespace tofkit::experiments {
 namespace {
 
-constexpr std::uint64_t kCalibrationSalt = 1, kEdgesSalt = 2, kTransitionSalt = 3;
+constexpr std::uint64_t kCalibrationSalt = 1, kEdgesSalt = 2, kTransitionSalt = 3,
+                        kTransitionLineSalt = 4;
 
 scan::Primitive wall(double x_m, double z_lo, double z_hi, double reflectance) {
   scan::Primitive p;
@@ -185,8 +186,12 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
         strength[static_cast<std::size_t>(k0)] > strength[static_cast<std::size_t>(k_prev)];
     double best_b = 0, best_a = 0;
     int seen = 0;
+    // The first spike_columns columns with a reading: where the loop lost lock
+    // after the edge (no echo on any revolution) the spike is where it re-locks.
     for (int k = k0; k < k_end && seen < o.spike_columns; ++k) {
-      if (surfaces[static_cast<std::size_t>(k)] != 1) continue;
+      if (surfaces[static_cast<std::size_t>(k)] != 1 ||
+          !std::isfinite(p.error_before_m[static_cast<std::size_t>(k)]))
+        continue;
       ++seen;
       const double db = p.error_before_m[static_cast<std::size_t>(k)] - settled_at(k, false);
       const double da = p.error_after_m[static_cast<std::size_t>(k)] - settled_at(k, true);
@@ -217,6 +222,60 @@ Profile profile_of(const std::string& name, const MirrorScan& s, const MemorySca
   return p;
 }
 
+/// Fig. 4.28 as the thesis's line scans are taken: a mid-grey area beside a
+/// black one on a plane at the transition distance, one line from grey into black.
+TransitionLine transition_line(const device::VirtualRangefinder& device, const MemoryScanOptions& o,
+                               std::uint64_t seed) {
+  const double a = o.transition_area_m;
+  scan::Scene scene;
+  for (const auto& [sign, grey] :
+       {std::pair{1.0, o.transition_from_grey}, std::pair{-1.0, o.transition_to_grey}}) {
+    scan::Primitive p;
+    p.kind = scan::PrimitiveKind::kPlane;
+    p.name = "transition chart";
+    p.center_m = {o.transition_distance_m, sign * 0.5 * a, 0};
+    p.normal = {-1, 0, 0};
+    p.size_m = {a, 0.05};
+    p.reflectance.value = grey_reflectance(grey);
+    scene.primitives.push_back(p);
+  }
+  const scan::RayCaster caster(scene);
+  const scan::Footprint footprint(device.config());
+  // The stage's columns every millimetre from +a to -a (the line runs towards -y).
+  scan::LineOptions lo;
+  const int columns = static_cast<int>(std::round(2 * a / 1e-3));
+  for (int c = 0; c < columns; ++c) lo.y_m.push_back(a - (c + 0.5) * 1e-3);
+  lo.z_m = {0.0};
+  lo.stage_speed_m_per_s = o.stage_speed_m_per_s;
+  const auto pattern =
+      scan::line_pattern(lo, o.line_shots / device.config().link.laser.repetition_hz);
+  SequenceScanOptions so;
+  so.seed = seed;
+  so.shots = o.line_shots;
+  so.conditions.ambient_c = o.ambient_c;
+  const auto s = run_sequence_scan(caster, footprint, device, pattern, so);
+  TransitionLine t;
+  t.black_start_m = a;
+  double lo_m = ranging::kNaN, hi_m = ranging::kNaN;
+  for (const auto& b : s.result.beams) {
+    const double position = a - b.beam.origin_m[1];
+    t.position_m.push_back(position);
+    t.truth_m.push_back(b.true_range_m);
+    const double r = b.raw.has_echo() ? b.raw.distance_raw_m : ranging::kNaN;
+    t.range_m.push_back(r);
+    if (position < a || position > 1.5 * a) continue;  // the first half of the black area
+    ++t.outputs_first_half;
+    if (!std::isfinite(r)) {
+      ++t.no_echo_first_half;
+      continue;
+    }
+    lo_m = std::isnan(lo_m) ? r : std::min(lo_m, r);
+    hi_m = std::isnan(hi_m) ? r : std::max(hi_m, r);
+  }
+  t.swing_m = hi_m - lo_m;
+  return t;
+}
+
 }  // namespace
 
 void MemoryScanOptions::validate() const {
@@ -236,6 +295,10 @@ void MemoryScanOptions::validate() const {
   if (transition_from_grey < 0 || transition_from_grey > 255 || transition_to_grey < 0 ||
       transition_to_grey > 255)
     fail("transition greys", "must be in 0..255");
+  if (!(transition_area_m >= 0.005 && transition_area_m <= 1.0))
+    fail("transition_area_m", "must be in 0.005..1 m");
+  if (line_shots < 1) fail("line_shots", "must be >= 1");
+  if (!(stage_speed_m_per_s > 0)) fail("stage_speed_m_per_s", "must be positive");
   if (!(elevation_step_deg > 0)) fail("elevation_step_deg", "must be positive");
   if (!(elevation_max_deg > elevation_min_deg) || elevation_min_deg < -60 || elevation_max_deg > 60)
     fail("elevation range", "must be increasing within -60..60 degrees");
@@ -290,6 +353,7 @@ MemoryScanResult run_memory_scans(const device::VirtualRangefinder& device,
   correct(tr, result.fit.correction);
   result.color_transition = profile_of("color_transition", tr, options, tau);
   result.transition_records = records_of(tr, options.ambient_c);
+  result.transition_line = transition_line(device, options, derive_seed(seed, kTransitionLineSalt));
   return result;
 }
 
@@ -303,6 +367,7 @@ std::vector<Finding> MemoryScanResult::findings() const {
     f.push_back({p->name + "_rms_near_edges_mm_before", 1e3 * p->rms_near_edges_before_m, "mm"});
     f.push_back({p->name + "_rms_near_edges_mm_after", 1e3 * p->rms_near_edges_after_m, "mm"});
   }
+  f.push_back({"transition_line_swing_in", m_to_inches(transition_line.swing_m), "in"});
   return f;
 }
 
@@ -339,6 +404,12 @@ std::string MemoryScanResult::summary() const {
                 "mm per neper (%zu outputs)\n",
                 1e3 * fit.correction.time_constant_s, 1e3 * fit.correction.gain_m_per_neper,
                 fit.rows);
+  out += line;
+  std::snprintf(line, sizeof line,
+                "  colour transition as a line scan (Fig. 4.28): on the first half of the black "
+                "area the range swings %.2f in (%zu of %zu outputs without an echo)\n",
+                m_to_inches(transition_line.swing_m), transition_line.no_echo_first_half,
+                transition_line.outputs_first_half);
   out += line;
   for (const auto* p : {&mirror_edges, &color_transition}) {
     std::snprintf(line, sizeof line,

@@ -604,24 +604,13 @@ std::map<std::string, Quantity> build() {
       sigma_check);
   add({"thesis.color_transition.swing_in",
        "in",
-       "max - min of the range read on the black half after a mid-grey to black transition at "
-       "19 in (one mirror revolution; Fig. 4.28: 15.65 to 23.91 in)",
+       "max - min of the range read on the first half of the black area after a mid-grey to "
+       "black transition at 19 in, scanned line by line as Figs. 4.23-4.27 (Fig. 4.28: 15.65 "
+       "to 23.91 in)",
        {},
        {}},
       [](QuantityContext& c, const Parameters&, M) {
-        const auto& pr = c.runs().memory().color_transition;
-        double top = 0;
-        for (const double e : pr.elevation_deg) top = std::max(top, e);
-        double lo = ranging::kNaN, hi = ranging::kNaN;
-        for (std::size_t i = 0; i < pr.elevation_deg.size(); ++i) {
-          const double el = pr.elevation_deg[i];
-          if (!(el > 0 && el <= 0.5 * top)) continue;  // the first half of the black area
-          const double range = pr.truth_m[i] - pr.single_before_m[i];
-          if (!std::isfinite(range)) continue;
-          lo = std::isnan(lo) ? range : std::min(lo, range);
-          hi = std::isnan(hi) ? range : std::max(hi, range);
-        }
-        return (hi - lo) / kInch;
+        return c.runs().memory().transition_line.swing_m / kInch;
       });
   add({"thesis.edge_spike_mm",
        "mm",

@@ -126,14 +126,8 @@ struct MemoryConfig {
   double time_constant_ms = 0.0;  ///< AC coupling's time constant (0: DC coupled, no memory)
   double coupling_share = 0.0;    ///< share of the echo train's mean the baseline takes (1: a
                                   ///< plain coupling capacitor; a baseline restorer leaves less;
-                                  ///< 0: none, DC coupled)
-  /// The self-oscillating loop (oscillator.enabled) only, until its comparator
-  /// takes the baseline itself: a stand-in with a correction's form (range
-  /// error per neper of unrecovered echo-strength step, +: a rise reads short)
-  /// and the share of a distance step the loop lags by, decaying with
-  /// time_constant_ms. Ignored by the pulsed core.
-  double strength_gain_mm_per_neper = 0.0;
-  double distance_gain = 0.0;
+                                  ///< 0: none, DC coupled). Pulsed core only: the loop's
+                                  ///< baseline is its square wave's (coupling_duty of the swing)
 };
 
 /// The self-oscillating loop of an AccuRange-like unit (device/oscillator_loop.hpp):

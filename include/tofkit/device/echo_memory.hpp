@@ -18,16 +18,25 @@
 /// moves every shot's comparator level (analytic mode) or subtracts the
 /// baseline from the sampled waveform (waveform mode).
 ///
-/// The loop (oscillator.enabled) does not take the baseline yet: it keeps a
-/// stand-in with a correction's form (memory.strength_gain_mm_per_neper: range
-/// error per neper of unrecovered ln(peak x width) step, decaying with
-/// time_constant_ms; memory.distance_gain: a lagged share of a distance step),
-/// to be replaced when device/oscillator_loop.cpp takes the baseline.
+/// The loop (oscillator.enabled) has the same coupling inside it: on a still
+/// target its baseline settles at oscillator.coupling_duty of the square wave's
+/// swing and the comparator fires discriminator.threshold_v above it (walk, in
+/// device/oscillator_loop.hpp). In a scan the baseline is a low-pass (the same
+/// memory.time_constant_ms) of the swings of the targets just seen: after a
+/// stronger return it is high, the level too, and a weak return rises late and
+/// falls early (reads long); where the level reaches the swing's top the loop
+/// loses lock until the baseline has come down, and the counting window around
+/// the stall (device/loop_window.hpp) reads long or not by where its gate falls
+/// on it (thesis Fig. 4.28: black after mid grey swings erratically). After a
+/// weaker return the level is low and the range reads short (a negative spike,
+/// Figs. 3.4-3.5).
 ///  - **Motion**: a beam moving during the averaging window sweeps several
 ///    targets (`SequenceItem::path`); the shots are shared among them, the window
 ///    reports the valid-shot average of their times, widths and amplitudes (the
 ///    time-over-threshold walk does not average linearly: a mixed window is not
 ///    the window of the mixed target), and the memory evolves within the window.
+///    The loop's board counts such a window as one span of periods
+///    (device/loop_window.hpp: a time-weighted harmonic mean, stalls included).
 ///
 /// Evaluation: each independent segment of a sequence (split where the time gap
 /// exceeds kDecayedTimeConstants time constants, so the memory has decayed to
@@ -35,9 +44,11 @@
 /// streams derived from i only, so results do not depend on the thread count.
 
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <vector>
 
+#include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/target.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
@@ -59,8 +70,7 @@ struct MemoryTrace {
   double strength_neper = 0;      ///< echo charge proxy of the window, ln(V ns)
   double settled_baseline_v = 0;  ///< the coupling's baseline settled on this window's targets
   double baseline_offset_v = 0;   ///< mean unrecovered baseline over the window (0: settled)
-  double lag_neper = 0;           ///< the loop's stand-in: mean unrecovered strength step
-  double error_m = 0;             ///< the loop's stand-in: range error it added
+  double stall_s = 0;             ///< the loop: time it lost lock in this window
 };
 
 /// Gap, in time constants, after which a sequence splits into independent segments.
@@ -91,6 +101,7 @@ class EchoMemory {
 
  private:
   const VirtualRangefinder* device_;
+  std::shared_ptr<const OscillatorLoop> loop_;  ///< set for a loop device
 };
 
 }  // namespace tofkit::device

@@ -2,10 +2,15 @@
 /// \file The thesis's uncorrected scanning errors and their correction
 /// (reference/characterization_thesis.md; thesis Figs. 3.4-3.5 and 4.28):
 ///  - mirror edges: a profile swept by the rotating 45-degree mirror across
-///    blocks in front of a wall: a negative spike where the beam steps onto a
-///    (brighter, nearer) block, a positive one where it steps off, each decaying
-///    exponentially;
-///  - colour transition: a profile from mid grey into black swings long, then settles;
+///    blocks in front of a wall: a spike at every edge, decaying exponentially
+///    (on the loop device both ways read long: its period is shortest with the
+///    coupling's baseline settled, device/echo_memory.hpp; after a large step
+///    down the loop first loses lock, no echo, and the spike is where it re-locks);
+///  - colour transition (Fig. 4.28, in the thesis's line-scan section): a chart
+///    of a mid-grey area beside a black one scanned line by line as Figs.
+///    4.23-4.27 (the stage moving while the device samples): on black after mid
+///    grey the range swings (thesis: erratically, 15.65-23.91 in over half the
+///    black area); the same transition on the mirror as a profile too;
 ///  - beyond the thesis, the memory correction: a causal filter
 ///    (ranging/memory_correction.hpp) whose time constant and gain are fitted
 ///    on a separate step-edge scan (one block), then applied to both profiles;
@@ -37,6 +42,12 @@ struct MemoryScanOptions {
   double transition_distance_m = 0.4826;  ///< 19 in
   int transition_from_grey = 128;         ///< mid grey (below; thesis numbering, 0 = white)
   int transition_to_grey = 255;           ///< black (above the horizon)
+  /// Fig. 4.28's line scan: each area this wide (Assumption: 2 in), sampled at
+  /// line_shots per output while the stage moves at stage_speed_m_per_s (the
+  /// line-scan set-up of experiments/thesis_line_scan.hpp).
+  double transition_area_m = 0.0508;
+  int line_shots = 256;
+  double stage_speed_m_per_s = 0.15;
   double elevation_min_deg = -20, elevation_max_deg = 20, elevation_step_deg = 0.25;
   double revolutions_per_s = 5;  ///< 139 us per 0.25 deg column
   int revolutions = 40;
@@ -71,10 +82,21 @@ struct Profile {
   double rms_near_edges_after_m = ranging::kNaN;
 };
 
+/// Fig. 4.28 as a line scan: every output along one line, in time order.
+struct TransitionLine {
+  std::vector<double> position_m;        ///< along the line from the mid-grey side's start
+  std::vector<double> truth_m, range_m;  ///< range_m NaN: no echo
+  double black_start_m = ranging::kNaN;  ///< where the black area begins
+  /// max - min of the range over the first half of the black area (NaN: no reading there)
+  double swing_m = ranging::kNaN;
+  std::size_t outputs_first_half = 0, no_echo_first_half = 0;
+};
+
 struct MemoryScanResult {
   MemoryScanOptions options;
   calib::MemoryFitResult fit;  ///< from the step-edge calibration scan
   Profile mirror_edges, color_transition;
+  TransitionLine transition_line;  ///< Fig. 4.28
   /// Every output of the mirror-edge scan, then of the colour-transition scan,
   /// with the true range of its beam axis (raw, before the memory correction).
   std::vector<ranging::Record> mirror_records, transition_records;
