@@ -107,12 +107,23 @@ class StrideSearch {
     const std::size_t n = c.size();
     const std::size_t blocks = (n + kBlock - 1) / kBlock;
     minima_.assign(blocks * kStride, std::numeric_limits<double>::infinity());
-    has_nan_ = false;
-    for (std::size_t p = 0; p < n; ++p) {
-      double& low = minima_[(p / kBlock) * kStride + p % kStride];
-      low = c[p] < low ? c[p] : low;
-      has_nan_ |= c[p] != c[p];
+    bool nan = false;
+    for (std::size_t b = 0; b < blocks; ++b) {
+      double* low = &minima_[b * kStride];
+      const std::size_t begin = b * kBlock, end = std::min(n, begin + kBlock);
+      std::size_t p = begin;
+      for (; p + kStride <= end; p += kStride) {  // a row of kStride residues: vectorized
+        for (std::size_t r = 0; r < kStride; ++r) {
+          low[r] = c[p + r] < low[r] ? c[p + r] : low[r];
+          nan |= c[p + r] != c[p + r];
+        }
+      }
+      for (; p < end; ++p) {
+        low[p % kStride] = c[p] < low[p % kStride] ? c[p] : low[p % kStride];
+        nan |= c[p] != c[p];
+      }
     }
+    has_nan_ = nan;
   }
 
   /// The index where `while (i + kStride < n && c[i + kStride] >= level) i += kStride;
