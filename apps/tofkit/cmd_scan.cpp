@@ -85,9 +85,14 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
+  // Under mpirun, rank 0 corrects and writes; every rank measures its chunks.
+  const MpiWorld world = mpi_world();
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
-  if (!pipeline && !o.raw) {
+  // (Only where the ranges are corrected: the other ranks send raw ones.)
+  if (world.rank != 0) {
+    pipeline.reset();
+  } else if (!pipeline && !o.raw) {
     try {
       pipeline = experiments::factory_calibration(config).pipeline;
     } catch (const std::invalid_argument& e) {
@@ -110,8 +115,6 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const scan::Scene& scene = caster.scene();
   const scan::Footprint footprint(config);
   scan::ScanOptions options = scene_scan_options(o.scan, shots, o.seed);
-  // Under mpirun, rank 0 writes; every rank measures its chunks.
-  const MpiWorld world = mpi_world();
 
   const auto start = std::chrono::steady_clock::now();
   // The scan streams: blocks of beams measured, corrected and written in beam
@@ -191,7 +194,6 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
           scan::run_scan_blocks(
               caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
               [&](std::size_t, std::span<scan::BeamResult> b) {
-                if (pipeline) scan::apply_pipeline(*pipeline, b);
                 bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
                 mpi_progress();
               });
@@ -200,6 +202,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
+          if (pipeline) scan::apply_pipeline(*pipeline, received);
           take(header.first_beam + c * kScanBlockBeams, received);
         });
   }
