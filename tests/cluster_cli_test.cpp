@@ -239,6 +239,41 @@ reflectance = 0.5
   EXPECT_NE(mixed.err.find("left by another plan"), std::string::npos) << mixed.err;
 }
 
+// A plan's [characterize] runs a `tofkit characterize` experiment at every
+// point: its findings' columns hold what the characterize command itself
+// reports (its JSON) for the point's device and seed.
+TEST_F(Cluster, SweepRowsHoldACharacterizeExperimentsFindings) {
+  write("plan.toml",
+        "[axes]\n\"laser.peak_power_w\" = [5.0, 20.0]\n\"receiver.bandwidth_mhz\" = [80.0, "
+        "150.0]\n[characterize]\nexperiment = \"sampling\"\n");
+  ASSERT_EQ(run("--preset paper sweep --plan plan.toml --out sw").status, 0) << read("stderr.txt");
+  const auto rows = csv_rows(read("sw/sweep.csv"));
+  ASSERT_EQ(rows.size(), 1u + 4u);
+  const auto& h = rows[0];
+  ASSERT_GT(h.size(), 3u);
+  for (const std::size_t point : {std::size_t{1}, std::size_t{2}}) {
+    const auto& row = rows[1 + point];
+    ASSERT_EQ(run("--preset paper --set laser.peak_power_w=" + row[0] +
+                  " --set receiver.bandwidth_mhz=" + row[1] + " characterize sampling --out c")
+                  .status,
+              0);
+    const auto findings = nlohmann::json::parse(read("c/sampling.json"))["findings"];
+    ASSERT_EQ(findings.size(), h.size() - 2);
+    for (std::size_t k = 2; k < h.size(); ++k) {
+      ASSERT_EQ(h[k].rfind("sampling.", 0), 0u) << h[k];
+      const std::string name = h[k].substr(9);
+      ASSERT_TRUE(findings.contains(name)) << name;
+      EXPECT_EQ(std::stod(row[k]), findings[name].get<double>()) << name << ", point " << point;
+    }
+  }
+  // Over the peak power, the sampled spread falls (a stronger echo, less jitter).
+  const auto col = static_cast<std::size_t>(
+      std::find(h.begin(), h.end(), "sampling.sd_mm_at_8_shots") - h.begin());
+  ASSERT_LT(col, h.size());
+  EXPECT_LT(std::stod(rows[3][col]), std::stod(rows[1][col]));
+  EXPECT_TRUE(fs::exists(dir_ / "sw" / "sweep_sampling.sd_mm_at_8_shots.gp"));
+}
+
 TEST_F(Cluster, BadSweepPlansNameTheLineAndWriteNothing) {
   const std::pair<std::string, std::string> cases[] = {
       {"[axes]\n\"laser.pulse_widht_ns\" = [1.0]\ndistance_m=[1]\nreflectance=[0.5]\n[measure]\n",
@@ -250,6 +285,10 @@ TEST_F(Cluster, BadSweepPlansNameTheLineAndWriteNothing) {
       {"[axes]\ndistance_m = [1.0]\n[mesure]\n", "plan.toml:3: unknown key 'mesure'"},
       {"[axes]\ndistance_m = [1.0]\n[measure]\n", "reflectance is neither an axis"},
       {"[axes]\ndistance_m = [1.0\n", "plan.toml:2:"},
+      {"[axes]\ndistance_m = [1.0]\n[characterize]\nexperiment = \"samplng\"\n",
+       "plan.toml:4: [characterize] experiment: unknown experiment 'samplng' (known: "},
+      {"[axes]\ndistance_m = [1.0]\n[characterize]\nexperimnt = \"sampling\"\n",
+       "plan.toml:4: [characterize] experimnt: unknown key"},
   };
   for (const auto& [plan, message] : cases) {
     write("plan.toml", plan);

@@ -10,6 +10,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <limits>
+#include <random>
 #include <sstream>
 #include <string>
 
@@ -132,6 +135,61 @@ TEST(ScanStream, BlocksGiveTheWholeFrameBytesForEveryOutput) {
   const auto line = scan::make_pattern("line", s, lists, 5e-3, 1'000'000);
   for (const std::size_t block : {std::size_t{1}, std::size_t{7}, std::size_t{100000}})
     expect_stream_matches_frame(stripes, line, block, "line");
+}
+
+// The picture of an image too large to hold: its colour limits selected in
+// passes over pieces of the values and its rows drawn one at a time give the
+// whole-frame picture's bytes (whose limits come from sorting the values), on
+// images with NaN, infinities, negatives, ties, a constant image and an empty
+// one, whatever the pieces' size.
+TEST(ScanStream, RangeViewByRowsGivesTheWholeFrameBytes) {
+  std::mt19937 random(33);
+  std::uniform_real_distribution<float> spread(-3.0f, 40.0f);
+  auto image_of = [&](int rows, int columns, int kind) {
+    scan::Image image{rows, columns, std::vector<float>(static_cast<std::size_t>(rows) * columns)};
+    for (std::size_t i = 0; i < image.values.size(); ++i) {
+      float v = spread(random);
+      if (kind == 1) v = std::round(v);                            // many ties
+      if (kind == 2) v = 7.25f;                                    // constant
+      if (kind == 3) v = std::numeric_limits<float>::quiet_NaN();  // no finite value
+      if (kind == 0 && i % 7 == 3) v = std::numeric_limits<float>::quiet_NaN();
+      if (kind == 0 && i % 97 == 5) v = std::numeric_limits<float>::infinity();
+      if (kind == 0 && i % 89 == 7) v = -0.5f * v * v;
+      image.values[i] = v;
+    }
+    return image;
+  };
+  for (const auto& [rows, columns] : {std::pair{37, 53}, std::pair{1, 700}, std::pair{400, 3}}) {
+    for (int kind = 0; kind < 4; ++kind) {
+      scan::ScanImages images;
+      images.range = image_of(rows, columns, kind);
+      images.intensity = image_of(rows, columns, (kind + 1) % 4);
+      for (const std::size_t piece : {std::size_t{1}, std::size_t{64}, std::size_t{1} << 20}) {
+        auto pass = [&](const scan::Image& image) -> io::ValuePass {
+          return [&image, piece](const std::function<void(std::span<const float>)>& visit) {
+            for (std::size_t first = 0; first < image.values.size(); first += piece)
+              visit(std::span<const float>(image.values)
+                        .subspan(first, std::min(piece, image.values.size() - first)));
+          };
+        };
+        std::string png;
+        int asked = -1;
+        io::encode_range_view_rows(
+            rows, columns, io::streamed_limits(pass(images.range)),
+            io::streamed_limits(pass(images.intensity)),
+            [&](int r, std::span<float> range, std::span<float> intensity) {
+              EXPECT_GT(r, asked);  // in order, each row once
+              asked = r;
+              const auto at = static_cast<std::ptrdiff_t>(r) * columns;
+              std::copy_n(images.range.values.begin() + at, columns, range.begin());
+              std::copy_n(images.intensity.values.begin() + at, columns, intensity.begin());
+            },
+            [&](std::string_view bytes) { png += bytes; });
+        EXPECT_EQ(png, io::encode_range_view(images))
+            << rows << " x " << columns << ", kind " << kind << ", pieces of " << piece;
+      }
+    }
+  }
 }
 
 TEST(ScanStream, OnDemandPatternsMakeTheStoredBeams) {

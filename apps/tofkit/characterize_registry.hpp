@@ -33,4 +33,8 @@ bool register_characterization(std::string name, CharacterizeRunner runner);
 /// Experiments registered so far, by name.
 [[nodiscard]] const std::map<std::string, CharacterizeRunner>& registered_characterizations();
 
+/// Every experiment `tofkit characterize` runs (the built-in protocols and the
+/// registered ones), by name.
+[[nodiscard]] const std::map<std::string, CharacterizeRunner>& characterize_experiments();
+
 }  // namespace tofkit::app

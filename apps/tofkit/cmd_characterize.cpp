@@ -160,4 +160,9 @@ const bool registered = register_command("characterize", [](CLI::App& sub, AppCo
 });
 
 }  // namespace
+
+const std::map<std::string, CharacterizeRunner>& characterize_experiments() {
+  return all_runners();
+}
+
 }  // namespace tofkit::app

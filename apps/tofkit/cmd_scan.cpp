@@ -76,17 +76,23 @@ struct Progress {
 };
 
 void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
+  const auto setup_start = std::chrono::steady_clock::now();
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
-  const scan::Scene scene = io::load_scene(o.scan.scene);
+  scan::Scene loaded_scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
+  // Under mpirun, rank 0 corrects and writes; every rank measures its chunks.
+  const MpiWorld world = mpi_world();
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
-  if (!pipeline && !o.raw) {
+  // (Only where the ranges are corrected: the other ranks send raw ones.)
+  if (world.rank != 0) {
+    pipeline.reset();
+  } else if (!pipeline && !o.raw) {
     try {
       pipeline = experiments::factory_calibration(config).pipeline;
     } catch (const std::invalid_argument& e) {
@@ -100,6 +106,15 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
   }
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
+  // The set-up (scene file, factory calibration, the scene's BVH, the
+  // device's tables, MPI's start) is timed apart from the scan: it does not
+  // grow with the beams, and the summary gives both.
+  const device::VirtualRangefinder rangefinder(config, mode);
+  // (The scene moves into the caster: a 10^6-triangle mesh is held once.)
+  const scan::RayCaster caster(std::move(loaded_scene));
+  const scan::Scene& scene = caster.scene();
+  const scan::Footprint footprint(config);
+  scan::ScanOptions options = scene_scan_options(o.scan, shots, o.seed);
 
   const auto start = std::chrono::steady_clock::now();
   // The scan streams: blocks of beams measured, corrected and written in beam
@@ -133,8 +148,6 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                                   : o.model.empty() ? "factory calibration"
                                                     : o.model},
                         {"beams", pattern.size()}};
-  // Under mpirun, rank 0 writes; every rank measures its chunks.
-  const MpiWorld world = mpi_world();
   std::optional<io::ScanWriter> writer;
   std::optional<ScanShardWriter> shard_writer;
   if (world.rank == 0 && shard.whole()) {
@@ -159,18 +172,14 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     }
   };
   if (world.size == 1) {
-    run_scene_scan_blocks(
-        o.scan, scene, pattern, config, mode, shots, o.seed, header.first_beam, header.last_beam,
-        [&](std::size_t first, std::span<scan::BeamResult> beams) {
-          if (pipeline) scan::apply_pipeline(*pipeline, beams);
-          take(first, beams);
-        },
-        Progress{});
+    options.progress = Progress{};
+    scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, header.first_beam,
+                          header.last_beam, kScanBlockBeams,
+                          [&](std::size_t first, std::span<scan::BeamResult> beams) {
+                            if (pipeline) scan::apply_pipeline(*pipeline, beams);
+                            take(first, beams);
+                          });
   } else {
-    const device::VirtualRangefinder rangefinder(config, mode);
-    const scan::RayCaster caster(scene);
-    const scan::Footprint footprint(config);
-    const scan::ScanOptions options = scene_scan_options(o.scan, shots, o.seed);
     const std::uint64_t beams = header.last_beam - header.first_beam;
     const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
     std::vector<scan::BeamResult> received;
@@ -185,7 +194,6 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
           scan::run_scan_blocks(
               caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
               [&](std::size_t, std::span<scan::BeamResult> b) {
-                if (pipeline) scan::apply_pipeline(*pipeline, b);
                 bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
                 mpi_progress();
               });
@@ -194,6 +202,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
+          if (pipeline) scan::apply_pipeline(*pipeline, received);
           take(header.first_beam + c * kScanBlockBeams, received);
         });
   }
@@ -203,17 +212,19 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   if (world.rank != 0) return;
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double setup_seconds = std::chrono::duration<double>(start - setup_start).count();
 
   const auto threads =
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
   fmt::print(stderr,
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
-             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) -> {}{}\n",
+             "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) after "
+             "{:.2f} s of set-up (scene, calibration, BVH) -> {}{}\n",
              summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, shots, pattern), o.mode,
              o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,
-             threads, (std::filesystem::path(o.out) / "").string(),
+             threads, setup_seconds, (std::filesystem::path(o.out) / "").string(),
              shard.whole() ? ""
                            : fmt::format(" (shard {}/{}: beams {}..{})", shard.index, shard.count,
                                          header.first_beam, header.last_beam));

@@ -3,7 +3,11 @@
 #include <unistd.h>
 
 #include <cstdlib>
+#include <cstring>
+#include <map>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 #if defined(TOFKIT_HAVE_MPI)
 #include <mpi.h>
@@ -40,7 +44,11 @@ void check(int code, const char* what) {
   if (code != MPI_SUCCESS) throw std::runtime_error(std::string("MPI: ") + what + " failed");
 }
 
-constexpr int kChunkTag = 33;
+constexpr int kChunkTag = 33;    // a made chunk: its index (8 bytes), then its bytes
+constexpr int kRequestTag = 34;  // a rank asks for a chunk to make
+constexpr int kAssignTag = 35;   // rank 0's answer: a chunk index, or kNoMore
+
+constexpr long long kNoMore = -1;
 
 // Waiting without spinning: a rank that waits gives its core to the others
 // (MPI's blocking calls poll at full speed, which on a shared or
@@ -58,11 +66,111 @@ void wait_politely(MPI_Request& request) {
 // MPI calls when the transport cannot read the sender's memory directly).
 MPI_Request g_pending = MPI_REQUEST_NULL;
 
-// Round-robin: chunk c is rank c % size's. (Giving rank 0, which also
-// writes, fewer chunks was slower: writing costs far less than measuring.)
-int owner(std::size_t chunk, int size) {
-  return static_cast<int>(chunk % static_cast<std::size_t>(size));
-}
+// Rank 0's side of mpi_ordered_chunks. The chunks are handed out as the
+// ranks ask for them (rank 0 takes one itself whenever it is free), so a rank
+// slowed by its node's other work, or by heavier chunks, makes fewer: a fixed
+// round-robin left every rank waiting for the slowest, and rank 0, which also
+// writes, was the slowest. Chunks are handed out at most `window` ahead of the
+// next one to write, which bounds rank 0's held chunks (memory).
+class Dispatcher {
+ public:
+  Dispatcher(std::size_t chunks, int size,
+             const std::function<void(std::size_t, std::string_view)>& take)
+      : chunks_(chunks),
+        window_(2 * static_cast<std::size_t>(size)),
+        waiting_(static_cast<std::size_t>(size), false),
+        told_done_(static_cast<std::size_t>(size), false),
+        take_(take) {}
+
+  // Answers requests and receives finished chunks (also called from
+  // mpi_progress while rank 0 makes a chunk of its own).
+  void serve() {
+    for (int arrived = 1; arrived;) {
+      MPI_Status status;
+      check(MPI_Iprobe(MPI_ANY_SOURCE, kChunkTag, MPI_COMM_WORLD, &arrived, &status), "MPI_Iprobe");
+      if (!arrived) break;
+      int count = 0;
+      MPI_Get_count(&status, MPI_BYTE, &count);
+      std::string bytes(static_cast<std::size_t>(count), '\0');
+      check(MPI_Recv(bytes.data(), count, MPI_BYTE, status.MPI_SOURCE, kChunkTag, MPI_COMM_WORLD,
+                     MPI_STATUS_IGNORE),
+            "MPI_Recv");
+      long long chunk = 0;
+      if (bytes.size() < sizeof chunk) throw std::runtime_error("MPI: a chunk without its index");
+      std::memcpy(&chunk, bytes.data(), sizeof chunk);
+      held_.emplace(static_cast<std::size_t>(chunk), Held{std::move(bytes), sizeof chunk});
+    }
+    for (int arrived = 1; arrived;) {
+      MPI_Status status;
+      check(MPI_Iprobe(MPI_ANY_SOURCE, kRequestTag, MPI_COMM_WORLD, &arrived, &status),
+            "MPI_Iprobe");
+      if (!arrived) break;
+      char none = 0;
+      check(MPI_Recv(&none, 1, MPI_BYTE, status.MPI_SOURCE, kRequestTag, MPI_COMM_WORLD,
+                     MPI_STATUS_IGNORE),
+            "MPI_Recv");
+      waiting_[static_cast<std::size_t>(status.MPI_SOURCE)] = true;
+    }
+    for (std::size_t r = 1; r < waiting_.size(); ++r) {
+      if (!waiting_[r]) continue;
+      long long answer = kNoMore;
+      if (next_ < chunks_) {
+        if (!may_hand_out()) continue;  // asked again once rank 0 has written
+        answer = static_cast<long long>(next_++);
+      } else {
+        told_done_[r] = true;
+      }
+      // (8 bytes: sent eagerly, the call returns at once.)
+      check(MPI_Send(&answer, 1, MPI_LONG_LONG, static_cast<int>(r), kAssignTag, MPI_COMM_WORLD),
+            "MPI_Send");
+      waiting_[r] = false;
+    }
+  }
+
+  void run(const std::function<std::string(std::size_t)>& make) {
+    while (written_ < chunks_) {
+      serve();
+      write_held();
+      if (written_ >= chunks_) break;
+      if (next_ < chunks_ && may_hand_out()) {
+        const std::size_t c = next_++;
+        held_.emplace(c, Held{make(c), 0});
+        continue;
+      }
+      ::usleep(100);
+    }
+    // Every other rank's last request: no more chunks.
+    for (;;) {
+      bool all = true;
+      for (std::size_t r = 1; r < told_done_.size(); ++r) all = all && told_done_[r];
+      if (all) return;
+      serve();
+      ::usleep(100);
+    }
+  }
+
+ private:
+  [[nodiscard]] bool may_hand_out() const { return next_ < written_ + window_; }
+  void write_held() {
+    for (auto it = held_.find(written_); it != held_.end(); it = held_.find(written_)) {
+      if (take_) take_(written_, std::string_view(it->second.bytes).substr(it->second.offset));
+      held_.erase(it);
+      ++written_;
+    }
+  }
+
+  std::size_t chunks_, window_;
+  std::size_t next_ = 0, written_ = 0;  // the next chunk to hand out, to write
+  std::vector<bool> waiting_, told_done_;
+  struct Held {
+    std::string bytes;
+    std::size_t offset;  // where the chunk's bytes start (after a received chunk's index)
+  };
+  std::map<std::size_t, Held> held_;
+  const std::function<void(std::size_t, std::string_view)>& take_;
+};
+
+Dispatcher* g_dispatcher = nullptr;  // rank 0, inside mpi_ordered_chunks
 
 }  // namespace
 
@@ -87,37 +195,45 @@ void mpi_done() {
 void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take) {
   const MpiWorld w = mpi_world();
-  if (w.rank == 0) {
-    std::string received;
+  if (w.size == 1) {  // one process (no launcher): nothing to share
     for (std::size_t c = 0; c < chunks; ++c) {
-      const int from = owner(c, w.size);
-      if (from == 0) {
-        const std::string bytes = make(c);
-        take(c, bytes);
-        continue;
-      }
-      MPI_Status status;
-      for (int arrived = 0;;) {
-        check(MPI_Iprobe(from, kChunkTag, MPI_COMM_WORLD, &arrived, &status), "MPI_Iprobe");
-        if (arrived) break;
-        ::usleep(100);
-      }
-      int count = 0;
-      MPI_Get_count(&status, MPI_BYTE, &count);
-      received.resize(static_cast<std::size_t>(count));
-      check(MPI_Recv(received.data(), count, MPI_BYTE, from, kChunkTag, MPI_COMM_WORLD,
-                     MPI_STATUS_IGNORE),
-            "MPI_Recv");
-      take(c, received);
+      const std::string bytes = make(c);
+      if (take) take(c, bytes);
     }
     return;
   }
-  // The other ranks: make the next chunk while the last one is on its way.
+  if (w.rank == 0) {
+    Dispatcher dispatcher(chunks, w.size, take);
+    g_dispatcher = &dispatcher;
+    try {
+      dispatcher.run(make);
+    } catch (...) {
+      g_dispatcher = nullptr;
+      throw;
+    }
+    g_dispatcher = nullptr;
+    return;
+  }
+  // The other ranks: ask for a chunk, make it, send it (its index first) and
+  // ask again while it is on its way.
   std::string sending;
   MPI_Request& request = g_pending;
-  for (std::size_t c = 0; c < chunks; ++c) {
-    if (owner(c, w.size) != w.rank) continue;
-    std::string bytes = make(c);
+  for (;;) {
+    char ask = 0;
+    check(MPI_Send(&ask, 1, MPI_BYTE, 0, kRequestTag, MPI_COMM_WORLD), "MPI_Send");
+    long long chunk = kNoMore;
+    MPI_Request answer = MPI_REQUEST_NULL;
+    check(MPI_Irecv(&chunk, 1, MPI_LONG_LONG, 0, kAssignTag, MPI_COMM_WORLD, &answer), "MPI_Irecv");
+    for (int done = 0;;) {  // (the last send advances meanwhile)
+      check(MPI_Test(&answer, &done, MPI_STATUS_IGNORE), "MPI_Test");
+      if (done) break;
+      mpi_progress();
+      ::usleep(100);
+    }
+    if (chunk == kNoMore) break;
+    std::string bytes(sizeof chunk, '\0');
+    std::memcpy(bytes.data(), &chunk, sizeof chunk);
+    bytes += make(static_cast<std::size_t>(chunk));
     wait_politely(request);
     sending = std::move(bytes);
     check(MPI_Isend(sending.data(), static_cast<int>(sending.size()), MPI_BYTE, 0, kChunkTag,
@@ -128,6 +244,10 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
 }
 
 void mpi_progress() {
+  if (g_dispatcher != nullptr) {
+    g_dispatcher->serve();
+    return;
+  }
   if (g_pending == MPI_REQUEST_NULL) return;
   int done = 0;
   MPI_Test(&g_pending, &done, MPI_STATUS_IGNORE);

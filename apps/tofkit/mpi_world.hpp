@@ -1,6 +1,6 @@
 #pragma once
 /// \file Open MPI under `mpirun -np N tofkit scan|sweep ...` (or srun): the
-/// ranks share a job's chunks round-robin and rank 0 writes the one output
+/// ranks make a job's chunks as they ask for them and rank 0 writes the one output
 /// set, the bytes of the one-process run. Built without MPI (no
 /// find_package(MPI)), or run without a launcher, every command runs as one
 /// process. A rank that fails exits without finalizing MPI, so the launcher
@@ -25,9 +25,10 @@ struct MpiWorld {
 /// outputs are committed).
 void mpi_done();
 
-/// Chunks 0 .. chunks - 1: chunk c made by rank c % size (`make`), and rank 0
-/// hands every chunk's bytes to `take` in chunk order (memory: a chunk or two
-/// per rank).
+/// Chunks 0 .. chunks - 1, each made (`make`) by whichever rank asks for work
+/// next (rank 0 too), and rank 0 hands every chunk's bytes to `take` in chunk
+/// order (memory: at most 2 x size chunks held by rank 0, one or two per
+/// other rank).
 void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take);
 

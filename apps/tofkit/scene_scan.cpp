@@ -119,17 +119,4 @@ scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots, std::
   return options;
 }
 
-void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
-                           const scan::BeamPattern& pattern, const device::DeviceConfig& config,
-                           device::SimulationMode mode, int shots, std::uint64_t seed,
-                           std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
-                           std::function<void(std::size_t, std::size_t)> progress) {
-  scan::ScanOptions options = scene_scan_options(o, shots, seed);
-  options.progress = std::move(progress);
-  const device::VirtualRangefinder rangefinder(config, mode);
-  const scan::RayCaster caster(scene);
-  scan::run_scan_blocks(caster, scan::Footprint(config), rangefinder, pattern, options, first, last,
-                        kScanBlockBeams, sink);
-}
-
 }  // namespace tofkit::app

@@ -67,15 +67,6 @@ SceneScanOptionHandles add_scene_scan_options(CLI::App& sub, SceneScanOptions& o
     const device::DeviceConfig& config, device::SimulationMode mode, int shots, std::uint64_t seed,
     std::function<void(std::size_t, std::size_t)> progress = {});
 
-/// The same scan streamed: beams [first, last) of `pattern` handed to `sink`
-/// in blocks, in beam order (scan::run_scan_blocks), the same values as
-/// run_scene_scan's.
-void run_scene_scan_blocks(const SceneScanOptions& o, const scan::Scene& scene,
-                           const scan::BeamPattern& pattern, const device::DeviceConfig& config,
-                           device::SimulationMode mode, int shots, std::uint64_t seed,
-                           std::size_t first, std::size_t last, const scan::BeamBlockSink& sink,
-                           std::function<void(std::size_t, std::size_t)> progress = {});
-
 /// The scan options run_scene_scan uses (seed, shots, ambient at the start).
 [[nodiscard]] scan::ScanOptions scene_scan_options(const SceneScanOptions& o, int shots,
                                                    std::uint64_t seed);

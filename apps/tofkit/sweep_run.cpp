@@ -16,6 +16,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "characterize_registry.hpp"
 #include "mpi_world.hpp"
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/virtual_rangefinder.hpp"
@@ -47,7 +48,19 @@ std::vector<std::string> split_line(const std::string& line) {
 }  // namespace
 
 io::SweepBase sweep_base(const AppContext& ctx) {
-  return {ctx.preset, ctx.config_file, ctx.overrides};
+  io::SweepBase base{ctx.preset, ctx.config_file, ctx.overrides, {}, {}};
+  for (const auto& [name, runner] : characterize_experiments()) base.experiments.push_back(name);
+  // A plan's [characterize]: the experiment on the point's device (analytic
+  // mode), its findings as the row's columns.
+  base.characterize = [](const std::string& experiment, const device::DeviceConfig& config,
+                         std::uint64_t seed) {
+    const device::VirtualRangefinder device(config);
+    std::vector<std::pair<std::string, double>> findings;
+    for (const auto& f : characterize_experiments().at(experiment)(device, seed).findings)
+      findings.emplace_back(f.name, f.value);
+    return findings;
+  };
+  return base;
 }
 
 SweepRunSummary run_sweep(const io::SweepPlan& plan, const AppContext& ctx, const fs::path& out,

@@ -1,7 +1,12 @@
 #!/usr/bin/env python3
 """Writes ground_blocks.obj: a 140 m ground plane (a 22 x 22 grid of squares,
 968 triangles) with 12 blocks (12 triangles each): 1,112 triangles, like
-HELIOS++'s toy-blocks scene exported to one OBJ (bench/cluster_bench.sh)."""
+HELIOS++'s toy-blocks scene exported to one OBJ (bench/cluster_bench.sh).
+
+`make_ground_blocks.py GRID OUT.obj` writes the same scene with a GRID x GRID
+ground (GRID 707: about 10^6 triangles, for the beam-count benchmark)."""
+
+import sys
 
 vertices, faces = [], []
 
@@ -13,7 +18,7 @@ def quad(a, b, c, d):
     faces.append((base + 1, base + 3, base + 4))
 
 
-n, half = 22, 70.0
+n, half = (int(sys.argv[1]) if len(sys.argv) > 1 else 22), 70.0
 step = 2 * half / n
 for i in range(n):
     for j in range(n):
@@ -30,7 +35,7 @@ for (cx, cy, h) in blocks:
     quad((x0, y0, h), (x0, y1, h), (x1, y1, h), (x1, y0, h))  # top
     quad((x0, y0, 0), (x1, y0, 0), (x1, y1, 0), (x0, y1, 0))  # bottom
 
-with open("ground_blocks.obj", "w") as f:
+with open(sys.argv[2] if len(sys.argv) > 2 else "ground_blocks.obj", "w") as f:
     f.write(f"# {len(faces)} triangles: ground plane and blocks (make_ground_blocks.py)\n")
     for v in vertices:
         f.write("v {:g} {:g} {:g}\n".format(*v))

@@ -25,7 +25,7 @@ void bind_sweep(py::module_& m) {
       "_sweep_plan",
       [](const std::string& file, const std::string& preset, const py::object& config_file,
          const std::vector<std::string>& overrides) {
-        io::SweepBase base{preset, std::nullopt, overrides};
+        io::SweepBase base{preset, std::nullopt, overrides, {}, {}};
         if (!config_file.is_none()) base.config_file = py::str(config_file).cast<std::string>();
         return io::load_sweep_plan(file, base);
       },
@@ -34,7 +34,7 @@ void bind_sweep(py::module_& m) {
       "_sweep_rows",
       [](const io::SweepPlan& plan, const std::string& preset, const py::object& config_file,
          const std::vector<std::string>& overrides, const std::vector<std::uint64_t>& points) {
-        io::SweepBase base{preset, std::nullopt, overrides};
+        io::SweepBase base{preset, std::nullopt, overrides, {}, {}};
         if (!config_file.is_none()) base.config_file = py::str(config_file).cast<std::string>();
         for (const auto p : points) {
           if (p >= plan.points())

@@ -62,6 +62,99 @@ inline double table_at(const std::vector<double>& y, double x0, double inv_dx, d
   return y[i] + w * (y[i + 1] - y[i]);
 }
 
+/// Where std::max_element puts a sampled echo's peak over [begin, size): the
+/// first of the largest samples. Four running maxima (independent chains
+/// instead of one compare-and-branch per sample), then the first sample equal
+/// to their largest; with a NaN in the echo, std::max_element itself.
+std::size_t first_peak_index(const std::vector<double>& c, std::size_t begin) {
+  const std::size_t n = c.size();
+  double best[4] = {c[begin], c[begin], c[begin], c[begin]};
+  bool nan = false;
+  std::size_t i = begin;
+  for (; i + 4 <= n; i += 4) {
+    for (std::size_t k = 0; k < 4; ++k) {
+      const double v = c[i + k];
+      best[k] = best[k] > v ? best[k] : v;
+      nan |= v != v;
+    }
+  }
+  for (; i < n; ++i) {
+    best[0] = best[0] > c[i] ? best[0] : c[i];
+    nan |= c[i] != c[i];
+  }
+  if (nan)
+    return static_cast<std::size_t>(
+        std::max_element(c.begin() + static_cast<std::ptrdiff_t>(begin), c.end()) - c.begin());
+  const double peak = std::max(std::max(best[0], best[1]), std::max(best[2], best[3]));
+  i = begin;
+  while (c[i] != peak) ++i;
+  return i;
+}
+
+/// The downcrossing search of the exact path's crossing tables: from the
+/// rise's index i0, strides of kStride while the sample kStride ahead is at or
+/// above the level, then step by step. A saturated echo stays above the
+/// comparator's levels for thousands of grid steps, and each of the 129 levels
+/// strode over them. The smallest sample of each residue class (mod kStride)
+/// in aligned blocks of kBlock samples lets the search skip a block whose
+/// samples on its stride all stay at or above the level: the index the plain
+/// stride reaches, after far fewer reads.
+class StrideSearch {
+ public:
+  static constexpr std::size_t kStride = 8, kBlock = 128;
+
+  void build(const std::vector<double>& c) {
+    const std::size_t n = c.size();
+    const std::size_t blocks = (n + kBlock - 1) / kBlock;
+    minima_.assign(blocks * kStride, std::numeric_limits<double>::infinity());
+    bool nan = false;
+    for (std::size_t b = 0; b < blocks; ++b) {
+      double* low = &minima_[b * kStride];
+      const std::size_t begin = b * kBlock, end = std::min(n, begin + kBlock);
+      std::size_t p = begin;
+      for (; p + kStride <= end; p += kStride) {  // a row of kStride residues: vectorized
+        for (std::size_t r = 0; r < kStride; ++r) {
+          low[r] = c[p + r] < low[r] ? c[p + r] : low[r];
+          nan |= c[p + r] != c[p + r];
+        }
+      }
+      for (; p < end; ++p) {
+        low[p % kStride] = c[p] < low[p % kStride] ? c[p] : low[p % kStride];
+        nan |= c[p] != c[p];
+      }
+    }
+    has_nan_ = nan;
+  }
+
+  /// The index where `while (i + kStride < n && c[i + kStride] >= level) i += kStride;
+  /// while (i < n && c[i] >= level) ++i;` from i = i0 stops.
+  [[nodiscard]] std::size_t fall_index(const std::vector<double>& c, std::size_t i0,
+                                       double level) const {
+    const std::size_t n = c.size();
+    std::size_t i = i0;
+    if (has_nan_) {
+      while (i + kStride < n && c[i + kStride] >= level) i += kStride;
+    } else {
+      // The first p = i0 + m kStride (m >= 1) at or past the end or below the level.
+      std::size_t p = i0 + kStride;
+      const std::size_t block_end = std::min(n, (p / kBlock + 1) * kBlock);
+      while (p < block_end && c[p] >= level) p += kStride;
+      if (p >= block_end && p < n) {
+        while (p < n && minima_[(p / kBlock) * kStride + p % kStride] >= level) p += kBlock;
+        while (p < n && c[p] >= level) p += kStride;
+      }
+      if (p >= n) p = i0 + kStride * ((n - i0 + kStride - 1) / kStride);
+      i = p - kStride;
+    }
+    while (i < n && c[i] >= level) ++i;
+    return i;
+  }
+
+ private:
+  std::vector<double> minima_;  // [block * kStride + residue]
+  bool has_nan_ = false;
+};
+
 /// The echo of one surface, tabulated once per pulse shape in normalized form.
 /// A surface at delay d, amplitude A and footprint spread h (ns of round trip
 /// over the half depth) gives the echo A g_h(t - d) with
@@ -802,11 +895,9 @@ struct VirtualRangefinder::Impl {
       m.composite.clear();
       return;
     }
-    const auto peak_it = std::max_element(m.composite.begin() + static_cast<std::ptrdiff_t>(i_gate),
-                                          m.composite.end());
-    m.peak_v = *peak_it;
-    m.peak_time_ns =
-        m.grid_begin_ns + static_cast<double>(peak_it - m.composite.begin()) * kCompositeStepNs;
+    const std::size_t i_peak = first_peak_index(m.composite, i_gate);
+    m.peak_v = m.composite[i_peak];
+    m.peak_time_ns = m.grid_begin_ns + static_cast<double>(i_peak) * kCompositeStepNs;
     m.saturated = m.peak_v > rx.saturation_v;
     // Overdriven amplifiers stay clipped longer the harder they are driven
     // (charge storage): recovery ~ tau ln(V_peak / V_sat).
@@ -867,8 +958,9 @@ struct VirtualRangefinder::Impl {
     } else {
       // The first upcrossing index never decreases with the level: one forward pointer.
       // The downcrossing after it is found with a coarse stride (echo features span
-      // hundreds of grid steps), then refined step by step.
-      constexpr std::size_t kStride = 8;
+      // hundreds of grid steps), then refined step by step (StrideSearch).
+      thread_local StrideSearch falls;
+      falls.build(m.composite);
       std::size_t i_rise = 1;
       for (std::size_t j = 0; j < kLevels; ++j) {
         const double level = level_lo + static_cast<double>(j) * level_step;
@@ -878,9 +970,7 @@ struct VirtualRangefinder::Impl {
           m.level_top_v = level;
           const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
           rise = time_at(i_rise - 1, (level - a) / (b - a));
-          std::size_t i = i_rise;
-          while (i + kStride < n && m.composite[i + kStride] >= level) i += kStride;
-          while (i < n && m.composite[i] >= level) ++i;
+          const std::size_t i = falls.fall_index(m.composite, i_rise, level);
           if (i < n) {
             const double c0 = m.composite[i - 1], d = m.composite[i];
             fall = time_at(i - 1, (c0 - level) / (c0 - d));

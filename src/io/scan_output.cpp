@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <iterator>
@@ -61,6 +62,15 @@ std::pair<double, double> limits(const scan::Image& image, double q) {
   double lo = at(q), hi = at(1 - q);
   if (!(hi > lo)) hi = lo + 1e-3;
   return {lo, hi};
+}
+
+// A float's bits as an unsigned key in the floats' order (negatives reversed).
+std::uint32_t order_key(float x) {
+  const auto u = std::bit_cast<std::uint32_t>(x);
+  return (u & 0x80000000u) != 0 ? ~u : (u | 0x80000000u);
+}
+float from_order_key(std::uint32_t k) {
+  return std::bit_cast<float>((k & 0x80000000u) != 0 ? (k & 0x7FFFFFFFu) : ~k);
 }
 
 // Google's Turbo colour map (polynomial approximation), t in [0, 1].
@@ -231,6 +241,31 @@ Png16 encode_png16(const scan::Image& image) {
   out.png = encode_png(image.rows, image.columns, 16, SPNG_COLOR_TYPE_GRAYSCALE, pixels.data(),
                        pixels.size() * sizeof(std::uint16_t));
   return out;
+}
+
+void encode_png_rgb_rows(int rows, int columns,
+                         const std::function<void(int, std::span<unsigned char>)>& row,
+                         const std::function<void(std::string_view)>& write) {
+  spng_ctx* ctx = spng_ctx_new(SPNG_CTX_ENCODER);
+  if (ctx == nullptr) throw std::runtime_error("PNG: cannot create an encoder");
+  std::function<void(std::string_view)> sink = write;
+  spng_set_png_stream(ctx, write_to_sink, &sink);
+  spng_ihdr ihdr{};
+  ihdr.width = static_cast<std::uint32_t>(columns);
+  ihdr.height = static_cast<std::uint32_t>(rows);
+  ihdr.bit_depth = 8;
+  ihdr.color_type = SPNG_COLOR_TYPE_TRUECOLOR;
+  spng_set_ihdr(ctx, &ihdr);
+  int err = spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG,
+                              SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
+  std::vector<unsigned char> rgb(static_cast<std::size_t>(columns) * 3);
+  for (int r = 0; r < rows && err == 0; ++r) {
+    row(r, rgb);
+    err = spng_encode_row(ctx, rgb.data(), rgb.size());
+    if (err == SPNG_EOI) err = 0;
+  }
+  spng_ctx_free(ctx);
+  if (err != 0) throw std::runtime_error(std::string("PNG encoding failed: ") + spng_strerror(err));
 }
 
 std::string encode_png_rgb(int rows, int columns, const std::vector<unsigned char>& rgb) {
@@ -451,45 +486,150 @@ std::string encode_scan_csv(const scan::ScanResult& result, double ambient_c) {
   return out;
 }
 
+namespace {
+
+// The range view's layout (encode_range_view): two panels of the image, zoomed
+// to about 384 pixels, with a scale bar and its labels under each.
+struct ViewLayout {
+  int zoom, h, w, gap = 16, bar = 14, label = 5 * 2 + 6;
+  ViewLayout(int rows, int columns)
+      : zoom(std::max(1, 384 / std::max(rows, columns))), h(rows * zoom), w(columns * zoom) {}
+  [[nodiscard]] int canvas_rows() const { return h + 2 * gap + bar + label; }
+  [[nodiscard]] int canvas_columns() const { return 2 * w + 3 * gap; }
+};
+
+std::array<unsigned char, 3> range_colour(float d, std::pair<double, double> limits) {
+  return std::isfinite(d) ? turbo((d - limits.first) / (limits.second - limits.first))
+                          : std::array<unsigned char, 3>{0, 0, 0};
+}
+std::array<unsigned char, 3> intensity_grey(float a, std::pair<double, double> limits) {
+  const auto g = static_cast<unsigned char>(
+      std::lround(255 * std::clamp((a - limits.first) / (limits.second - limits.first), 0.0, 1.0)));
+  return std::isfinite(a) ? std::array<unsigned char, 3>{g, g, g}
+                          : std::array<unsigned char, 3>{0, 0, 0};
+}
+
+// The scale bars under each panel, labelled at both ends, into `canvas`,
+// whose row 0 is the picture's row `first_row`.
+void draw_view_scales(Canvas& canvas, int first_row, const ViewLayout& v,
+                      std::pair<double, double> range, std::pair<double, double> intensity) {
+  const int bar_top = v.gap + v.h + v.gap / 2 - first_row;
+  for (int c = 0; c < v.w; ++c) {
+    const double t = static_cast<double>(c) / std::max(1, v.w - 1);
+    const auto g = static_cast<unsigned char>(std::lround(255 * t));
+    for (int r = 0; r < v.bar; ++r) {
+      canvas.set(bar_top + r, v.gap + c, turbo(t));
+      canvas.set(bar_top + r, 2 * v.gap + v.w + c, {g, g, g});
+    }
+  }
+  const int text_top = bar_top + v.bar + 4;
+  const auto lo_text = fmt::format("{:.3f}m", range.first);
+  const auto hi_text = fmt::format("{:.3f}m", range.second);
+  canvas.text(text_top, v.gap, lo_text, 2);
+  canvas.text(text_top, v.gap + v.w - 8 * static_cast<int>(hi_text.size()), hi_text, 2);
+  const auto ilo = fmt::format("{:.3f}V", intensity.first);
+  const auto ihi = fmt::format("{:.3f}V", intensity.second);
+  canvas.text(text_top, 2 * v.gap + v.w, ilo, 2);
+  canvas.text(text_top, 2 * v.gap + 2 * v.w - 8 * static_cast<int>(ihi.size()), ihi, 2);
+}
+
+}  // namespace
+
 std::string encode_range_view(const scan::ScanImages& images) {
   const auto& range = images.range;
   const auto& intensity = images.intensity;
-  const int zoom = std::max(1, 384 / std::max(range.rows, range.columns));
-  const int h = range.rows * zoom, w = range.columns * zoom, gap = 16, bar = 14, label = 5 * 2 + 6;
-  Canvas canvas(h + 2 * gap + bar + label, 2 * w + 3 * gap, 32);
-  const auto [r_lo, r_hi] = limits(range, 0.01);
-  const auto [i_lo, i_hi] = limits(intensity, 0.01);
-  for (int r = 0; r < h; ++r) {
-    for (int c = 0; c < w; ++c) {
-      const float d = range.at(r / zoom, c / zoom), a = intensity.at(r / zoom, c / zoom);
-      canvas.set(gap + r, gap + c,
-                 std::isfinite(d) ? turbo((d - r_lo) / (r_hi - r_lo))
-                                  : std::array<unsigned char, 3>{0, 0, 0});
-      const auto g = static_cast<unsigned char>(
-          std::lround(255 * std::clamp((a - i_lo) / (i_hi - i_lo), 0.0, 1.0)));
-      canvas.set(gap + r, 2 * gap + w + c,
-                 std::isfinite(a) ? std::array<unsigned char, 3>{g, g, g}
-                                  : std::array<unsigned char, 3>{0, 0, 0});
+  const ViewLayout v(range.rows, range.columns);
+  Canvas canvas(v.canvas_rows(), v.canvas_columns(), 32);
+  const auto r_limits = limits(range, 0.01);
+  const auto i_limits = limits(intensity, 0.01);
+  for (int r = 0; r < v.h; ++r) {
+    for (int c = 0; c < v.w; ++c) {
+      const float d = range.at(r / v.zoom, c / v.zoom), a = intensity.at(r / v.zoom, c / v.zoom);
+      canvas.set(v.gap + r, v.gap + c, range_colour(d, r_limits));
+      canvas.set(v.gap + r, 2 * v.gap + v.w + c, intensity_grey(a, i_limits));
     }
   }
-  // Scale bars under each panel, labelled at both ends.
-  const int bar_top = gap + h + gap / 2;
-  for (int c = 0; c < w; ++c) {
-    const double t = static_cast<double>(c) / std::max(1, w - 1);
-    const auto g = static_cast<unsigned char>(std::lround(255 * t));
-    for (int r = 0; r < bar; ++r) {
-      canvas.set(bar_top + r, gap + c, turbo(t));
-      canvas.set(bar_top + r, 2 * gap + w + c, {g, g, g});
-    }
-  }
-  const int text_top = bar_top + bar + 4;
-  const auto lo_text = fmt::format("{:.3f}m", r_lo), hi_text = fmt::format("{:.3f}m", r_hi);
-  canvas.text(text_top, gap, lo_text, 2);
-  canvas.text(text_top, gap + w - 8 * static_cast<int>(hi_text.size()), hi_text, 2);
-  const auto ilo = fmt::format("{:.3f}V", i_lo), ihi = fmt::format("{:.3f}V", i_hi);
-  canvas.text(text_top, 2 * gap + w, ilo, 2);
-  canvas.text(text_top, 2 * gap + 2 * w - 8 * static_cast<int>(ihi.size()), ihi, 2);
+  draw_view_scales(canvas, 0, v, r_limits, i_limits);
   return encode_png_rgb(canvas.rows, canvas.columns, canvas.rgb);
+}
+
+std::pair<double, double> streamed_limits(const ValuePass& pass, double q) {
+  // Radix selection of the two order statistics `limits` reads off the sorted
+  // finite values: a pass counting the values by their keys' high 16 bits
+  // finds each one's bucket, a second counting that bucket's values by their
+  // low 16 bits finds its key, hence the value itself.
+  std::vector<std::uint64_t> high(std::size_t{1} << 16, 0);
+  std::uint64_t n = 0;
+  pass([&](std::span<const float> values) {
+    for (const float x : values) {
+      if (!std::isfinite(x)) continue;
+      ++high[order_key(x) >> 16];
+      ++n;
+    }
+  });
+  if (n == 0) return {0, 1};
+  const double fractions[2] = {q, 1 - q};
+  std::uint64_t rank[2];
+  std::uint32_t bucket[2] = {0, 0};
+  for (int j = 0; j < 2; ++j) {
+    rank[j] = static_cast<std::uint64_t>(fractions[j] * static_cast<double>(n - 1));
+    std::uint64_t below = 0;
+    while (below + high[bucket[j]] <= rank[j]) below += high[bucket[j]++];
+    rank[j] -= below;  // the rank within its bucket
+  }
+  std::vector<std::uint64_t> low[2] = {std::vector<std::uint64_t>(std::size_t{1} << 16, 0),
+                                       std::vector<std::uint64_t>(std::size_t{1} << 16, 0)};
+  pass([&](std::span<const float> values) {
+    for (const float x : values) {
+      if (!std::isfinite(x)) continue;
+      const std::uint32_t key = order_key(x);
+      for (int j = 0; j < 2; ++j) {
+        if (key >> 16 == bucket[j]) ++low[j][key & 0xFFFFu];
+      }
+    }
+  });
+  double value[2];
+  for (int j = 0; j < 2; ++j) {
+    std::uint32_t k = 0;
+    for (std::uint64_t below = 0; below + low[j][k] <= rank[j];) below += low[j][k++];
+    value[j] = from_order_key((bucket[j] << 16) | k);
+  }
+  double lo = value[0], hi = value[1];
+  if (!(hi > lo)) hi = lo + 1e-3;
+  return {lo, hi};
+}
+
+void encode_range_view_rows(int rows, int columns, std::pair<double, double> range_limits,
+                            std::pair<double, double> intensity_limits, const ViewRow& row,
+                            const std::function<void(std::string_view)>& write) {
+  const ViewLayout v(rows, columns);
+  // The rows below the panels (scale bars and labels), drawn once.
+  const int bottom_first = v.gap + v.h;
+  Canvas bottom(v.canvas_rows() - bottom_first, v.canvas_columns(), 32);
+  draw_view_scales(bottom, bottom_first, v, range_limits, intensity_limits);
+  std::vector<float> range(static_cast<std::size_t>(columns)), intensity(range.size());
+  int image_row = -1;
+  encode_png_rgb_rows(
+      v.canvas_rows(), v.canvas_columns(),
+      [&](int r, std::span<unsigned char> rgb) {
+        if (r >= bottom_first) {
+          const auto* from = &bottom.rgb[static_cast<std::size_t>(r - bottom_first) * rgb.size()];
+          std::copy(from, from + rgb.size(), rgb.begin());
+          return;
+        }
+        std::fill(rgb.begin(), rgb.end(), static_cast<unsigned char>(32));
+        if (r < v.gap) return;
+        const int ir = (r - v.gap) / v.zoom;
+        if (ir != image_row) row(image_row = ir, range, intensity);
+        for (int c = 0; c < v.w; ++c) {
+          const auto d = range_colour(range[static_cast<std::size_t>(c / v.zoom)], range_limits);
+          const auto a =
+              intensity_grey(intensity[static_cast<std::size_t>(c / v.zoom)], intensity_limits);
+          std::memcpy(&rgb[static_cast<std::size_t>(v.gap + c) * 3], d.data(), 3);
+          std::memcpy(&rgb[static_cast<std::size_t>(2 * v.gap + v.w + c) * 3], a.data(), 3);
+        }
+      },
+      write);
 }
 
 }  // namespace tofkit::io

@@ -234,17 +234,33 @@ ScanWriter::Summary ScanWriter::finish() {
     }
   }
   if (m.wants("view")) {
-    // The picture's colour limits are quantiles of the whole image: it is
-    // made from the finished images read back (memory: two float images).
-    scan::ScanImages view;
-    for (std::size_t k = 0; k < 2; ++k) {
-      scan::Image& image = k == 0 ? view.range : view.intensity;
-      image = {rows, columns, std::vector<float>(static_cast<std::size_t>(rows) * columns)};
-      if (!image.values.empty())
-        m.planes[k].rows->read(0, image.values.size() * sizeof(float), image.values.data());
-    }
+    // The picture's colour limits are order statistics of the whole image,
+    // selected in two passes over the finished images read back; its rows
+    // are then drawn and encoded one at a time (memory: a row, not the image).
+    auto pass = [&](std::size_t k) -> ValuePass {
+      return [&, k](const std::function<void(std::span<const float>)>& visit) {
+        constexpr std::uint64_t kChunkValues = 1 << 16;
+        std::vector<float> chunk(kChunkValues);
+        const std::uint64_t total = static_cast<std::uint64_t>(rows) * columns;
+        for (std::uint64_t first = 0; first < total; first += kChunkValues) {
+          const std::uint64_t count = std::min(kChunkValues, total - first);
+          m.planes[k].rows->read(first * sizeof(float), count * sizeof(float), chunk.data());
+          visit({chunk.data(), static_cast<std::size_t>(count)});
+        }
+      };
+    };
+    const auto range_limits = streamed_limits(pass(0));
+    const auto intensity_limits = streamed_limits(pass(1));
     StreamingOutput out(m.at("range_view.png"));
-    out.append(encode_range_view(view));
+    encode_range_view_rows(
+        rows, columns, range_limits, intensity_limits,
+        [&](int r, std::span<float> range, std::span<float> intensity) {
+          m.planes[0].rows->read(static_cast<std::uint64_t>(r) * row_bytes, row_bytes,
+                                 range.data());
+          m.planes[1].rows->read(static_cast<std::uint64_t>(r) * row_bytes, row_bytes,
+                                 intensity.data());
+        },
+        [&](std::string_view bytes) { out.append(bytes); });
     out.commit();
   }
   return m.summary;

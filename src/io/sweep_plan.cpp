@@ -1,6 +1,7 @@
 #include "tofkit/io/sweep_plan.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <toml++/toml.h>
 
 #include <algorithm>
@@ -118,9 +119,9 @@ SweepPlan load_sweep_plan(const fs::path& file, const SweepBase& ctx) {
   bool has_measure = false;
   for (const auto& [key, node] : root) {
     const std::string k(key.str());
-    if (k != "axes" && k != "measure" && k != "budget")
+    if (k != "axes" && k != "measure" && k != "budget" && k != "characterize")
       throw std::invalid_argument(where(node) + ": unknown key '" + k +
-                                  "' (a plan has [axes], [measure] and [budget])");
+                                  "' (a plan has [axes], [measure], [budget] and [characterize])");
     if (!node.is_table())
       throw std::invalid_argument(where(node) + ": '" + k + "' must be a table ([" + k + "])");
   }
@@ -216,9 +217,30 @@ SweepPlan load_sweep_plan(const fs::path& file, const SweepBase& ctx) {
                                   ": unknown key ([budget] takes none: it adds received_power_w, "
                                   "snr and range_at_snr10_m)");
   }
-  if (!plan.measure && !plan.budget)
-    throw std::invalid_argument(file.string() + ": nothing to measure: add [measure] or [budget]");
+  if (const toml::table* characterize = root["characterize"].as_table()) {
+    for (const auto& [key, node] : *characterize) {
+      const std::string at = where(node) + ": [characterize] " + std::string(key.str());
+      if (key.str() != "experiment")
+        throw std::invalid_argument(at + ": unknown key ([characterize] takes experiment)");
+      const auto name = node.value<std::string>();
+      if (!name || !node.is_string()) throw std::invalid_argument(at + ": expected a name");
+      if (!ctx.characterize)
+        throw std::invalid_argument(at +
+                                    ": characterize experiments run from the tofkit "
+                                    "command line only");
+      if (std::find(ctx.experiments.begin(), ctx.experiments.end(), *name) == ctx.experiments.end())
+        throw std::invalid_argument(fmt::format("{}: unknown experiment '{}' (known: {})", at,
+                                                *name, fmt::join(ctx.experiments, ", ")));
+      plan.characterize = *name;
+    }
+    if (plan.characterize.empty())
+      throw std::invalid_argument(file.string() + ": [characterize] names no experiment");
+  }
+  if (!plan.measure && !plan.budget && plan.characterize.empty())
+    throw std::invalid_argument(file.string() +
+                                ": nothing to measure: add [measure], [budget] or [characterize]");
   for (const char* needed : {"distance_m", "reflectance"}) {
+    if (!plan.measure && !plan.budget) break;  // (a characterize experiment sets its own)
     const bool on_axis = std::any_of(plan.axes.begin(), plan.axes.end(),
                                      [&](const SweepAxis& a) { return a.key == needed; });
     if (!on_axis && given.count(needed) == 0)
@@ -230,6 +252,14 @@ SweepPlan load_sweep_plan(const fs::path& file, const SweepBase& ctx) {
         fmt::format("{}: {} points, more than the row limit of {} (raise "
                     "it with --max-rows)",
                     file.string(), plan.points(), resource_limits().max_rows));
+  if (!plan.characterize.empty()) {
+    // The experiment's findings name its columns: those of the first point
+    // (an experiment reports the same findings at every setting).
+    const PointSetting first = point_setting(plan, 0);
+    for (const auto& [name, value] :
+         ctx.characterize(plan.characterize, point_config(ctx, first.sets), first.seed))
+      plan.characterize_findings.push_back(name);
+  }
   std::uint64_t h = fnv1a(1469598103934665603ull, text);
   h = fnv1a(h, ctx.preset + "\n");
   if (ctx.config_file) h = fnv1a(h, read_text_file(*ctx.config_file, "config file"));
@@ -248,6 +278,7 @@ std::string sweep_header(const SweepPlan& plan) {
     h += ",valid,shots_valid_mean,distance_raw_mean_m,distance_raw_std_m,bias_m,"
          "pulse_width_mean_ns,amplitude_mean";
   if (plan.budget) h += ",received_power_w,snr,range_at_snr10_m";
+  for (const auto& name : plan.characterize_findings) h += "," + plan.characterize + "." + name;
   return h;
 }
 
@@ -302,6 +333,16 @@ std::string sweep_row(const SweepPlan& plan, const SweepBase& ctx, std::uint64_t
     num(b.received_power_w);
     num(b.snr);
     num(physics::range_at_snr(link, kDetectionSnr, p.reflectance, p.angle_deg));
+  }
+  if (!plan.characterize.empty()) {
+    if (!ctx.characterize)
+      throw std::invalid_argument("sweep: [characterize] runs from the tofkit command line only");
+    const auto findings = ctx.characterize(plan.characterize, config, p.seed);
+    for (const auto& name : plan.characterize_findings) {
+      const auto it = std::find_if(findings.begin(), findings.end(),
+                                   [&](const auto& f) { return f.first == name; });
+      num(it == findings.end() ? std::nan("") : it->second);
+    }
   }
   return row;
 }

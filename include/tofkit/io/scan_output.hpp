@@ -12,6 +12,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "tofkit/scan/scanner.hpp"
@@ -45,6 +46,11 @@ void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
 /// 8-bit RGB PNG (rows x columns x 3).
 [[nodiscard]] std::string encode_png_rgb(int rows, int columns,
                                          const std::vector<unsigned char>& rgb);
+/// The PNG encode_png_rgb makes, made row by row: `row(r, rgb)` fills row r's
+/// pixels (columns x 3), `write` receives the file's bytes in order.
+void encode_png_rgb_rows(int rows, int columns,
+                         const std::function<void(int, std::span<unsigned char>)>& row,
+                         const std::function<void(std::string_view)>& write);
 
 [[nodiscard]] std::string encode_npy(const scan::Image& image);
 
@@ -96,5 +102,20 @@ void append_scan_csv_rows(std::string& out, std::span<const scan::BeamResult> be
 /// Colour-mapped range with a scale bar (labelled in metres) beside the
 /// intensity image.
 [[nodiscard]] std::string encode_range_view(const scan::ScanImages& images);
+
+// The same picture for an image too large to hold (a streaming scan's, read
+// back from its files): memory independent of the image's size.
+/// A pass over all of an image's values, handed to `visit` in pieces.
+using ValuePass = std::function<void(const std::function<void(std::span<const float>)>& visit)>;
+/// The colour limits encode_range_view takes from an image (its finite
+/// values' 1 % and 99 % order statistics, exactly), from two passes.
+[[nodiscard]] std::pair<double, double> streamed_limits(const ValuePass& pass, double q = 0.01);
+/// `row(r, range, intensity)` fills image row r of both images (rows asked in order).
+using ViewRow = std::function<void(int, std::span<float>, std::span<float>)>;
+/// encode_range_view's bytes, made row by row from the images' rows and their
+/// streamed_limits; `write` receives the file's bytes in order.
+void encode_range_view_rows(int rows, int columns, std::pair<double, double> range_limits,
+                            std::pair<double, double> intensity_limits, const ViewRow& row,
+                            const std::function<void(std::string_view)>& write);
 
 }  // namespace tofkit::io

@@ -15,21 +15,35 @@
 ///     count = 3
 ///     mode = "analytic"
 ///     [budget]                   # optional: received_power_w, snr, range_at_snr10_m
+///     [characterize]             # optional: a `tofkit characterize` experiment's
+///     experiment = "reflectance" # findings at every point (the command line's)
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
+
+#include "tofkit/device/device_config.hpp"
 
 namespace tofkit::io {
 
+/// A `tofkit characterize` experiment's findings (name, value) on a device
+/// at a seed. The experiments live with the command line (apps/), which
+/// supplies this; without it a plan's [characterize] is refused.
+using SweepCharacterize = std::function<std::vector<std::pair<std::string, double>>(
+    const std::string& experiment, const device::DeviceConfig& config, std::uint64_t seed)>;
+
 /// The device configuration every point starts from (the CLI's --preset,
-/// --config and --set).
+/// --config and --set), and the characterize experiments at hand.
 struct SweepBase {
   std::string preset;
   std::optional<std::filesystem::path> config_file;
   std::vector<std::string> overrides;
+  SweepCharacterize characterize;        ///< runs an experiment (empty: none available)
+  std::vector<std::string> experiments;  ///< their names
 };
 
 struct SweepAxis {
@@ -44,6 +58,8 @@ struct SweepPlan {
   int shots = 0, count = 1;
   std::string mode = "analytic";
   bool measure = true, budget = false;
+  std::string characterize;                        ///< [characterize] experiment ("": none)
+  std::vector<std::string> characterize_findings;  ///< its findings' names (the columns)
   double distance_m = 0, reflectance = 0, angle_deg = 0, ambient_c = 0;  ///< when not an axis
   std::uint64_t seed = 1;
   std::uint64_t fingerprint = 0;  ///< of the plan and the base configuration
