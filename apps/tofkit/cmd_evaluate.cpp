@@ -5,6 +5,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -127,6 +129,22 @@ void run_evaluate(const EvaluateOptions& o) {
                              "correct writes them)");
   }
   const calib::Evaluation ev = calib::evaluate({truth, distance, raw, sigma, amplitude, key});
+  // Coverage per distance band: thirds of the truths' span (an error that
+  // follows the range shows as one band's coverage falling).
+  double near = INFINITY, far = -INFINITY;
+  for (double t : truth)
+    if (std::isfinite(t)) near = std::min(near, t), far = std::max(far, t);
+  std::array<double, 3> band_rows{}, band_1{}, band_2{};
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    const double e = truth[i] - distance[i];
+    if (!std::isfinite(e) || !std::isfinite(sigma[i])) continue;
+    const auto b = static_cast<std::size_t>(
+        std::clamp(far > near ? 3.0 * (truth[i] - near) / (far - near) : 0.0, 0.0, 2.0));
+    band_rows[b] += 1;
+    band_1[b] += std::abs(e) <= sigma[i] ? 1 : 0;
+    band_2[b] += std::abs(e) <= 2 * sigma[i] ? 1 : 0;
+  }
+  const auto share = [](double in, double n) { return n > 0 ? in / n : NAN; };
   if (o.json) {
     nlohmann::json j = {
         {"input", o.in},
@@ -138,6 +156,15 @@ void run_evaluate(const EvaluateOptions& o) {
     nlohmann::json groups = nlohmann::json::array();
     for (const auto& g : ev.groups) groups.push_back(group_json(g));
     j["groups"] = groups;
+    nlohmann::json bands = nlohmann::json::array();
+    for (std::size_t b = 0; b < 3; ++b) {
+      bands.push_back({{"from_m", number(near + (far - near) * static_cast<double>(b) / 3)},
+                       {"to_m", number(near + (far - near) * static_cast<double>(b + 1) / 3)},
+                       {"rows", band_rows[b]},
+                       {"within_1_sigma", number(share(band_1[b], band_rows[b]))},
+                       {"within_2_sigma", number(share(band_2[b], band_rows[b]))}});
+    }
+    j["distance_bands"] = bands;
     fmt::print("{}\n", j.dump(2));
     return;
   }
@@ -152,6 +179,13 @@ void run_evaluate(const EvaluateOptions& o) {
       ev.terciles.lower, ev.terciles.upper, 100 * c1.tercile_share[0], 100 * c1.tercile_share[1],
       100 * c1.tercile_share[2], 100 * c2.tercile_share[0], 100 * c2.tercile_share[1],
       100 * c2.tercile_share[2]);
+  fmt::print(
+      "distance thirds ({:.3g}-{:.3g}-{:.3g}-{:.3g} m): within 1 sigma {:.1f} / {:.1f} / {:.1f} %, "
+      "within 2 sigma {:.1f} / {:.1f} / {:.1f} %\n",
+      near, near + (far - near) / 3, near + 2 * (far - near) / 3, far,
+      100 * share(band_1[0], band_rows[0]), 100 * share(band_1[1], band_rows[1]),
+      100 * share(band_1[2], band_rows[2]), 100 * share(band_2[0], band_rows[0]),
+      100 * share(band_2[1], band_rows[1]), 100 * share(band_2[2], band_rows[2]));
 }
 
 const bool registered = register_command("evaluate", [](CLI::App& sub, AppContext& ctx) {
