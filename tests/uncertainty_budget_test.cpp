@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <random>
@@ -214,6 +215,14 @@ FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrat
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const double e = rows[i].truth.distance_m - ranges[i].distance_m;
       if (!std::isfinite(e) || !std::isfinite(ranges[i].sigma_m)) continue;
+      if (std::getenv("TOFKIT_BUDGET_DEBUG") && std::abs(e) > 2 * ranges[i].sigma_m)
+        std::printf(
+            "out d %.2f rho %.2f T %.0f t %.0f amp %.4f pw %.3f valid %.2f err %.2f sig %.2f flags "
+            "%u\n",
+            rows[i].truth.distance_m, rows[i].truth.reflectance, rows[i].truth.ambient_c,
+            minutes[b], rows[i].raw.amplitude, rows[i].raw.pulse_width_ns,
+            rows[i].raw.shots_valid / double(shots), e * 1e3, ranges[i].sigma_m * 1e3,
+            ranges[i].correction_flags);
       if (rows[i].raw.shots_valid >= 0.9 * shots)
         f.worst_valid_mm = std::max(f.worst_valid_mm, std::abs(e) * 1e3);
       err.push_back(e);

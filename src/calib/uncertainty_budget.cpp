@@ -210,10 +210,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   const double reference_c = std::max_element(rows_at.begin(), rows_at.end(), [](auto& a, auto& b) {
                                return a.second < b.second;
                              })->first;
-  std::vector<Target*> reference, heated;
+  std::vector<Target*> reference;
   for (auto& t : targets) {
     if (t.n_oof == 0) continue;
-    (t.ambient_c == reference_c ? reference : heated).push_back(&t);
+    if (t.ambient_c == reference_c) reference.push_back(&t);
   }
   const auto mean_noise = [&](const Target& t) {
     return noise2(t.log_amplitude) / static_cast<double>(t.n_oof);
@@ -326,28 +326,42 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   std::map<std::tuple<double, double, double>, const Target*> at_reference;
   for (const auto& t : targets)
     if (t.ambient_c == reference_c) at_reference[{t.distance_m, t.reflectance, t.angle_deg}] = &t;
-  double sum_t = 0;
-  std::size_t heated_n = 0;
+  // Per plate of the temperature run (its echo strength: the APD's gain and
+  // the walk change with temperature by it): the sum of the excesses and the
+  // number of temperatures besides the reference.
+  std::map<const Target*, std::pair<double, std::size_t>> per_plate;
   for (const auto& t : targets) {
     if (t.ambient_c == reference_c) continue;
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
     if (ref == at_reference.end()) continue;
     const double dm = t.mean_m - ref->second->mean_m;
-    sum_t += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
-             noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
-    ++heated_n;
+    auto& [sum, n] = per_plate[ref->second];
+    sum += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
+           noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    ++n;
   }
-  const double g_t = static_cast<double>(heated_n + 1);
   const double p_t = std::max(1.0, d.temperature_parameters);
-  if (heated_n >= 3 && g_t > p_t + 1) {
-    const double optimism = (g_t + p_t) / (g_t - p_t);
-    const double u = std::sqrt(std::max(0.0, optimism * sum_t / static_cast<double>(heated_n)));
-    budget.components.push_back(
-        constant("temperature model residual",
-                 format("temperature run: %zu temperatures besides %g C (optimism %.2f for %g "
-                        "parameters)",
-                        heated_n, reference_c, optimism, p_t),
-                 u, false, false));
+  BudgetComponent temperature;
+  temperature.name = "temperature model residual";
+  temperature.axis = BudgetComponent::Axis::log_amplitude;
+  std::vector<std::pair<double, double>> nodes;  // (ln amplitude at the reference, u^2)
+  std::size_t temperatures = 0;
+  for (const auto& [ref, value] : per_plate) {
+    const auto [sum, n] = value;
+    const double g = static_cast<double>(n + 1);
+    if (n < 3 || !(g > p_t + 1)) continue;
+    const double optimism = (g + p_t) / (g - p_t);
+    nodes.emplace_back(ref->log_amplitude, std::max(0.0, optimism * sum / static_cast<double>(n)));
+    temperatures = std::max(temperatures, n);
+  }
+  std::sort(nodes.begin(), nodes.end());
+  for (const auto& [x, v] : nodes) add_node(temperature, x, v);
+  if (!nodes.empty()) {
+    temperature.step = format(
+        "temperature run: %zu plate(s) at %zu temperatures besides %g C (optimism for %g "
+        "parameters)",
+        nodes.size(), temperatures, reference_c, p_t);
+    budget.components.push_back(temperature);
   } else {
     const double u =
         spec.delay_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
@@ -359,7 +373,6 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
                  u, true, !spec.delay_tempco_given));
     budget.unobserved.push_back("the delay's temperature dependence (no temperature run)");
   }
-  (void)heated;
 
   // Drift since calibration: structure function of the stability record.
   const std::size_t ns = d.stability_residual_m.size();
@@ -379,20 +392,43 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     drift.scope = BudgetScope::same_power_on;
     drift.axis = BudgetComponent::Axis::time_since_calibration_s;
     add_node(drift, 0.0, 0.0);
-    double running = 0;  // drift's variance never falls with the lag (conservative)
     const std::size_t max_lag = std::max<std::size_t>(1, (3 * ns) / 4);
     std::vector<std::size_t> lags;
     for (double l = 1; l <= static_cast<double>(max_lag); l *= 1.3)
       if (lags.empty() || static_cast<std::size_t>(l) != lags.back())
         lags.push_back(static_cast<std::size_t>(l));
+    // D(lag) less the rows' own noise, then made non-decreasing by pooling
+    // adjacent violators (least squares, pairs as weights): a drift's
+    // variance does not fall with the lag, and the noisy long lags (few
+    // pairs) must not push the curve up as a running maximum would.
+    std::vector<double> value, weight;
+    std::vector<std::size_t> count;  // lags pooled into each block
     for (const std::size_t lag : lags) {
-      double s = 0;
+      double sum = 0;
       for (std::size_t i = 0; i + lag < ns; ++i) {
         const double dd = d.stability_residual_m[i + lag] - d.stability_residual_m[i];
-        s += dd * dd;
+        sum += dd * dd;
       }
-      running = std::max(running, s / static_cast<double>(ns - lag) - 2 * white2);
-      add_node(drift, static_cast<double>(lag) * d.stability_every_s, running);
+      const double pairs = static_cast<double>(ns - lag);
+      value.push_back(sum / pairs - 2 * white2);
+      weight.push_back(pairs);
+      count.push_back(1);
+      while (value.size() > 1 && value[value.size() - 2] > value.back()) {
+        const std::size_t k = value.size() - 1;
+        value[k - 1] =
+            (value[k - 1] * weight[k - 1] + value[k] * weight[k]) / (weight[k - 1] + weight[k]);
+        weight[k - 1] += weight[k];
+        count[k - 1] += count[k];
+        value.pop_back();
+        weight.pop_back();
+        count.pop_back();
+      }
+    }
+    std::size_t next = 0;
+    for (std::size_t b = 0; b < value.size(); ++b) {
+      for (std::size_t j = 0; j < count[b]; ++j, ++next)
+        add_node(drift, static_cast<double>(lags[next]) * d.stability_every_s,
+                 std::max(0.0, value[b]));
     }
     budget.components.push_back(drift);
     // The Allan deviation at a few averaging times, for the certificate.

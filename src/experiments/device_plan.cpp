@@ -182,6 +182,22 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
     s.observes = "delays' temperature dependence (temperature run)";
     s.grid.distances_m = {rounded4(plan.temperature_plate.distance_m)};
     s.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
+    if (o.complete) {
+      // A weak, the middle and a strong plate of the plan's distance: the
+      // APD's gain and the walk change with temperature by echo strength.
+      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
+      const PlateGrid& at =
+          *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
+            return a.reflectances.size() < b.reflectances.size();
+          });
+      s.grid.distances_m = at.distances_m;
+      s.grid.reflectances = {at.reflectances.front(), at.reflectances[at.reflectances.size() / 2],
+                             at.reflectances.back()};
+      std::sort(s.grid.reflectances.begin(), s.grid.reflectances.end());
+      s.grid.reflectances.erase(std::unique(s.grid.reflectances.begin(), s.grid.reflectances.end()),
+                                s.grid.reflectances.end());
+      s.observes = "delays' and walk's temperature dependence, by echo strength (temperature run)";
+    }
     s.grid.ambient_c = plan.temperatures_c;
     s.grid.count = o.count;
     s.bench_minutes = 30.0 * static_cast<double>(plan.temperatures_c.size());  // soak per step
