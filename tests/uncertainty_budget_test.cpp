@@ -385,3 +385,60 @@ INSTANTIATE_TEST_SUITE_P(Devices, HeldOut,
 
 }  // namespace
 }  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
+TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
+  // Oracle: the variance of a row's change over 30 min, measured across 300
+  // power-ons (two rows each, 30 min apart), against the drift term each of
+  // 8 power-ons' stability record (60 min, every 15 s) gives at 30 min. Only
+  // the delay wander moves the rows.
+  device::DeviceConfig config = device::preset("paper");
+  set_key(config, "measurement.flicker_delay_ps", 0.0);
+  set_key(config, "measurement.power_on_offset_ps", 0.0);
+  set_key(config, "measurement.delay_wander_ps", 30.0);
+  const device::VirtualRangefinder device(config);
+  std::vector<experiments::PlannedMeasurement> plan;
+  for (double d : {1.0, 2.0, 3.0, 4.0})
+    for (double rho : {0.1, 0.3, 0.8})
+      for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
+  const auto calibration = experiments::run(device, plan, 1);
+  calib::ModelFitOptions options;
+  options.time_to_distance = device::nominal_time_to_distance(config);
+  options.chain = calib::parse_chain_steps("offset,grayvalue");
+  const calib::ModelFitResult fit = calib::fit_model(calibration, options);
+  const std::vector<experiments::PlannedMeasurement> one = {experiments::plate(2.0, 0.3, 20.0)};
+  constexpr double kLag_s = 1800;
+  double ensemble = 0;
+  constexpr int kPowerOns = 300;
+  for (int seed = 100; seed < 100 + kPowerOns; ++seed) {
+    const auto a = experiments::run(device, one, seed, {10.0, 0});
+    const auto b = experiments::run(device, one, seed, {10.0 + kLag_s, 0});
+    const double d = device.tof_to_distance_m(b[0].raw.tof_ns - a[0].raw.tof_ns);
+    ensemble += d * d;
+  }
+  ensemble /= kPowerOns;  // (includes twice a row's noise, 0.2 mm: negligible here)
+  double budget = 0;
+  constexpr int kRecords = 8;
+  for (int seed = 10; seed < 10 + kRecords; ++seed) {
+    std::vector<experiments::PlannedMeasurement> record(241, one[0]);
+    const auto rows = experiments::run(device, record, seed, {0, 15});
+    calib::ProtocolSteps steps;
+    steps.stability = rows;
+    steps.stability_every_s = 15;
+    const auto b = calib::fit_model_budget(calibration, fit, steps, {});
+    for (const auto& c : b.budget.components)
+      if (c.name == "drift since calibration") budget += std::pow(c.u_m(kLag_s), 2);
+  }
+  budget /= kRecords;
+  std::printf(
+      "drift variance at 30 min: ensemble of %d power-ons %.2f mm^2, budget (mean of %d "
+      "records) %.2f mm^2\n",
+      kPowerOns, ensemble * 1e6, kRecords, budget * 1e6);
+  EXPECT_GT(budget, 0.5 * ensemble);
+  EXPECT_LT(budget, 1.5 * ensemble);
+}
+
+}  // namespace
+}  // namespace tofkit
