@@ -381,7 +381,8 @@ TEST(UncertaintyBudget, PowerOnTermRecoversTheDevicesPowerOnOffset) {
 
 INSTANTIATE_TEST_SUITE_P(Devices, HeldOut,
                          ::testing::Values(HeldOutCase{1, false, 0}, HeldOutCase{2, true, 0},
-                                           HeldOutCase{3, false, 30}));
+                                           HeldOutCase{3, false, 30}, HeldOutCase{1, false, 30},
+                                           HeldOutCase{2, true, 30}));
 
 }  // namespace
 }  // namespace tofkit

@@ -394,10 +394,12 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                  "repeat the option per power-on")
       ->expected(1)
       ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
-  sub.add_option("--spec", o->spec,
-                 "budget: a specification for a cause the protocol did not observe, key=value: "
-                 "tdc_inl_ps, delay_tempco_ps_per_c, temperature_half_range_c, drift_ps, "
-                 "power_on_ps (repeatable; a default is used, with a warning, otherwise)")
+  sub.add_option(
+         "--spec", o->spec,
+         "budget: a specification for a cause the protocol did not observe, key=value: "
+         "tdc_inl_ps, delay_tempco_ps_per_c, walk_tempco_ps_per_c, temperature_half_range_c, "
+         "drift_ps, "
+         "power_on_ps (repeatable; a default is used, with a warning, otherwise)")
       ->expected(1)
       ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
   sub.callback([o, rcond, confidence, fraction, firmware, &ctx] {

@@ -127,6 +127,7 @@ void BudgetSpecification::validate() const {
   };
   check(tdc_inl_ps, 1e5, "tdc_inl_ps");
   check(delay_tempco_ps_per_c, 1e4, "delay_tempco_ps_per_c");
+  check(walk_tempco_ps_per_c, 1e4, "walk_tempco_ps_per_c");
   check(temperature_half_range_c, 200, "temperature_half_range_c");
   check(drift_ps, 1e5, "drift_ps");
   check(power_on_ps, 1e5, "power_on_ps");
@@ -149,6 +150,7 @@ void BudgetSpecification::set(const std::string& assignment) {
   const std::pair<const char*, std::pair<double*, bool*>> keys[] = {
       {"tdc_inl_ps", {&tdc_inl_ps, &tdc_inl_given}},
       {"delay_tempco_ps_per_c", {&delay_tempco_ps_per_c, &delay_tempco_given}},
+      {"walk_tempco_ps_per_c", {&walk_tempco_ps_per_c, &walk_tempco_given}},
       {"temperature_half_range_c", {&temperature_half_range_c, nullptr}},
       {"drift_ps", {&drift_ps, &drift_given}},
       {"power_on_ps", {&power_on_ps, &power_on_given}},
@@ -160,9 +162,10 @@ void BudgetSpecification::set(const std::string& assignment) {
     validate();
     return;
   }
-  throw std::invalid_argument("specification " + key +
-                              ": unknown key (tdc_inl_ps, delay_tempco_ps_per_c, "
-                              "temperature_half_range_c, drift_ps, power_on_ps)");
+  throw std::invalid_argument(
+      "specification " + key +
+      ": unknown key (tdc_inl_ps, delay_tempco_ps_per_c, walk_tempco_ps_per_c, "
+      "temperature_half_range_c, drift_ps, power_on_ps)");
 }
 
 BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpecification& spec) {
@@ -362,6 +365,21 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         "parameters)",
         nodes.size(), temperatures, reference_c, p_t);
     budget.components.push_back(temperature);
+    if (nodes.size() < 2) {
+      // One plate: how the temperature dependence changes with the echo's
+      // strength (the APD's gain, hence the walk) was not seen.
+      const double u =
+          spec.walk_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
+      budget.components.push_back(
+          constant("temperature residual by echo strength",
+                   spec_step("walk_tempco_ps_per_c", spec.walk_tempco_ps_per_c, "ps/C",
+                             spec.walk_tempco_given) +
+                       format(" over +-%g C", spec.temperature_half_range_c),
+                   u, true, !spec.walk_tempco_given));
+      budget.unobserved.push_back(
+          "the temperature dependence's change with echo strength (temperature run on one "
+          "plate)");
+    }
   } else {
     const double u =
         spec.delay_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;

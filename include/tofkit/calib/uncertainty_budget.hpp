@@ -43,6 +43,11 @@ struct BudgetSpecification {
   bool tdc_inl_given = false;
   double delay_tempco_ps_per_c = 2.0;  ///< residual delay tempco after the temperature step
   bool delay_tempco_given = false;
+  /// How much the delay's tempco differs between weak and strong echoes
+  /// (the APD's gain, hence the walk, follows temperature): used when the
+  /// temperature run had one plate.
+  double walk_tempco_ps_per_c = 5.0;
+  bool walk_tempco_given = false;
   double temperature_half_range_c = 15.0;  ///< field temperatures' half range around calibration
   double drift_ps = 15.0;                  ///< delay drift within a power-on (1 sigma)
   bool drift_given = false;
@@ -50,8 +55,8 @@ struct BudgetSpecification {
   bool power_on_given = false;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
-  /// "key=value" (tdc_inl_ps, delay_tempco_ps_per_c, temperature_half_range_c,
-  /// drift_ps, power_on_ps); throws std::invalid_argument naming the key.
+  /// "key=value" (tdc_inl_ps, delay_tempco_ps_per_c, walk_tempco_ps_per_c,
+  /// temperature_half_range_c, drift_ps, power_on_ps); throws std::invalid_argument naming the key.
   void set(const std::string& assignment);
 };
 
