@@ -451,7 +451,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     budget.components.push_back(drift);
     // The Allan deviation at a few averaging times, for the certificate.
     std::string allan;
-    for (std::size_t m = 1; 2 * m <= ns; m *= 4) {
+    for (std::size_t m = 1; 8 * m <= ns; m *= 4) {  // >= 8 blocks per average
       std::vector<double> mean;
       for (std::size_t b = 0; (b + 1) * m <= ns; ++b) {
         double s = 0;

@@ -86,7 +86,7 @@ void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<co
 std::string UncertaintyBudget::table(std::span<const double> amplitude,
                                      std::span<const double> since_s) const {
   const std::size_t points = std::min(amplitude.size(), since_s.size());
-  std::string out = format("%-34s %-4s ", "component (u mm, share at each point)", "type");
+  std::string out = format("%-40s %-4s ", "component (u mm, share at each point)", "type");
   for (std::size_t p = 0; p < points; ++p) out += format(" %13s", format("P%zu", p + 1).c_str());
   out += "  step\n";
   std::vector<double> total(points, 0.0);
@@ -98,7 +98,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
   }
   for (std::size_t k = 0; k < components.size(); ++k) {
     const BudgetComponent& c = components[k];
-    out += format("%-34s %-4s ", c.name.c_str(),
+    out += format("%-40s %-4s ", c.name.c_str(),
                   c.type_b ? (c.default_specification ? "B*" : "B") : "A");
     for (std::size_t p = 0; p < points; ++p) {
       const double u = component_u_m(k, amplitude[p], since_s[p]);
@@ -106,7 +106,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
     }
     out += "  " + c.step + "\n";
   }
-  out += format("%-34s %-4s ", "combined standard uncertainty", "");
+  out += format("%-40s %-4s ", "combined standard uncertainty", "");
   for (std::size_t p = 0; p < points; ++p)
     out += format(" %6.3f       ", std::sqrt(total[p]) * 1e3);
   out += "\n";
