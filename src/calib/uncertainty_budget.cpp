@@ -264,8 +264,8 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     const double u2 = std::max(0.0, power - bias);
     budget.components.push_back(
         constant("periodic residual (TDC, time of flight)",
-                 format("rail: %zu targets over %.2f-%.2f m (period %.3f m)", reference.size(),
-                        dmin, dmax, period_m),
+                 format("%zu targets (plates, rail) over %.2f-%.2f m (period %.3f m)",
+                        reference.size(), dmin, dmax, period_m),
                  std::sqrt(u2), false, false));
     report += format(
         "budget: periodic residual %.3f mm (harmonics 1-%d of the %.3f ns period in the "
@@ -389,7 +389,9 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
                            spec.delay_tempco_given) +
                      format(" over +-%g C", spec.temperature_half_range_c),
                  u, true, !spec.delay_tempco_given));
-    budget.unobserved.push_back("the delay's temperature dependence (no temperature run)");
+    budget.unobserved.push_back(
+        "the delay's temperature dependence (no temperature run with its plate also at the "
+        "reference temperature)");
   }
 
   // Drift since calibration: structure function of the stability record.
