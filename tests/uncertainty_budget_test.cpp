@@ -19,6 +19,7 @@
 #include <tuple>
 #include <vector>
 
+#include "cli_runner.hpp"
 #include "other_parts_device.hpp"
 #include "tofkit/calib/model_fit.hpp"
 #include "tofkit/device/device_config.hpp"
@@ -26,6 +27,7 @@
 #include "tofkit/experiments/device_plan.hpp"
 #include "tofkit/experiments/measurement_grid.hpp"
 #include "tofkit/io/model_json.hpp"
+#include "tofkit/io/raw_csv.hpp"
 
 namespace tofkit {
 namespace {
@@ -439,6 +441,75 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
       kPowerOns, ensemble * 1e6, kRecords, budget * 1e6);
   EXPECT_GT(budget, 0.5 * ensemble);
   EXPECT_LT(budget, 1.5 * ensemble);
+}
+
+}  // namespace
+}  // namespace tofkit
+
+
+namespace tofkit {
+namespace {
+
+class BudgetCli : public test::CliFixture {
+ protected:
+  BudgetCli() : CliFixture("tofkit_budget_cli_") {}
+};
+
+TEST_F(BudgetCli, SigmaFollowsTheTimeSinceCalibrationAndEvaluateSplitsByFile) {
+  ASSERT_EQ(run("measure --distance 1.5,3 --reflectance 0.05,0.2,0.8 --count 3 --out a.csv").status,
+            0);
+  ASSERT_EQ(run("measure --distance 2 --reflectance 0.3 --temperature 0,10,20,30,40 --count 3 "
+                "--start-s 1 --out t.csv")
+                .status,
+            0);
+  // The stability record's rows 15 s apart, and without --stability-every a refusal.
+  ASSERT_EQ(run("measure --distance 2 --reflectance 0.3 --count 41 --every 15 --start-s 2 --out "
+                "s.csv")
+                .status,
+            0);
+  const auto refused =
+      run("fit --in a.csv --in t.csv --chain offset,grayvalue,temperature "
+          "--stability s.csv --out refused.json");
+  EXPECT_EQ(refused.status, 1);
+  EXPECT_NE(refused.err.find("--stability-every"), std::string::npos) << refused.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ / "refused.json"));
+  const auto fit = run(
+      "fit --in a.csv --in t.csv --chain offset,grayvalue,temperature --budget --stability s.csv "
+      "--stability-every 15 --out model.json");
+  ASSERT_EQ(fit.status, 0) << fit.err;
+  EXPECT_NE(fit.out.find("uncertainty budget (GUM"), std::string::npos);
+  EXPECT_NE(fit.out.find("not observed: the offset between power-ons"), std::string::npos);
+  EXPECT_NE(fit.out.find("coverage check:"), std::string::npos);
+  ASSERT_EQ(run("measure --distance 1:4:1 --reflectance 0.1,0.5 --start-s 700 --out f.csv").status,
+            0);
+  ASSERT_EQ(run("correct --model model.json --in f.csv --since-calibration 0 --out c0.csv").status,
+            0);
+  ASSERT_EQ(
+      run("correct --model model.json --in f.csv --since-calibration 600 --out c600.csv").status,
+      0);
+  const auto c0 = io::read_corrected_csv((dir_ / "c0.csv").string());
+  const auto c600 = io::read_corrected_csv((dir_ / "c600.csv").string());
+  ASSERT_EQ(c0.size(), c600.size());
+  for (std::size_t i = 0; i < c0.size(); ++i) {
+    EXPECT_EQ(c0[i].range.distance_m, c600[i].range.distance_m);
+    EXPECT_GE(c600[i].range.sigma_m, c0[i].range.sigma_m);  // the drift term only adds
+  }
+  // Several --in: the coverage of each file, as each evaluated alone.
+  const auto both = run("evaluate --in c0.csv --in c600.csv --json", "both.json");
+  ASSERT_EQ(both.status, 0) << both.err;
+  const auto j = nlohmann::json::parse(read("both.json"));
+  ASSERT_EQ(j["inputs"].size(), 2u);
+  for (int k = 0; k < 2; ++k) {
+    const std::string name = k == 0 ? "c0.csv" : "c600.csv";
+    ASSERT_EQ(run("evaluate --in " + name + " --json", "one.json").status, 0);
+    const auto alone = nlohmann::json::parse(read("one.json"));
+    EXPECT_EQ(j["inputs"][k]["within_2_sigma"], alone["overall"]["within_2_sigma"]["share"]);
+  }
+  const auto negative =
+      run("correct --model model.json --in f.csv --since-calibration -5 --out x.csv");
+  EXPECT_EQ(negative.status, 1);
+  EXPECT_NE(negative.err.find("--since-calibration"), std::string::npos) << negative.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ / "x.csv"));
 }
 
 }  // namespace
