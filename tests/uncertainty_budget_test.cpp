@@ -446,7 +446,6 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
 }  // namespace
 }  // namespace tofkit
 
-
 namespace tofkit {
 namespace {
 
