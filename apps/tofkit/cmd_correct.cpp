@@ -13,6 +13,7 @@
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/raw_csv.hpp"
 #include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace tofkit::app {
 namespace {
@@ -21,6 +22,7 @@ struct CorrectOptions {
   std::string model;
   std::string in;
   std::string out;
+  double since_calibration_s = ranging::kNaN;  // NaN: unknown (another power-on)
 };
 
 void run_correct(const CorrectOptions& o) {
@@ -29,6 +31,13 @@ void run_correct(const CorrectOptions& o) {
   const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
   std::vector<ranging::Range> ranges(records.size());
   pipeline.apply(ranging::RawColumns::of(records), ranges);  // read in place
+  // With a budget in the model, sigma_m is its combined standard uncertainty
+  // at each row's amplitude and the time since calibration.
+  const ranging::UncertaintyBudget budget = io::load_budget(o.model);
+  if (!budget.empty()) {
+    const double since[1] = {o.since_calibration_s};
+    ranging::apply_budget(budget, pipeline, ranging::RawColumns::of(records), since, ranges);
+  }
   if (o.out == "-") {
     io::write_corrected_csv(std::cout, records, ranges);
     std::cout.flush();
@@ -55,6 +64,11 @@ const bool registered = register_command("correct", [](CLI::App& sub, AppContext
   sub.add_option("--in", o->in, "raw CSV")->required();
   sub.add_option("--out", o->out, "corrected CSV to write (- for stdout); its directory is made")
       ->required();
+  sub.add_option("--since-calibration", o->since_calibration_s,
+                 "seconds from the calibration to these rows on the calibration's power-on "
+                 "(a model with an uncertainty budget: its drift term); default: unknown, "
+                 "another power-on (its power-on term)")
+      ->check(CLI::Range(0.0, 1e9));
   sub.callback([o, &ctx] {
     // The model / table carry everything the command uses; --config, --set
     // and --preset are still checked, so a bad key is an error, not ignored.

@@ -5,6 +5,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -21,7 +23,8 @@ namespace tofkit::app {
 namespace {
 
 struct EvaluateOptions {
-  std::string in;
+  std::vector<std::string> inputs;  // --in, repeated: e.g. one file per time since calibration
+  std::string in;                   // the inputs joined by ", " (messages)
   std::string by;
   bool json = false;
 };
@@ -89,7 +92,13 @@ nlohmann::json group_json(const calib::GroupEvaluation& g) {
 
 void run_evaluate(const EvaluateOptions& o) {
   if (!o.by.empty()) (void)column_value(io::CorrectedRow{}, o.by);  // unknown column: fail early
-  const std::vector<io::CorrectedRow> rows = io::read_corrected_csv(o.in);
+  std::vector<io::CorrectedRow> rows;
+  std::vector<std::size_t> input_of;  // each row's --in
+  for (std::size_t f = 0; f < o.inputs.size(); ++f) {
+    const std::vector<io::CorrectedRow> part = io::read_corrected_csv(o.inputs[f]);
+    rows.insert(rows.end(), part.begin(), part.end());
+    input_of.insert(input_of.end(), part.size(), f);
+  }
   std::vector<double> truth, distance, raw, sigma, amplitude, key;
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const io::CorrectedRow& r = rows[i];
@@ -127,6 +136,31 @@ void run_evaluate(const EvaluateOptions& o) {
                              "correct writes them)");
   }
   const calib::Evaluation ev = calib::evaluate({truth, distance, raw, sigma, amplitude, key});
+  // Coverage per distance band: thirds of the truths' span (an error that
+  // follows the range shows as one band's coverage falling).
+  double near = INFINITY, far = -INFINITY;
+  for (double t : truth)
+    if (std::isfinite(t)) near = std::min(near, t), far = std::max(far, t);
+  std::array<double, 3> band_rows{}, band_1{}, band_2{};
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    const double e = truth[i] - distance[i];
+    if (!std::isfinite(e) || !std::isfinite(sigma[i])) continue;
+    const auto b = static_cast<std::size_t>(
+        std::clamp(far > near ? 3.0 * (truth[i] - near) / (far - near) : 0.0, 0.0, 2.0));
+    band_rows[b] += 1;
+    band_1[b] += std::abs(e) <= sigma[i] ? 1 : 0;
+    band_2[b] += std::abs(e) <= 2 * sigma[i] ? 1 : 0;
+  }
+  const auto share = [](double in, double n) { return n > 0 ? in / n : NAN; };
+  // Coverage per input file (several --in: e.g. one per time since calibration).
+  std::vector<double> file_rows(o.inputs.size()), file_1(o.inputs.size()), file_2(o.inputs.size());
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    const double e = truth[i] - distance[i];
+    if (!std::isfinite(e) || !std::isfinite(sigma[i])) continue;
+    file_rows[input_of[i]] += 1;
+    file_1[input_of[i]] += std::abs(e) <= sigma[i] ? 1 : 0;
+    file_2[input_of[i]] += std::abs(e) <= 2 * sigma[i] ? 1 : 0;
+  }
   if (o.json) {
     nlohmann::json j = {
         {"input", o.in},
@@ -138,6 +172,25 @@ void run_evaluate(const EvaluateOptions& o) {
     nlohmann::json groups = nlohmann::json::array();
     for (const auto& g : ev.groups) groups.push_back(group_json(g));
     j["groups"] = groups;
+    nlohmann::json bands = nlohmann::json::array();
+    for (std::size_t b = 0; b < 3; ++b) {
+      bands.push_back({{"from_m", number(near + (far - near) * static_cast<double>(b) / 3)},
+                       {"to_m", number(near + (far - near) * static_cast<double>(b + 1) / 3)},
+                       {"rows", band_rows[b]},
+                       {"within_1_sigma", number(share(band_1[b], band_rows[b]))},
+                       {"within_2_sigma", number(share(band_2[b], band_rows[b]))}});
+    }
+    j["distance_bands"] = bands;
+    if (o.inputs.size() > 1) {
+      nlohmann::json files = nlohmann::json::array();
+      for (std::size_t f = 0; f < o.inputs.size(); ++f) {
+        files.push_back({{"input", o.inputs[f]},
+                         {"rows", file_rows[f]},
+                         {"within_1_sigma", number(share(file_1[f], file_rows[f]))},
+                         {"within_2_sigma", number(share(file_2[f], file_rows[f]))}});
+      }
+      j["inputs"] = files;
+    }
     fmt::print("{}\n", j.dump(2));
     return;
   }
@@ -152,18 +205,40 @@ void run_evaluate(const EvaluateOptions& o) {
       ev.terciles.lower, ev.terciles.upper, 100 * c1.tercile_share[0], 100 * c1.tercile_share[1],
       100 * c1.tercile_share[2], 100 * c2.tercile_share[0], 100 * c2.tercile_share[1],
       100 * c2.tercile_share[2]);
+  fmt::print(
+      "distance thirds ({:.3g}-{:.3g}-{:.3g}-{:.3g} m): within 1 sigma {:.1f} / {:.1f} / {:.1f} %, "
+      "within 2 sigma {:.1f} / {:.1f} / {:.1f} %\n",
+      near, near + (far - near) / 3, near + 2 * (far - near) / 3, far,
+      100 * share(band_1[0], band_rows[0]), 100 * share(band_1[1], band_rows[1]),
+      100 * share(band_1[2], band_rows[2]), 100 * share(band_2[0], band_rows[0]),
+      100 * share(band_2[1], band_rows[1]), 100 * share(band_2[2], band_rows[2]));
+  if (o.inputs.size() > 1) {
+    fmt::print("per input: within 1 / 2 sigma");
+    for (std::size_t f = 0; f < o.inputs.size(); ++f) {
+      fmt::print("{} {} {:.1f} / {:.1f} %", f == 0 ? "" : ";", o.inputs[f],
+                 100 * share(file_1[f], file_rows[f]), 100 * share(file_2[f], file_rows[f]));
+    }
+    fmt::print("\n");
+  }
 }
 
 const bool registered = register_command("evaluate", [](CLI::App& sub, AppContext& ctx) {
   sub.description("accuracy of a corrected CSV against its truth, per group and overall");
   auto o = std::make_shared<EvaluateOptions>();
-  sub.add_option("--in", o->in, "corrected CSV (from tofkit correct)")->required();
+  sub.add_option("--in", o->inputs,
+                 "corrected CSV (from tofkit correct); repeat --in to evaluate several files "
+                 "together, with the coverage of each (e.g. one per time since calibration)")
+      ->required()
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
   sub.add_option("--by", o->by, "group rows by this column (e.g. reflectance, distance_true_m)");
   sub.add_flag("--json", o->json, "print JSON instead of a table");
   sub.callback([o, &ctx] {
     // The model / table carry everything the command uses; --config, --set
     // and --preset are still checked, so a bad key is an error, not ignored.
     (void)ctx.load_config();
+    o->in.clear();
+    for (const std::string& path : o->inputs) o->in += (o->in.empty() ? "" : ", ") + path;
     run_evaluate(*o);
   });
 });

@@ -15,6 +15,7 @@
 
 #include "app.hpp"
 #include "tofkit/calib/model_fit.hpp"
+#include "tofkit/calib/uncertainty_budget.hpp"
 #include "tofkit/io/firmware_export.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/raw_csv.hpp"
@@ -44,6 +45,13 @@ struct FitOptions {
   bool rcond_given = false;
   std::string knots = "auto";      // bspline: "auto" (GCV) or RxA[xT] knot intervals
   std::string smoothing = "auto";  // bspline: "auto" (GCV) or a penalty weight
+  // The uncertainty budget (calib/uncertainty_budget.hpp): on with --budget
+  // or any of the protocol steps' inputs.
+  bool budget = false;
+  std::string stability;  // stability record (static target over time)
+  double stability_every_s = 0;
+  std::vector<std::string> power_on;  // repeats on other power-ons
+  std::vector<std::string> spec;      // type B specifications, key=value
 };
 
 /// The time-to-distance conversion of the config, checked before any work; a
@@ -230,9 +238,44 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     const std::vector<ranging::Record> part = io::read_raw_csv(path);
     records.insert(records.end(), part.begin(), part.end());
   }
+  // The budget's inputs, all checked before the fit's work.
+  const bool budget = o.budget || !o.stability.empty() || !o.power_on.empty() || !o.spec.empty();
+  calib::BudgetSpecification specification;
+  calib::ProtocolSteps steps;
+  std::vector<ranging::Record> stability;
+  if (budget) {
+    if (options.confidence == calib::ConfidenceKind::none ||
+        options.confidence == calib::ConfidenceKind::noise_systematic ||
+        o.confidence_fraction_given)
+      throw std::invalid_argument(
+          "--budget takes each row's cross-validated residual: --confidence calibrated or thesis "
+          "without --confidence-fraction");
+    for (const std::string& assignment : o.spec) {
+      try {
+        specification.set(assignment);
+      } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument("--spec " + assignment + ": " + e.what());
+      }
+    }
+    if (!o.stability.empty()) {
+      if (!(o.stability_every_s > 0))
+        throw std::invalid_argument(
+            "--stability needs --stability-every S (the seconds between its rows, as measured)");
+      stability = io::read_raw_csv(o.stability);
+    }
+    for (const std::string& path : o.power_on)
+      steps.power_on_runs.push_back(io::read_raw_csv(path));
+    steps.stability = stability;
+    steps.stability_every_s = o.stability_every_s;
+    steps.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
+  } else if (o.stability_every_s > 0) {
+    throw std::invalid_argument("--stability-every applies to --stability");
+  }
   calib::ModelFitResult fit;
+  calib::BudgetFitResult budget_fit;
   try {
     fit = calib::fit_model(records, options);
+    if (budget) budget_fit = calib::fit_model_budget(records, fit, steps, specification);
   } catch (const std::invalid_argument& e) {
     throw std::runtime_error(o.in + ": " + e.what());
   }
@@ -249,14 +292,14 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
     format.temperature_lsb_c = config.thermal.sensor_resolution_c;
     firmware = ranging::FixedPointChain::from_pipeline(pipeline, format);
   }
-  io::save_pipeline(o.out, pipeline, fit_info);
+  io::save_pipeline(o.out, pipeline, fit_info, budget ? &budget_fit.budget : nullptr);
   std::string firmware_note;
   if (firmware) {
     io::save_fixed_point_json(o.firmware + ".json", *firmware);
     io::save_fixed_point_header(o.firmware + ".h", *firmware);
     firmware_note = fmt::format(" (+ {0}.json, {0}.h)", o.firmware);
   }
-  fmt::print("{}{}", report, pipeline.summary());
+  fmt::print("{}{}{}", report, pipeline.summary(), budget_fit.report);
   if (fit.summary.chain && !fit.summary.chain->converged) {
     fmt::print(stderr,
                "tofkit fit: warning: the chain's backfitting did not converge after {} "
@@ -336,6 +379,29 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
   CLI::Option* firmware =
       sub.add_option("--firmware", o->firmware,
                      "also export the chain in fixed point: STEM.json and STEM.h (C header)");
+  sub.add_flag("--budget", o->budget,
+               "fit an uncertainty budget (GUM: type A terms from the protocol's steps, type B "
+               "from --spec where a step is missing) into the model: sigma_m is then its "
+               "combined standard uncertainty (tofkit correct --since-calibration)");
+  sub.add_option("--stability", o->stability,
+                 "budget: stability record, a static target's rows in time order (tofkit "
+                 "measure --every): drift since calibration from its structure function");
+  sub.add_option("--stability-every", o->stability_every_s,
+                 "budget: seconds between the stability record's rows")
+      ->check(kNotNan);
+  sub.add_option("--power-on", o->power_on,
+                 "budget: repeats of calibration targets on another power-on (another --seed); "
+                 "repeat the option per power-on")
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+  sub.add_option(
+         "--spec", o->spec,
+         "budget: a specification for a cause the protocol did not observe, key=value: "
+         "tdc_inl_ps, delay_tempco_ps_per_c, walk_tempco_ps_per_c, temperature_half_range_c, "
+         "drift_ps, "
+         "power_on_ps (repeatable; a default is used, with a warning, otherwise)")
+      ->expected(1)
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
   sub.callback([o, rcond, confidence, fraction, firmware, &ctx] {
     o->firmware_given = firmware->count() > 0;
     o->in.clear();

@@ -36,6 +36,7 @@ struct MeasureOptions {
   std::uint64_t seed = 1;
   std::string mode = "analytic";
   std::string out;
+  experiments::RunTiming timing;  // --start-s, --every
 };
 
 // --count as a whole number >= 1; "1e8" is 100000000 (then refused by the row
@@ -82,6 +83,13 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
       widest_spread_ns = std::max(widest_spread_ns, device::plate_echo_spread_ns(config, d, angle));
     }
   }
+  try {
+    o.timing.validate(config);
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    throw std::invalid_argument((what.rfind("start_s", 0) == 0 ? "--start-s: " : "--every: ") +
+                                what);
+  }
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   if (o.mode == "waveform") {
     const auto violations = device::check_waveform_limits(config, widest_spread_ns);
@@ -99,7 +107,8 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
       experiments::plate_grid_plan(grid, max_rows);
   const auto start = std::chrono::steady_clock::now();
   const device::VirtualRangefinder rangefinder(config, mode);
-  const std::vector<ranging::Record> records = experiments::run(rangefinder, plan, o.seed);
+  const std::vector<ranging::Record> records =
+      experiments::run(rangefinder, plan, o.seed, o.timing);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -134,6 +143,16 @@ const bool registered = register_command("measure", [](CLI::App& sub, AppContext
   sub.add_option("--count", o->count_text, "repeated measurements per grid point")
       ->capture_default_str();
   add_seed_option(sub, o->seed, "random seed (the output depends on it only)");
+  sub.add_option("--start-s", o->timing.start_s,
+                 "start the run S seconds after power-on (the seed is the power-on): the device's "
+                 "slow delay offsets (flicker, wander) are those of that time")
+      ->check(kNotNan)
+      ->capture_default_str();
+  sub.add_option("--every", o->timing.every_s,
+                 "seconds between the starts of consecutive rows (0: back to back, one output "
+                 "period apart): a stability record over time")
+      ->check(kNotNan)
+      ->capture_default_str();
   sub.add_option("--mode", o->mode, "analytic (fast) or waveform (sampled, reference)")
       ->check(CLI::IsMember({"analytic", "waveform"}))
       ->capture_default_str();

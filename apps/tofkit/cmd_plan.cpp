@@ -123,6 +123,15 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
   }
   if (!silent.empty())
     fmt::print("# plates below the threshold (no echo, or only noise crossings): {}\n", silent);
+  experiments::ProtocolOptions po;
+  po.count = o.count;
+  po.complete = !o.plan.single_distance;
+  const experiments::Protocol protocol = experiments::plan_protocol(device, o.plan, po);
+  const auto list = [](const std::vector<double>& v) {
+    std::string out;
+    for (double x : v) out += (out.empty() ? "" : ",") + fmt::format("{:.4f}", x);
+    return out;
+  };
   if (o.bench) {
     // clip_Np: how far the plate's echo overdrives the amplifier (ln of its
     // power over the clip power; "-" below the clip).
@@ -139,46 +148,73 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
                plan.temperature_plate.reflectance, plan.temperature_plate.distance_m);
     for (double t : plan.temperatures_c) fmt::print(" {}", number(t));
     fmt::print(" C\n");
+    // The protocol's steps with their durations on a bench (moving plates
+    // about 2 min each, a rail position 30 s, a temperature step's soak 30
+    // min, a power-on's warm-up as long as the stability record).
+    fmt::print("# protocol: {:<16} {:>6} {:>9}  observes\n", "step", "rows", "minutes");
+    double total = 0;
+    for (const auto& step : protocol.steps) {
+      fmt::print("# protocol: {:<16} {:>6.0f} {:>9.0f}  {}\n", step.file, step.grid.rows(),
+                 step.bench_minutes, step.observes);
+      total += step.bench_minutes;
+    }
+    fmt::print("# protocol: {:<16} {:>6} {:>9.0f}\n", "total", "", total);
+    for (const auto& u : protocol.unobserved)
+      fmt::print("# not observed (a type B term from fit --spec stands in): {}\n", u);
     return;
   }
-  // One measure line per distance (plates sharing a distance together).
-  std::vector<std::pair<double, std::string>> lines;
-  for (const auto& p : plan.plates) {
-    auto it = std::find_if(lines.begin(), lines.end(),
-                           [&](const auto& l) { return l.first == p.distance_m; });
-    if (it == lines.end()) {
-      lines.emplace_back(p.distance_m, "");
-      it = lines.end() - 1;
-    }
-    it->second += (it->second.empty() ? "" : ",") + fmt::format("{:.4f}", p.reflectance);
-  }
   const std::string tofkit = tofkit_with_device(ctx);
-  std::string inputs;
-  int part = 0;
-  for (const auto& [distance, reflectances] : lines) {
-    fmt::print("{} measure --distance {:.4f} --reflectance {} --count {} --out plates{}.csv\n",
-               tofkit, distance, reflectances, o.count, ++part);
-    inputs += fmt::format(" --in plates{}.csv", part);
+  std::string inputs, extra;
+  for (const auto& step : protocol.steps) {
+    fmt::print("# {}: {}\n", step.file, step.observes);
+    std::string line = fmt::format("{} measure --distance {} --reflectance {}", tofkit,
+                                   list(step.grid.distances_m), list(step.grid.reflectances));
+    if (step.grid.ambient_c.size() != 1 ||
+        step.grid.ambient_c.front() != device::Conditions{}.ambient_c) {
+      std::string temperatures;
+      for (double t : step.grid.ambient_c)
+        temperatures += (temperatures.empty() ? "" : ",") + number(t);
+      line += " --temperature " + temperatures;
+    }
+    line += fmt::format(" --count {}", step.grid.count);
+    if (step.seed != 1) line += fmt::format(" --seed {}", step.seed);
+    if (step.timing.start_s > 0) line += fmt::format(" --start-s {}", step.timing.start_s);
+    if (step.timing.every_s > 0) line += fmt::format(" --every {:g}", step.timing.every_s);
+    fmt::print("{} --out {}\n", line, step.file);
+    switch (step.role) {
+      case experiments::StepRole::calibration:
+        inputs += " --in " + step.file;
+        break;
+      case experiments::StepRole::stability:
+        extra +=
+            fmt::format(" --stability {} --stability-every {:g}", step.file, step.timing.every_s);
+        break;
+      case experiments::StepRole::power_on:
+        extra += " --power-on " + step.file;
+        break;
+    }
   }
-  std::string temperatures;
-  for (double t : plan.temperatures_c)
-    temperatures += (temperatures.empty() ? "" : ",") + number(t);
-  fmt::print(
-      "{} measure --distance {:.4f} --reflectance {:.4f} --temperature {} --count {} --out "
-      "temperature.csv\n",
-      tofkit, plan.temperature_plate.distance_m, plan.temperature_plate.reflectance, temperatures,
-      o.count);
-  // The fit of every file together, then a test on another seed (another
-  // power-on) over the field: targets the fit never saw.
-  fmt::print(
-      "{} fit{} --in temperature.csv --chain offset,grayvalue,temperature --out model.json\n",
-      tofkit, inputs);
-  fmt::print("{} measure --distance {}:{}:{} --reflectance {},{},{} --seed 2 --out test.csv\n",
+  for (const auto& u : protocol.unobserved)
+    fmt::print("# not observed (its budget term is type B, from fit --spec): {}\n", u);
+  // The fit of every file together with its uncertainty budget, then a field
+  // test on the same power-on half an hour after the calibration: targets the
+  // fit never saw, their sigma with the drift of that half hour.
+  // A laser fired on the TDC's clock leaves the interpolator's nonlinearity
+  // periodic in the time of flight: the rail lets a periodic step correct it.
+  const bool periodic =
+      !o.plan.single_distance && config.tdc.laser_sync && !config.oscillator.enabled;
+  fmt::print("{} fit{} --chain offset,grayvalue,temperature{} --budget{} --out model.json\n",
+             tofkit, inputs, periodic ? " --tdc-periodic" : "", extra);
+  const double since_s = 1800;
+  fmt::print("{} measure --distance {}:{}:{} --reflectance {},{},{} --start-s {} --out test.csv\n",
              tofkit, number(o.plan.range_min_m), number(o.plan.range_max_m),
              number((o.plan.range_max_m - o.plan.range_min_m) / 10), number(o.plan.reflectance_min),
              number(std::sqrt(o.plan.reflectance_min * o.plan.reflectance_max)),
-             number(o.plan.reflectance_max));
-  fmt::print("{} correct --model model.json --in test.csv --out test_corrected.csv\n", tofkit);
+             number(o.plan.reflectance_max), protocol.calibration_start_s + since_s);
+  fmt::print(
+      "{} correct --model model.json --in test.csv --since-calibration {:g} --out "
+      "test_corrected.csv\n",
+      tofkit, since_s);
   fmt::print("tofkit evaluate --in test_corrected.csv --by reflectance\n");
 }
 
@@ -208,8 +244,9 @@ const bool registered = register_command("plan", [](CLI::App& sub, AppContext& c
       ->check(InRange(1, 100000))
       ->capture_default_str();
   sub.add_flag("--single-distance", p.single_distance,
-               "all plates at one distance: the one centring the plates' powers on the field's "
-               "(or --at)");
+               "the paper's protocol: all plates at one distance (the one centring the plates' "
+               "powers on the field's, or --at) and the temperature run; no second distance, "
+               "rail, stability record or other power-on (their budget terms are type B)");
   sub.add_flag("--bench", o->bench, "print a table to follow on a bench instead");
   sub.callback([o, &ctx] {
     try {

@@ -21,6 +21,7 @@
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace tofkit::python {
 namespace {
@@ -35,14 +36,16 @@ constexpr std::size_t kChunk = 256;
 /// A pipeline with the fit statistics the CLI stores beside it.
 struct Model {
   ranging::Pipeline pipeline;
-  json fit;            ///< "fit" object of the model file (null: none)
-  std::string report;  ///< the fitter's summary (empty for a loaded model)
+  json fit;                           ///< "fit" object of the model file (null: none)
+  std::string report;                 ///< the fitter's summary (empty for a loaded model)
+  ranging::UncertaintyBudget budget;  ///< the model file's (empty: none)
 };
 
 Model load_model(const fs::path& path) {
   Model model;
   try {
     model.pipeline = io::load_pipeline(path);
+    model.budget = io::load_budget(path);
   } catch (const std::exception& e) {
     rethrow_for_file(path, e);
   }
@@ -72,7 +75,7 @@ py::array output_array(const std::optional<py::array>& out, std::size_t n) {
 /// Corrected ranges into `out` or one new allocation (RANGE_DTYPE); the
 /// input is read in place, the GIL released while correcting.
 py::array apply(const Model& model, const py::tuple& columns,
-                const std::optional<py::array>& out_arg) {
+                const std::optional<py::array>& out_arg, double since_calibration_s) {
   const ColumnSet input(columns);
   const std::size_t n = input.rows();
   py::array out = output_array(out_arg, n);
@@ -84,6 +87,10 @@ py::array apply(const Model& model, const py::tuple& columns,
     // RawMeasurement's fields at any stride (RAW_DTYPE, measure()'s records,
     // a dict of float64/uint32 columns): one call over all of it.
     pipeline.apply(*columns_in_place, std::span(ranges, n));
+    // With a budget, sigma_m is its combined standard uncertainty.
+    if (!model.budget.empty())
+      ranging::apply_budget(model.budget, pipeline, *columns_in_place,
+                            std::span(&since_calibration_s, 1), std::span(ranges, n));
     return out;
   }
   // Other dtypes or absent columns: gathered a block at a time, with the raw
@@ -96,6 +103,9 @@ py::array apply(const Model& model, const py::tuple& columns,
     if (begin + count < n) input.prefetch_raw(begin + count, std::min(kChunk, n - begin - count));
     input.gather_raw(begin, block);
     pipeline.apply(block, std::span(ranges + begin, count));
+    if (!model.budget.empty())
+      ranging::apply_budget(model.budget, pipeline, ranging::RawColumns::of(block),
+                            std::span(&since_calibration_s, 1), std::span(ranges + begin, count));
   }
   return out;
 }
@@ -115,8 +125,10 @@ Model fit_model(const std::vector<ranging::Record>& records, const calib::ModelF
     py::gil_scoped_release release;
     fit = calib::fit_model(records, options);
   }
-  Model model{std::move(fit->pipeline), io::fit_summary_json(fit->summary, "python"),
-              std::move(fit->report)};
+  Model model{std::move(fit->pipeline),
+              io::fit_summary_json(fit->summary, "python"),
+              std::move(fit->report),
+              {}};
   // A surface fitted on a chain Model keeps the chain's statistics.
   if (base_fit.is_object() && base_fit.contains("chain") && !model.fit.contains("chain")) {
     model.fit["chain"] = base_fit["chain"];
@@ -224,18 +236,29 @@ void bind_model(py::module_& m) {
       .def(
           "save",
           [](const Model& model, const fs::path& path) {
-            io::save_pipeline(path, model.pipeline, model.fit);
+            io::save_pipeline(path, model.pipeline, model.fit,
+                              model.budget.empty() ? nullptr : &model.budget);
           },
           py::arg("path"))
-      .def(
-          "to_json",
-          [](const Model& model) { return io::pipeline_to_json(model.pipeline, model.fit).dump(); })
+      .def("to_json",
+           [](const Model& model) {
+             json j = io::pipeline_to_json(model.pipeline, model.fit);
+             if (!model.budget.empty()) j["uncertainty_budget"] = io::budget_to_json(model.budget);
+             return j.dump();
+           })
       .def("summary", [](const Model& model) { return model.pipeline.summary(); })
       .def_readonly("report", &Model::report)
       .def_property_readonly("fit_json", [](const Model& model) { return model.fit.dump(); })
       .def_property_readonly("residual_rms_m",
                              [](const Model& model) { return model.pipeline.residual_rms_m(); })
-      .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none());
+      .def_property_readonly("budget_json",
+                             [](const Model& model) {
+                               return model.budget.empty()
+                                          ? std::string("null")
+                                          : io::budget_to_json(model.budget).dump();
+                             })
+      .def("apply", &apply, py::arg("columns"), py::arg("out") = py::none(),
+           py::arg("since_calibration_s") = ranging::kNaN);
   m.def("_fit_chain", &fit_chain, py::arg("columns"), py::arg("steps"), py::arg("config"),
         py::arg("confidence"), py::arg("refine_walk"));
   m.def("_fit_surface", &fit_surface, py::arg("base"), py::arg("config"), py::arg("columns"),

@@ -233,3 +233,28 @@ def test_apply_into_a_reused_output(calibration):
         model.apply(records, out=np.zeros(len(records)))
     with pytest.raises(TypeError, match="RANGE_DTYPE"):
         model.apply(records[::2], out=np.zeros(2 * len(records[::2]), tofkit.RANGE_DTYPE)[::2])
+
+
+def test_budget_travels_and_sets_sigma_as_tofkit_correct(cli, tmp_path, calibration):
+    """A model fitted with `tofkit fit --budget`: Python reads its budget, keeps
+    it on save, and applies it as `tofkit correct --since-calibration` does."""
+    path, records = calibration
+    model_path = tmp_path / "budget.json"
+    cli("fit", "--in", path, "--chain", "offset,grayvalue,temperature", "--budget", "--out",
+        model_path)
+    model = tofkit.Model.load(model_path)
+    names = [c["name"] for c in model.budget["components"]]
+    assert "repeatability (one row)" in names and "drift since calibration" in names
+    # One power-on, no stability record: named as unobserved.
+    assert any("power-on" in u for u in model.budget["unobserved"])
+    resaved = tmp_path / "resaved.json"
+    model.save(resaved)
+    assert json.loads(resaved.read_text())["uncertainty_budget"] == \
+        json.loads(model_path.read_text())["uncertainty_budget"]
+    for since in (None, 600.0):
+        corrected = tmp_path / "corrected.csv"
+        extra = [] if since is None else ["--since-calibration", str(since)]
+        cli("correct", "--model", model_path, "--in", path, *extra, "--out", corrected)
+        theirs = read_table(corrected)
+        _, sigma, _ = model.apply(records, since_calibration_s=since)
+        assert np.allclose(sigma, theirs["sigma_m"], rtol=1e-12, atol=0, equal_nan=True)

@@ -60,6 +60,12 @@ class Model:
         return self._model.report
 
     @property
+    def budget(self):
+        """The model's uncertainty budget (``tofkit fit --budget``) as a dict
+        ({"components": [...], "unobserved": [...]}), or None."""
+        return json.loads(self._model.budget_json)
+
+    @property
     def residual_rms_m(self):
         return self._model.residual_rms_m
 
@@ -69,8 +75,12 @@ class Model:
     def __repr__(self):
         return f"<tofkit.Model\n{self.summary()}>"
 
-    def apply(self, raw, out=None):
+    def apply(self, raw, out=None, since_calibration_s=None):
         """Correct raw measurements: returns (distance_m, sigma_m, correction_flags).
+
+        With an uncertainty budget in the model, sigma_m is its combined
+        standard uncertainty: since_calibration_s (seconds after the calibration,
+        on its power-on) sets its drift term; None: another power-on.
 
         raw: a structured array with the raw CSV columns (measure(), read_raw())
         or a mapping of 1-D columns (tof_ns and/or distance_raw_m; pulse_width_ns,
@@ -80,7 +90,8 @@ class Model:
         (a RANGE_DTYPE array of the same length, reused across batches); the
         GIL is released meanwhile.
         """
-        out = self._model.apply(_columns(raw), out)
+        since = float("nan") if since_calibration_s is None else float(since_calibration_s)
+        out = self._model.apply(_columns(raw), out, since)
         return out["distance_m"], out["sigma_m"], out["correction_flags"]
 
 

@@ -1032,12 +1032,23 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
         fold_options.chain_options.walk_initial = summary.chain->walk->shape;
       }
       fold_options.chain_options.walk_replicates = 0;  // (their sigma is not used)
+      result.out_of_fold_m.assign(records.size(), ranging::kNaN);
       for (std::size_t k = 0; k < folds; ++k) {
         std::vector<ranging::Record> train, test;
+        std::vector<std::size_t> test_index;
         for (std::size_t i = 0; i < records.size(); ++i) {
+          if (fold_of_group[group[i]] == k) test_index.push_back(i);
           (fold_of_group[group[i]] == k ? test : train).push_back(records[i]);
         }
-        residuals.add(fit_correction(train, fold_options, nullptr, nullptr), test);
+        const ranging::Pipeline fold_fit = fit_correction(train, fold_options, nullptr, nullptr);
+        residuals.add(fold_fit, test);
+        // Each row's cross-validated residual, for the uncertainty budget
+        // (rows the fold's correction extrapolates to are left out, as above).
+        const std::vector<ranging::Range> corrected = corrected_ranges(fold_fit, test);
+        for (std::size_t j = 0; j < test.size(); ++j) {
+          if ((corrected[j].correction_flags & ranging::kCorrOutOfDomain) != 0) continue;
+          result.out_of_fold_m[test_index[j]] = test[j].truth.distance_m - corrected[j].distance_m;
+        }
       }
     } catch (const std::invalid_argument& e) {
       // The correction itself fitted: what failed is a refit on fewer groups.

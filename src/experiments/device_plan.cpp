@@ -1,6 +1,9 @@
 #include "tofkit/experiments/device_plan.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "tofkit/physics/link_budget.hpp"
 
@@ -58,6 +61,171 @@ calib::ModelFitResult factory_calibration(const device::DeviceConfig& config, st
   if (config.tdc.laser_sync && !config.oscillator.enabled)
     options.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
   return calib::fit_model(records, options);
+}
+
+namespace {
+
+double rounded4(double v) {
+  return std::round(v * 1e4) / 1e4;
+}
+
+/// One grid per distance of a plate list (plates sharing a distance together).
+std::vector<PlateGrid> grids_of(const std::vector<calib::PlannedPlate>& plates, int count) {
+  std::vector<PlateGrid> grids;
+  for (const auto& p : plates) {
+    const double d = rounded4(p.distance_m);
+    auto it = std::find_if(grids.begin(), grids.end(),
+                           [&](const PlateGrid& g) { return g.distances_m.front() == d; });
+    if (it == grids.end()) {
+      PlateGrid g;
+      g.distances_m = {d};
+      g.count = count;
+      grids.push_back(g);
+      it = grids.end() - 1;
+    }
+    it->reflectances.push_back(rounded4(p.reflectance));
+  }
+  return grids;
+}
+
+}  // namespace
+
+Protocol plan_protocol(const device::VirtualRangefinder& device,
+                       calib::CalibrationPlanOptions field, const ProtocolOptions& o) {
+  if (o.count < 2)
+    throw std::invalid_argument("count must be >= 2 (the repeatability needs repeats)");
+  if (!(o.rail_steps_per_period >= 4 && o.rail_steps_per_period <= 1000))
+    throw std::invalid_argument("rail_steps_per_period must be in [4, 1000]");
+  if (!(o.stability_minutes > 0 && o.stability_every_s > 0 &&
+        o.stability_minutes * 60 / o.stability_every_s >= 8 &&
+        o.stability_minutes * 60 / o.stability_every_s <= 1e5))
+    throw std::invalid_argument("stability_minutes / stability_every_s must give 8 to 100000 rows");
+  if (o.power_ons < 0 || o.power_ons > 20)
+    throw std::invalid_argument("power_ons must be in [0, 20]");
+  const auto& config = device.config();
+  Protocol protocol;
+  protocol.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
+  protocol.tdc_period_m =
+      protocol.tdc_period_ns * ranging::metres_per_ns(device::nominal_time_to_distance(config));
+  field.single_distance = !o.complete;
+  const calib::CalibrationPlan plan = plan_for_device(device, field);
+  const double period_s = output_period_s(config);
+  if (o.complete) {
+    ProtocolStep s;
+    s.file = "stability.csv";
+    s.observes = "drift after calibration (Allan deviation of a static target)";
+    s.role = StepRole::stability;
+    s.grid.distances_m = {rounded4(plan.temperature_plate.distance_m)};
+    s.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
+    s.grid.count =
+        static_cast<int>(std::lround(o.stability_minutes * 60 / o.stability_every_s)) + 1;
+    s.timing.every_s = o.stability_every_s;
+    s.bench_minutes = o.stability_minutes;
+    protocol.steps.push_back(s);
+    protocol.calibration_start_s =
+        std::ceil(static_cast<double>(s.grid.count) * o.stability_every_s);
+  }
+  // The calibration rows, back to back from calibration_start_s.
+  double start_s = protocol.calibration_start_s;
+  const auto add = [&](ProtocolStep s) {
+    s.timing.start_s = start_s;
+    start_s += s.grid.rows() * period_s;
+    protocol.steps.push_back(std::move(s));
+  };
+  int part = 0;
+  for (const PlateGrid& g : grids_of(plan.plates, o.count)) {
+    ProtocolStep s;
+    s.file = "plates" + std::to_string(++part) + ".csv";
+    s.observes = "walk and gray value over the field's echo powers";
+    s.grid = g;
+    s.bench_minutes = 2.0 * static_cast<double>(g.reflectances.size());
+    add(s);
+  }
+  if (o.complete) {
+    // Plates at a second distance, farther: the range dependence the chain's
+    // offset cannot see from one.
+    calib::CalibrationPlanOptions second = field;
+    second.single_distance = false;
+    second.calibration_distance_m =
+        std::round(10.0 * 0.5 * (plan.calibration_distance_m + field.range_max_m)) / 10.0;
+    const calib::CalibrationPlan far = plan_for_device(device, second);
+    // Only the plates standing there: the ones moved nearer or farther for
+    // powers no plate returns at the second distance are the first set's.
+    std::vector<calib::PlannedPlate> there;
+    for (const auto& p : far.plates)
+      if (rounded4(p.distance_m) == rounded4(second.calibration_distance_m)) there.push_back(p);
+    for (const PlateGrid& g : grids_of(there, o.count)) {
+      ProtocolStep s;
+      s.file = "plates" + std::to_string(++part) + ".csv";
+      s.observes = "the same echo powers at a second distance";
+      s.grid = g;
+      s.bench_minutes = 2.0 * static_cast<double>(g.reflectances.size());
+      add(s);
+    }
+    // The rail: at least one TDC period, steps that resolve its harmonics.
+    ProtocolStep s;
+    s.file = "rail.csv";
+    s.observes = "errors periodic in the time of flight (TDC nonlinearity, period " +
+                 std::to_string(protocol.tdc_period_m).substr(0, 5) + " m)";
+    const double step = protocol.tdc_period_m / o.rail_steps_per_period;
+    const double last = std::max(field.range_max_m, field.range_min_m + protocol.tdc_period_m);
+    for (double d = field.range_min_m; d <= last + 1e-9; d += step)
+      s.grid.distances_m.push_back(rounded4(d));
+    s.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
+    s.grid.count = o.count;
+    s.bench_minutes = 0.5 * static_cast<double>(s.grid.distances_m.size());
+    add(s);
+  }
+  {
+    ProtocolStep s;
+    s.file = "temperature.csv";
+    s.observes = "delays' temperature dependence (temperature run)";
+    s.grid.distances_m = {rounded4(plan.temperature_plate.distance_m)};
+    s.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
+    if (o.complete) {
+      // A weak, the middle and a strong plate of the plan's distance: the
+      // APD's gain and the walk change with temperature by echo strength.
+      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
+      const PlateGrid& at =
+          *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
+            return a.reflectances.size() < b.reflectances.size();
+          });
+      s.grid.distances_m = at.distances_m;
+      s.grid.reflectances = {at.reflectances.front(), at.reflectances[at.reflectances.size() / 2],
+                             at.reflectances.back()};
+      std::sort(s.grid.reflectances.begin(), s.grid.reflectances.end());
+      s.grid.reflectances.erase(std::unique(s.grid.reflectances.begin(), s.grid.reflectances.end()),
+                                s.grid.reflectances.end());
+      s.observes = "delays' and walk's temperature dependence, by echo strength (temperature run)";
+    }
+    s.grid.ambient_c = plan.temperatures_c;
+    s.grid.count = o.count;
+    s.bench_minutes = 30.0 * static_cast<double>(plan.temperatures_c.size());  // soak per step
+    add(s);
+  }
+  if (o.complete) {
+    for (int k = 0; k < o.power_ons; ++k) {
+      ProtocolStep s;
+      s.file = "poweron" + std::to_string(k + 2) + ".csv";
+      s.observes = "the offset between power-ons";
+      s.role = StepRole::power_on;
+      // The plates at the plan's distance (the most plates: the field's middle powers).
+      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
+      s.grid = *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
+        return a.reflectances.size() < b.reflectances.size();
+      });
+      s.seed = static_cast<std::uint64_t>(k + 2);
+      s.timing.start_s = protocol.calibration_start_s;
+      s.bench_minutes = o.stability_minutes + 2.0 * static_cast<double>(s.grid.reflectances.size());
+      protocol.steps.push_back(s);
+    }
+  } else {
+    protocol.unobserved = {
+        "the TDC's nonlinearity, periodic in the time of flight (every plate at one distance)",
+        "drift after the calibration (no stability record)",
+        "the offset between power-ons (one power-on)"};
+  }
+  return protocol;
 }
 
 }  // namespace tofkit::experiments

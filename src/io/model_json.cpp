@@ -329,14 +329,133 @@ ranging::Pipeline pipeline_from_json(const json& j, const std::string& context) 
 }
 
 void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& pipeline,
-                   const json& fit) {
-  const std::string text = pipeline_to_json(pipeline, fit).dump(2) + "\n";
-  write_file_atomically(path, text);
+                   const json& fit, const ranging::UncertaintyBudget* budget) {
+  json j = pipeline_to_json(pipeline, fit);
+  if (budget != nullptr && !budget->empty()) j["uncertainty_budget"] = budget_to_json(*budget);
+  write_file_atomically(path, j.dump(2) + "\n");
 }
 
 ranging::Pipeline load_pipeline(const std::filesystem::path& path) {
   const json j = json_fields::parse_file(path, "model file");
   return pipeline_from_json(j, path.string());
+}
+
+namespace {
+
+const char* scope_name(ranging::BudgetScope s) {
+  switch (s) {
+    case ranging::BudgetScope::same_power_on:
+      return "same_power_on";
+    case ranging::BudgetScope::other_power_on:
+      return "other_power_on";
+    case ranging::BudgetScope::always:
+      break;
+  }
+  return "always";
+}
+
+const char* axis_name(ranging::BudgetComponent::Axis a) {
+  switch (a) {
+    case ranging::BudgetComponent::Axis::log_amplitude:
+      return "log_amplitude";
+    case ranging::BudgetComponent::Axis::time_since_calibration_s:
+      return "time_since_calibration_s";
+    case ranging::BudgetComponent::Axis::none:
+      break;
+  }
+  return "none";
+}
+
+std::string text_field(const json& j, const char* key, const std::string& where) {
+  const json& v = field(j, key, where);
+  if (!v.is_string()) fail(where + "." + key, "expected a string");
+  return v.get<std::string>();
+}
+
+bool bool_field(const json& j, const char* key, const std::string& where) {
+  const json& v = field(j, key, where);
+  if (!v.is_boolean()) fail(where + "." + key, "expected true or false");
+  return v.get<bool>();
+}
+
+}  // namespace
+
+json budget_to_json(const ranging::UncertaintyBudget& budget) {
+  json components = json::array();
+  for (const auto& c : budget.components) {
+    components.push_back({{"name", c.name},
+                          {"step", c.step},
+                          {"type", c.type_b ? "B" : "A"},
+                          {"default_specification", c.default_specification},
+                          {"scope", scope_name(c.scope)},
+                          {"axis", axis_name(c.axis)},
+                          {"node", c.node},
+                          {"variance_m2", c.variance_m2}});
+  }
+  return {{"components", components}, {"unobserved", budget.unobserved}};
+}
+
+ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& context) {
+  if (!j.is_object()) fail(context, "expected an object");
+  ranging::UncertaintyBudget budget;
+  const json& components = field(j, "components", context);
+  if (!components.is_array()) fail(context + ".components", "expected an array");
+  for (std::size_t k = 0; k < components.size(); ++k) {
+    const std::string where = context + ".components[" + std::to_string(k) + "]";
+    const json& cj = components[k];
+    ranging::BudgetComponent c;
+    c.name = text_field(cj, "name", where);
+    c.step = text_field(cj, "step", where);
+    const std::string type = text_field(cj, "type", where);
+    if (type != "A" && type != "B") fail(where + ".type", "expected \"A\" or \"B\"");
+    c.type_b = type == "B";
+    c.default_specification = bool_field(cj, "default_specification", where);
+    const std::string scope = text_field(cj, "scope", where);
+    if (scope == "always") {
+      c.scope = ranging::BudgetScope::always;
+    } else if (scope == "same_power_on") {
+      c.scope = ranging::BudgetScope::same_power_on;
+    } else if (scope == "other_power_on") {
+      c.scope = ranging::BudgetScope::other_power_on;
+    } else {
+      fail(where + ".scope", "expected always, same_power_on or other_power_on");
+    }
+    const std::string axis = text_field(cj, "axis", where);
+    if (axis == "none") {
+      c.axis = ranging::BudgetComponent::Axis::none;
+    } else if (axis == "log_amplitude") {
+      c.axis = ranging::BudgetComponent::Axis::log_amplitude;
+    } else if (axis == "time_since_calibration_s") {
+      c.axis = ranging::BudgetComponent::Axis::time_since_calibration_s;
+    } else {
+      fail(where + ".axis", "expected none, log_amplitude or time_since_calibration_s");
+    }
+    c.node = numbers(cj, "node", where);
+    c.variance_m2 = numbers(cj, "variance_m2", where);
+    budget.components.push_back(std::move(c));
+  }
+  if (j.contains("unobserved")) {
+    const json& u = j["unobserved"];
+    if (!u.is_array()) fail(context + ".unobserved", "expected an array of strings");
+    for (std::size_t k = 0; k < u.size(); ++k) {
+      if (!u[k].is_string())
+        fail(context + ".unobserved[" + std::to_string(k) + "]", "expected a string");
+      budget.unobserved.push_back(u[k].get<std::string>());
+    }
+  }
+  try {
+    budget.validate();
+  } catch (const std::invalid_argument& e) {
+    fail(context, e.what());
+  }
+  return budget;
+}
+
+ranging::UncertaintyBudget load_budget(const std::filesystem::path& path) {
+  const json j = json_fields::parse_file(path, "model file");
+  const auto it = j.is_object() ? j.find("uncertainty_budget") : j.end();
+  if (it == j.end() || it->is_null()) return {};  // a model from before the budget: none
+  return budget_from_json(*it, path.string() + ".uncertainty_budget");
 }
 
 namespace {

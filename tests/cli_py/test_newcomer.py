@@ -135,7 +135,9 @@ def test_plan_lines_calibrate_the_device_they_were_printed_for(tmp_path):
     printed = tofkit(*DEVICE, "plan", "--range-max", "6", cwd=tmp_path).stdout
     lines = [x for x in printed.splitlines() if x.startswith("tofkit ")]
     assert lines[-4].split()[len(DEVICE) + 1] == "fit"
-    assert "--seed 2" in lines[-3]
+    # The field test follows the calibration on its power-on, its sigma with
+    # the drift since the calibration.
+    assert "--start-s" in lines[-3] and "--since-calibration" in lines[-2]
     (tmp_path / "printed").mkdir()
     for line in lines:  # as printed, `tofkit` being the binary
         args = shlex.split(line)[1:]
@@ -144,32 +146,22 @@ def test_plan_lines_calibrate_the_device_they_were_printed_for(tmp_path):
     # device's options, with the device's options typed on every line.
     (tmp_path / "hand").mkdir()
     plain = tofkit(*DEVICE, "plan", "--range-max", "6", cwd=tmp_path).stdout
-    measured = []
-    for line in plain.splitlines():
-        if not line.startswith("tofkit "):
-            continue
-        words = shlex.split(line)[1 + len(DEVICE):]  # the command and its own options
-        if words[0] == "measure" and "--seed" not in words:
-            out = words[words.index("--out") + 1]
-            measured.append(out)
-            tofkit(*DEVICE, "measure", *words[1:], cwd=tmp_path / "hand")
-    inputs = [a for name in measured for a in ("--in", name)]
-    tofkit(*DEVICE, "fit", *inputs, "--chain", "offset,grayvalue,temperature", "--out",
-           "model.json", cwd=tmp_path / "hand")
+    protocol = [shlex.split(x)[1 + len(DEVICE):] for x in plain.splitlines()
+                if x.startswith("tofkit ")][:-3]  # the measure lines and the fit
+    for words in protocol:
+        tofkit(*DEVICE, *words, cwd=tmp_path / "hand")
     printed_model = (tmp_path / "printed" / "model.json").read_text()
     assert printed_model.replace("printed", "") == \
         (tmp_path / "hand" / "model.json").read_text().replace("hand", "")
     # Pasted without the device options (the old lines), the fit calibrates
     # another device: a different model.
     (tmp_path / "other").mkdir()
-    for name, line in zip(measured, [x for x in plain.splitlines() if " measure " in x]):
-        words = shlex.split(line)[1 + len(DEVICE):]
+    for words in protocol:
         tofkit(*words, cwd=tmp_path / "other")
-    tofkit("fit", *inputs, "--chain", "offset,grayvalue,temperature", "--out", "model.json",
-           cwd=tmp_path / "other")
     assert (tmp_path / "other" / "model.json").read_text() != \
         (tmp_path / "hand" / "model.json").read_text()
-    # The test line on another seed: corrected within a few mm.
+    # The test line, half an hour after the calibration: corrected within a
+    # few mm.
     tested = rows(tmp_path / "printed" / "test_corrected.csv")
     errors = [abs(float(r["distance_m"]) - float(r["distance_true_m"])) for r in tested
               if r["distance_m"] and int(r["flags"]) == 0]

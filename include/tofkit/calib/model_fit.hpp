@@ -10,6 +10,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "tofkit/calib/chain_fit.hpp"
 #include "tofkit/calib/confidence_model.hpp"
@@ -167,6 +168,10 @@ struct ModelFitResult {
   ranging::Pipeline pipeline;
   ModelFitSummary summary;
   std::string report;  ///< the fitters' summaries and the confidence line
+  /// Per record, its cross-validated residual (true - corrected by a fit
+  /// without its fold; NaN where the fold's correction extrapolates or no
+  /// echo); empty without cross-fitting. The uncertainty budget's input.
+  std::vector<double> out_of_fold_m;
 };
 
 /// Fits the model. Throws std::invalid_argument naming the problem (too few

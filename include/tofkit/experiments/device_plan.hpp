@@ -23,8 +23,11 @@ namespace tofkit::experiments {
 }  // namespace tofkit::experiments
 
 #include <cstdint>
+#include <string>
+#include <vector>
 
 #include "tofkit/calib/model_fit.hpp"
+#include "tofkit/experiments/plate_grid.hpp"
 
 namespace tofkit::experiments {
 
@@ -49,5 +52,61 @@ inline constexpr double kFactorySweepStep_m = 0.003;
 /// when no --model is given, so a scan's ranges are calibrated, as a lidar's are.
 [[nodiscard]] calib::ModelFitResult factory_calibration(const device::DeviceConfig& config,
                                                         std::uint64_t seed = 1);
+
+// ------------------------------------------------------------ the protocol
+
+/// What a protocol's step is for.
+enum class StepRole {
+  calibration,  ///< rows the correction is fitted on (`fit --in`)
+  stability,    ///< a static target over time (`fit --stability`)
+  power_on,     ///< repeats on another power-on (`fit --power-on`)
+};
+
+/// One `tofkit measure` line of a protocol: a plate grid, its power-on (seed)
+/// and its timing after power-on.
+struct ProtocolStep {
+  std::string file;      ///< output file, "plates1.csv"
+  std::string observes;  ///< the cause (or budget component) it observes
+  StepRole role = StepRole::calibration;
+  PlateGrid grid;
+  std::uint64_t seed = 1;
+  RunTiming timing;
+  double bench_minutes = 0;  ///< on a bench: moving targets, soaking, waiting
+};
+
+struct ProtocolOptions {
+  int count = 5;  ///< repeats per plate
+  /// false: the paper's protocol (plates at one distance and a temperature
+  /// run); true: every cause (plates at two distances, a rail over the TDC's
+  /// period, the temperature run, a stability record, other power-ons).
+  bool complete = true;
+  double rail_steps_per_period = 8;  ///< rail distances per TDC period (resolves 3 harmonics)
+  double stability_minutes = 60;     ///< the stability record's length
+  double stability_every_s = 15;     ///< its spacing
+  int power_ons = 2;                 ///< repeats on this many other power-ons
+};
+
+struct Protocol {
+  std::vector<ProtocolStep> steps;
+  double calibration_start_s = 0;  ///< the calibration rows' start after power-on
+  double tdc_period_ns = 0;        ///< the device's coarse clock period
+  double tdc_period_m = 0;         ///< the same as a distance
+  /// Causes this protocol leaves to type B terms (the paper's: the TDC's
+  /// periodic nonlinearity, drift after calibration, the power-on offset).
+  std::vector<std::string> unobserved;
+};
+
+/// The protocol for a device and a field (calib::CalibrationPlanOptions):
+/// with `complete`, a stability record first (a static target for
+/// stability_minutes, while the device settles), then the calibration rows
+/// (plates at the plan's distance and at a second one, farther, a rail of the
+/// temperature run's plate over the field's ranges in steps of a TDC period /
+/// rail_steps_per_period, at least one period long, and the temperature run),
+/// then repeats of the plates at the plan's distance on `power_ons` other
+/// seeds at the same time after their power-on. The paper's protocol: the plan
+/// with single_distance and the temperature run only.
+[[nodiscard]] Protocol plan_protocol(const device::VirtualRangefinder& device,
+                                     calib::CalibrationPlanOptions field,
+                                     const ProtocolOptions& options);
 
 }  // namespace tofkit::experiments

@@ -37,6 +37,27 @@ struct PlannedMeasurement {
 void run(const device::VirtualRangefinder& device, std::span<const PlannedMeasurement> plan,
          std::uint64_t seed, std::span<ranging::Record> out);
 
+/// Time between a device's outputs, s (measurement.shots / laser.repetition_hz):
+/// the device's slow offsets read output i of a run as i periods after power-on.
+[[nodiscard]] double output_period_s(const device::DeviceConfig& config);
+
+/// When a run's outputs are taken: output k starts start_s + k * every_s after
+/// power-on (the seed is the power-on); every_s 0: back to back, one output
+/// period apart. {0, 0} is run()'s timing.
+struct RunTiming {
+  double start_s = 0;
+  double every_s = 0;
+  /// Throws std::invalid_argument naming the bad field.
+  void validate(const device::DeviceConfig& config) const;
+};
+
+/// run() at the given timing (the same bytes as run() for {0, 0}); so a field
+/// test can follow its calibration on the same power-on, and a stability
+/// record can span an hour in a few hundred outputs.
+[[nodiscard]] std::vector<ranging::Record> run(const device::VirtualRangefinder& device,
+                                               std::span<const PlannedMeasurement> plan,
+                                               std::uint64_t seed, const RunTiming& timing);
+
 /// `count` values from `first` to `last`, evenly spaced on a log scale.
 [[nodiscard]] std::vector<double> log_spaced(double first, double last, int count);
 /// `count` values from `first` to `last`, evenly spaced.

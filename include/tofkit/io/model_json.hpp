@@ -16,7 +16,12 @@
 ///               "reference_pulse_width_ns", "domain": {"min", "max"}}],
 ///    each step with "fit": {"rows", "residual_rms_m"},
 ///    "confidence": io::confidence_to_json(...)  (absent without a confidence model),
-///    "residual_rms_m": ..., "fit": {...}  (free-form fit statistics, optional)}
+///    "residual_rms_m": ..., "fit": {...}  (free-form fit statistics, optional),
+///    "uncertainty_budget": {"components": [{"name", "step", "type": "A" | "B",
+///        "default_specification", "scope": "always" | "same_power_on" | "other_power_on",
+///        "axis": "none" | "log_amplitude" | "time_since_calibration_s",
+///        "node": [], "variance_m2": []}], "unobserved": [...]}  (optional: models
+///        written before the budget have none, and read as before)}
 ///
 /// Non-finite numbers are written as null (an open domain bound, an unknown RMS).
 /// A walk step's objects are read strictly: an unknown key is an error naming it.
@@ -26,6 +31,7 @@
 #include <string>
 
 #include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace tofkit::calib {
 struct ModelFitSummary;
@@ -48,8 +54,16 @@ namespace tofkit::io {
 
 /// Writes the model file atomically (no half-written file on failure).
 void save_pipeline(const std::filesystem::path& path, const ranging::Pipeline& pipeline,
-                   const nlohmann::json& fit = nullptr);
+                   const nlohmann::json& fit = nullptr,
+                   const ranging::UncertaintyBudget* budget = nullptr);
 /// Reads a model file; errors name the file and the field.
 [[nodiscard]] ranging::Pipeline load_pipeline(const std::filesystem::path& path);
+
+[[nodiscard]] nlohmann::json budget_to_json(const ranging::UncertaintyBudget& budget);
+/// Throws std::runtime_error naming `context` and the bad field.
+[[nodiscard]] ranging::UncertaintyBudget budget_from_json(const nlohmann::json& j,
+                                                          const std::string& context);
+/// The model file's "uncertainty_budget" (empty when the file has none).
+[[nodiscard]] ranging::UncertaintyBudget load_budget(const std::filesystem::path& path);
 
 }  // namespace tofkit::io

@@ -1,0 +1,75 @@
+#pragma once
+/// \file An uncertainty budget (GUM, JCGM 100:2008): the standard
+/// uncertainties of a corrected range, one per cause, each estimated from the
+/// calibration step that observed it (type A) or from a stated specification
+/// where no step did (type B), and their combination, Eq. (10) with
+/// uncorrelated inputs: u_c^2 = sum_k u_k^2. Fitted by
+/// calib::fit_uncertainty_budget; evaluated here, per row, at the row's
+/// amplitude and time since calibration.
+
+#include <cstddef>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/raw_measurement.hpp"
+
+namespace tofkit::ranging {
+
+/// Which rows a component applies to.
+enum class BudgetScope {
+  always,          ///< every row
+  same_power_on,   ///< rows on the calibration's power-on (their time since calibration known)
+  other_power_on,  ///< rows whose power-on (or time since calibration) is not the calibration's
+};
+
+/// One cause's standard uncertainty. Its value is a piecewise-linear curve of
+/// u^2 over one axis (constant beyond the first and last node; one node: a
+/// constant): ln(amplitude) for causes that follow the echo's strength, the
+/// time since calibration (s) for drift, none for the rest.
+struct BudgetComponent {
+  enum class Axis { none, log_amplitude, time_since_calibration_s };
+  std::string name;  ///< "repeatability", "correction residual", ...
+  std::string step;  ///< the calibration step that gave it, or the specification key (type B)
+  bool type_b = false;
+  bool default_specification = false;  ///< type B from a default, not a value the user stated
+  BudgetScope scope = BudgetScope::always;
+  Axis axis = Axis::none;
+  std::vector<double> node;         ///< ascending axis values (size 1 for Axis::none)
+  std::vector<double> variance_m2;  ///< u^2 at each node (>= 0)
+
+  /// u (m) at an axis value.
+  [[nodiscard]] double u_m(double axis_value) const;
+};
+
+struct UncertaintyBudget {
+  std::vector<BudgetComponent> components;
+  /// Causes the calibration rows did not observe (their type B terms stand in).
+  std::vector<std::string> unobserved;
+
+  /// Throws std::invalid_argument naming the bad component and field.
+  void validate() const;
+  [[nodiscard]] bool empty() const { return components.empty(); }
+  /// u of component k for a row (amplitude in the row's units; since_s NaN: the
+  /// time since calibration is unknown, i.e. another power-on).
+  [[nodiscard]] double component_u_m(std::size_t k, double amplitude, double since_s) const;
+  /// Combined standard uncertainty of each row (GUM Eq. 10): since_s either
+  /// one value for every row or one per row; NaN: unknown.
+  void combined(std::span<const double> amplitude, std::span<const double> since_s,
+                std::span<double> u_m) const;
+  /// The budget as a table: component, value at each point, step, type, share
+  /// of the combined variance at each point (amplitude, since_s) given.
+  [[nodiscard]] std::string table(std::span<const double> amplitude,
+                                  std::span<const double> since_s) const;
+};
+
+/// Replaces each corrected range's sigma_m by the budget's combined standard
+/// uncertainty at the row's amplitude and time since calibration (since_s: one
+/// value for every row or one per row; NaN: unknown, another power-on), plus
+/// the variance the pipeline adds where a row lies outside a step's domain
+/// (its sigma^2 there less its in-domain sigma^2). Rows without an echo keep NaN.
+void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, const RawColumns& in,
+                  std::span<const double> since_s, std::span<Range> out);
+
+}  // namespace tofkit::ranging

@@ -1,0 +1,636 @@
+#include "tofkit/calib/uncertainty_budget.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <map>
+#include <numbers>
+#include <stdexcept>
+#include <tuple>
+
+namespace tofkit::calib {
+namespace {
+
+using ranging::BudgetComponent;
+using ranging::BudgetScope;
+
+std::string format(const char* pattern, ...) {
+  char buffer[1024];
+  va_list args;
+  va_start(args, pattern);
+  std::vsnprintf(buffer, sizeof buffer, pattern, args);
+  va_end(args);
+  return buffer;
+}
+
+/// One target: repeats of one truth.
+struct Target {
+  double log_amplitude = 0;  ///< mean ln amplitude
+  double tof_ns = 0;
+  double distance_m = 0;
+  double reflectance = 0;
+  double angle_deg = 0;
+  double ambient_c = 0;
+  double mean_m = 0;  ///< mean in-sample residual
+  std::size_t n = 0;
+  double variance_m2 = ranging::kNaN;  ///< sample variance of the in-sample residual
+  double mean_oof_m = ranging::kNaN;   ///< mean cross-validated residual
+  std::size_t n_oof = 0;
+};
+
+std::vector<Target> targets_of(const BudgetFitData& d) {
+  std::map<std::tuple<double, double, double, double>, std::vector<std::size_t>> rows_of;
+  for (std::size_t i = 0; i < d.rows.size(); ++i) {
+    const auto& r = d.rows[i];
+    if (!r.raw.has_echo() || !std::isfinite(d.residual_m[i]) || !(r.raw.amplitude > 0)) continue;
+    rows_of[{r.truth.distance_m, r.truth.reflectance, r.truth.angle_deg, r.truth.ambient_c}]
+        .push_back(i);
+  }
+  std::vector<Target> out;
+  for (const auto& [key, rows] : rows_of) {
+    Target t;
+    t.distance_m = std::get<0>(key);
+    t.reflectance = std::get<1>(key);
+    t.angle_deg = std::get<2>(key);
+    t.ambient_c = std::get<3>(key);
+    double sum = 0, sum_oof = 0;
+    for (const std::size_t i : rows) {
+      t.log_amplitude += std::log(d.rows[i].raw.amplitude);
+      t.tof_ns += d.rows[i].raw.tof_ns;
+      sum += d.residual_m[i];
+      if (std::isfinite(d.out_of_fold_m[i])) {
+        sum_oof += d.out_of_fold_m[i];
+        ++t.n_oof;
+      }
+    }
+    t.n = rows.size();
+    t.log_amplitude /= static_cast<double>(t.n);
+    t.tof_ns /= static_cast<double>(t.n);
+    const double mean = sum / static_cast<double>(t.n);
+    t.mean_m = mean;
+    if (t.n >= 2) {
+      double ss = 0;
+      for (const std::size_t i : rows) ss += (d.residual_m[i] - mean) * (d.residual_m[i] - mean);
+      t.variance_m2 = ss / static_cast<double>(t.n - 1);
+    }
+    if (t.n_oof > 0) t.mean_oof_m = sum_oof / static_cast<double>(t.n_oof);
+    out.push_back(t);
+  }
+  std::sort(out.begin(), out.end(),
+            [](const Target& a, const Target& b) { return a.log_amplitude < b.log_amplitude; });
+  return out;
+}
+
+/// Bins of about equal counts over items sorted by ln amplitude: [begin, end).
+std::vector<std::pair<std::size_t, std::size_t>> bins(std::size_t n, std::size_t count) {
+  std::vector<std::pair<std::size_t, std::size_t>> out;
+  count = std::max<std::size_t>(1, std::min(count, n));
+  for (std::size_t b = 0; b < count; ++b) out.emplace_back(b * n / count, (b + 1) * n / count);
+  return out;
+}
+
+BudgetComponent constant(std::string name, std::string step, double u_m, bool type_b,
+                         bool default_spec, BudgetScope scope = BudgetScope::always) {
+  BudgetComponent c;
+  c.name = std::move(name);
+  c.step = std::move(step);
+  c.type_b = type_b;
+  c.default_specification = default_spec;
+  c.scope = scope;
+  c.node = {0.0};
+  c.variance_m2 = {u_m * u_m};
+  return c;
+}
+
+/// Nodes must ascend strictly: merge equal ones (mean of their variances).
+void add_node(BudgetComponent& c, double x, double v) {
+  if (!c.node.empty() && !(x > c.node.back())) {
+    c.variance_m2.back() = 0.5 * (c.variance_m2.back() + v);
+    return;
+  }
+  c.node.push_back(x);
+  c.variance_m2.push_back(v);
+}
+
+std::string spec_step(const char* key, double value, const char* unit, bool given) {
+  return format("specification %s = %g %s%s", key, value, unit, given ? "" : " (default)");
+}
+
+}  // namespace
+
+void BudgetSpecification::validate() const {
+  const auto check = [](double v, double hi, const char* key) {
+    if (!(std::isfinite(v) && v >= 0 && v <= hi))
+      throw std::invalid_argument(format("specification %s must be in [0, %g]", key, hi));
+  };
+  check(tdc_inl_ps, 1e5, "tdc_inl_ps");
+  check(delay_tempco_ps_per_c, 1e4, "delay_tempco_ps_per_c");
+  check(walk_tempco_ps_per_c, 1e4, "walk_tempco_ps_per_c");
+  check(temperature_half_range_c, 200, "temperature_half_range_c");
+  check(drift_ps, 1e5, "drift_ps");
+  check(power_on_ps, 1e5, "power_on_ps");
+}
+
+void BudgetSpecification::set(const std::string& assignment) {
+  const std::size_t eq = assignment.find('=');
+  if (eq == std::string::npos)
+    throw std::invalid_argument("specification " + assignment + ": expected key=value");
+  const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
+  double v = 0;
+  std::size_t used = 0;
+  try {
+    v = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != text.size() || text.empty())
+    throw std::invalid_argument("specification " + key + ": '" + text + "' is not a number");
+  const std::pair<const char*, std::pair<double*, bool*>> keys[] = {
+      {"tdc_inl_ps", {&tdc_inl_ps, &tdc_inl_given}},
+      {"delay_tempco_ps_per_c", {&delay_tempco_ps_per_c, &delay_tempco_given}},
+      {"walk_tempco_ps_per_c", {&walk_tempco_ps_per_c, &walk_tempco_given}},
+      {"temperature_half_range_c", {&temperature_half_range_c, nullptr}},
+      {"drift_ps", {&drift_ps, &drift_given}},
+      {"power_on_ps", {&power_on_ps, &power_on_given}},
+  };
+  for (const auto& [name, target] : keys) {
+    if (key != name) continue;
+    *target.first = v;
+    if (target.second) *target.second = true;
+    validate();
+    return;
+  }
+  throw std::invalid_argument(
+      "specification " + key +
+      ": unknown key (tdc_inl_ps, delay_tempco_ps_per_c, walk_tempco_ps_per_c, "
+      "temperature_half_range_c, drift_ps, power_on_ps)");
+}
+
+BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpecification& spec) {
+  spec.validate();
+  if (d.out_of_fold_m.size() != d.rows.size() || d.residual_m.size() != d.rows.size())
+    throw std::invalid_argument("budget: residuals and rows differ in length");
+  BudgetFitResult result;
+  auto& budget = result.budget;
+  std::string& report = result.report;
+  const double m_per_ps = d.metres_per_ns * 1e-3;
+  std::vector<Target> targets = targets_of(d);
+
+  // Repeatability (type A): pooled variance of the repeats per amplitude bin.
+  std::vector<const Target*> repeated;
+  for (const auto& t : targets)
+    if (t.n >= 2 && std::isfinite(t.variance_m2)) repeated.push_back(&t);
+  if (repeated.size() < 3)
+    throw std::invalid_argument(
+        format("budget: the repeatability needs >= 3 targets measured two or more times, the "
+               "rows have %zu",
+               repeated.size()));
+  BudgetComponent repeat;
+  repeat.name = "repeatability (one row)";
+  repeat.step = "repeats of every target";
+  repeat.axis = BudgetComponent::Axis::log_amplitude;
+  for (const auto& [b, e] : bins(repeated.size(), std::min<std::size_t>(8, repeated.size() / 3))) {
+    double ss = 0, dof = 0, x = 0;
+    for (std::size_t k = b; k < e; ++k) {
+      const double nu = static_cast<double>(repeated[k]->n - 1);
+      ss += nu * repeated[k]->variance_m2;
+      dof += nu;
+      x += repeated[k]->log_amplitude;
+    }
+    add_node(repeat, x / static_cast<double>(e - b), ss / dof);
+  }
+  const auto noise2 = [&](double log_amplitude) {
+    const double u = repeat.u_m(log_amplitude);
+    return u * u;
+  };
+  budget.components.push_back(repeat);
+
+  // The cross-validated targets, and the reference temperature (most rows).
+  std::map<double, std::size_t> rows_at;
+  for (const auto& t : targets) rows_at[t.ambient_c] += t.n;
+  const double reference_c = std::max_element(rows_at.begin(), rows_at.end(), [](auto& a, auto& b) {
+                               return a.second < b.second;
+                             })->first;
+  std::vector<Target*> reference;
+  for (auto& t : targets) {
+    if (t.n_oof == 0) continue;
+    if (t.ambient_c == reference_c) reference.push_back(&t);
+  }
+  const auto mean_noise = [&](const Target& t) {
+    return noise2(t.log_amplitude) / static_cast<double>(t.n_oof);
+  };
+
+  // Periodic residual: harmonics of the TDC's coarse period in the reference
+  // targets' cross-validated means, where their distances span a period.
+  constexpr int kHarmonics = 3;
+  double dmin = 1e300, dmax = -1e300;
+  for (const Target* t : reference) {
+    dmin = std::min(dmin, t->distance_m);
+    dmax = std::max(dmax, t->distance_m);
+  }
+  const double period_m = d.tdc_period_ns * d.metres_per_ns;
+  const bool periodic_seen = d.tdc_period_ns > 0 &&
+                             reference.size() >= static_cast<std::size_t>(4 * kHarmonics + 4) &&
+                             dmax - dmin >= period_m;
+  std::vector<double> periodic(targets.size(), 0.0);
+  const auto harmonic_row = [&](double tof_ns) {
+    Eigen::RowVectorXd row(2 * kHarmonics + 1);
+    row(0) = 1.0;
+    for (int h = 1; h <= kHarmonics; ++h) {
+      const double a = 2 * std::numbers::pi * h * tof_ns / d.tdc_period_ns;
+      row(2 * h - 1) = std::cos(a);
+      row(2 * h) = std::sin(a);
+    }
+    return row;
+  };
+  Eigen::VectorXd coefficients;
+  if (periodic_seen) {
+    const auto g = static_cast<Eigen::Index>(reference.size());
+    Eigen::MatrixXd a(g, 2 * kHarmonics + 1);
+    Eigen::VectorXd y(g);
+    for (Eigen::Index k = 0; k < g; ++k) {
+      a.row(k) = harmonic_row(reference[static_cast<std::size_t>(k)]->tof_ns);
+      y(k) = reference[static_cast<std::size_t>(k)]->mean_oof_m;
+    }
+    coefficients = a.colPivHouseholderQr().solve(y);
+    const double rss = (y - a * coefficients).squaredNorm();
+    const double sigma2 = rss / static_cast<double>(g - (2 * kHarmonics + 1));
+    double power = 0;
+    for (int k = 1; k <= 2 * kHarmonics; ++k) power += 0.5 * coefficients(k) * coefficients(k);
+    // Each coefficient's estimate has variance about 2 sigma^2 / G (even phases).
+    const double bias = kHarmonics * 2.0 * sigma2 / static_cast<double>(g);
+    const double u2 = std::max(0.0, power - bias);
+    budget.components.push_back(
+        constant("periodic residual (TDC, time of flight)",
+                 format("%zu targets (plates, rail) over %.2f-%.2f m (period %.3f m)",
+                        reference.size(), dmin, dmax, period_m),
+                 std::sqrt(u2), false, false));
+    report += format(
+        "budget: periodic residual %.3f mm (harmonics 1-%d of the %.3f ns period in the "
+        "cross-validated means of %zu targets; fit noise %.3f mm removed)\n",
+        std::sqrt(u2) * 1e3, kHarmonics, d.tdc_period_ns, reference.size(), std::sqrt(bias) * 1e3);
+    for (std::size_t k = 0; k < targets.size(); ++k) {
+      if (targets[k].n_oof == 0) continue;
+      const Eigen::RowVectorXd row = harmonic_row(targets[k].tof_ns);
+      periodic[k] = row.tail(2 * kHarmonics).dot(coefficients.tail(2 * kHarmonics));
+    }
+  } else {
+    const double u = spec.tdc_inl_ps / std::sqrt(2.0) * m_per_ps;
+    budget.components.push_back(
+        constant("periodic residual (TDC, time of flight)",
+                 spec_step("tdc_inl_ps", spec.tdc_inl_ps, "ps", spec.tdc_inl_given), u, true,
+                 !spec.tdc_inl_given));
+    budget.unobserved.push_back(
+        d.tdc_period_ns > 0
+            ? format("the TDC's nonlinearity, periodic in the time of flight (the targets span "
+                     "%.2f m, less than one %.3f m period: no rail)",
+                     std::max(0.0, dmax - dmin), period_m)
+            : std::string("the TDC's nonlinearity (its period is unknown)"));
+  }
+  const auto index_of = [&](const Target* t) {
+    return static_cast<std::size_t>(t - targets.data());
+  };
+  const auto excess = [&](const Target* t) {
+    const double m = t->mean_oof_m - periodic[index_of(t)];
+    return m * m - mean_noise(*t);
+  };
+
+  // Correction residual (cross-validated) per amplitude tercile of the reference targets.
+  if (reference.size() < 3)
+    throw std::invalid_argument(format(
+        "budget: the correction residual needs >= 3 cross-validated targets at the reference "
+        "temperature (%g C), the rows have %zu",
+        reference_c, reference.size()));
+  BudgetComponent systematic;
+  systematic.name = "correction residual (cross-validated)";
+  systematic.step = format("%zu targets at %g C, each predicted by a fit without it",
+                           reference.size(), reference_c);
+  systematic.axis = BudgetComponent::Axis::log_amplitude;
+  for (const auto& [b, e] :
+       bins(reference.size(), std::min<std::size_t>(3, reference.size() / 4))) {
+    double sum = 0, x = 0;
+    for (std::size_t k = b; k < e; ++k) {
+      sum += excess(reference[k]);
+      x += reference[k]->log_amplitude;
+    }
+    add_node(systematic, x / static_cast<double>(e - b),
+             std::max(0.0, sum / static_cast<double>(e - b)));
+  }
+  budget.components.push_back(systematic);
+
+  // Temperature model residual: the temperature run's targets' in-sample
+  // mean residuals less that of the same target at the reference temperature
+  // (what the temperature step left), less their noise, times the optimism of
+  // a fit of p parameters on G temperatures, (G + p) / (G - p) (Mallows' C_p,
+  // ESL 2nd ed. Eq. 7.24). Leaving whole temperatures out instead measures
+  // the interpolation across twice the run's step, not the field's.
+  std::map<std::tuple<double, double, double>, const Target*> at_reference;
+  for (const auto& t : targets)
+    if (t.ambient_c == reference_c) at_reference[{t.distance_m, t.reflectance, t.angle_deg}] = &t;
+  // Per plate of the temperature run (its echo strength: the APD's gain and
+  // the walk change with temperature by it): the sum of the excesses and the
+  // number of temperatures besides the reference.
+  std::map<const Target*, std::pair<double, std::size_t>> per_plate;
+  for (const auto& t : targets) {
+    if (t.ambient_c == reference_c) continue;
+    const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
+    if (ref == at_reference.end()) continue;
+    const double dm = t.mean_m - ref->second->mean_m;
+    auto& [sum, n] = per_plate[ref->second];
+    sum += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
+           noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    ++n;
+  }
+  const double p_t = std::max(1.0, d.temperature_parameters);
+  BudgetComponent temperature;
+  temperature.name = "temperature model residual";
+  temperature.axis = BudgetComponent::Axis::log_amplitude;
+  std::vector<std::pair<double, double>> nodes;  // (ln amplitude at the reference, u^2)
+  std::size_t temperatures = 0;
+  for (const auto& [ref, value] : per_plate) {
+    const auto [sum, n] = value;
+    const double g = static_cast<double>(n + 1);
+    if (n < 3 || !(g > p_t + 1)) continue;
+    const double optimism = (g + p_t) / (g - p_t);
+    nodes.emplace_back(ref->log_amplitude, std::max(0.0, optimism * sum / static_cast<double>(n)));
+    temperatures = std::max(temperatures, n);
+  }
+  std::sort(nodes.begin(), nodes.end());
+  for (const auto& [x, v] : nodes) add_node(temperature, x, v);
+  if (!nodes.empty()) {
+    temperature.step = format(
+        "temperature run: %zu plate(s) at %zu temperatures besides %g C (optimism for %g "
+        "parameters)",
+        nodes.size(), temperatures, reference_c, p_t);
+    budget.components.push_back(temperature);
+    if (nodes.size() < 2) {
+      // One plate: how the temperature dependence changes with the echo's
+      // strength (the APD's gain, hence the walk) was not seen.
+      const double u =
+          spec.walk_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
+      budget.components.push_back(
+          constant("temperature residual by echo strength",
+                   spec_step("walk_tempco_ps_per_c", spec.walk_tempco_ps_per_c, "ps/C",
+                             spec.walk_tempco_given) +
+                       format(" over +-%g C", spec.temperature_half_range_c),
+                   u, true, !spec.walk_tempco_given));
+      budget.unobserved.push_back(
+          "the temperature dependence's change with echo strength (temperature run on one "
+          "plate)");
+    }
+  } else {
+    const double u =
+        spec.delay_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
+    budget.components.push_back(
+        constant("temperature model residual",
+                 spec_step("delay_tempco_ps_per_c", spec.delay_tempco_ps_per_c, "ps/C",
+                           spec.delay_tempco_given) +
+                     format(" over +-%g C", spec.temperature_half_range_c),
+                 u, true, !spec.delay_tempco_given));
+    budget.unobserved.push_back(
+        "the delay's temperature dependence (no temperature run with its plate also at the "
+        "reference temperature)");
+  }
+
+  // Drift since calibration: structure function of the stability record.
+  const std::size_t ns = d.stability_residual_m.size();
+  if (ns >= 8 && d.stability_every_s > 0) {
+    double white2 = 0;
+    std::size_t counted = 0;
+    for (const auto& r : d.stability)
+      if (r.raw.amplitude > 0) {
+        white2 += noise2(std::log(r.raw.amplitude));
+        ++counted;
+      }
+    white2 = counted > 0 ? white2 / static_cast<double>(counted) : 0.0;
+    BudgetComponent drift;
+    drift.name = "drift since calibration";
+    drift.step = format("stability record: %zu rows every %g s (%.1f min)", ns, d.stability_every_s,
+                        static_cast<double>(ns - 1) * d.stability_every_s / 60);
+    drift.scope = BudgetScope::same_power_on;
+    drift.axis = BudgetComponent::Axis::time_since_calibration_s;
+    add_node(drift, 0.0, 0.0);
+    const std::size_t max_lag = std::max<std::size_t>(1, (3 * ns) / 4);
+    std::vector<std::size_t> lags;
+    for (double l = 1; l <= static_cast<double>(max_lag); l *= 1.3)
+      if (lags.empty() || static_cast<std::size_t>(l) != lags.back())
+        lags.push_back(static_cast<std::size_t>(l));
+    // D(lag) less the rows' own noise, then made non-decreasing by pooling
+    // adjacent violators (least squares, pairs as weights): a drift's
+    // variance does not fall with the lag, and the noisy long lags (few
+    // pairs) must not push the curve up as a running maximum would.
+    std::vector<double> value, weight;
+    std::vector<std::size_t> count;  // lags pooled into each block
+    for (const std::size_t lag : lags) {
+      double sum = 0;
+      for (std::size_t i = 0; i + lag < ns; ++i) {
+        const double dd = d.stability_residual_m[i + lag] - d.stability_residual_m[i];
+        sum += dd * dd;
+      }
+      const double pairs = static_cast<double>(ns - lag);
+      value.push_back(sum / pairs - 2 * white2);
+      weight.push_back(pairs);
+      count.push_back(1);
+      while (value.size() > 1 && value[value.size() - 2] > value.back()) {
+        const std::size_t k = value.size() - 1;
+        value[k - 1] =
+            (value[k - 1] * weight[k - 1] + value[k] * weight[k]) / (weight[k - 1] + weight[k]);
+        weight[k - 1] += weight[k];
+        count[k - 1] += count[k];
+        value.pop_back();
+        weight.pop_back();
+        count.pop_back();
+      }
+    }
+    std::size_t next = 0;
+    for (std::size_t b = 0; b < value.size(); ++b) {
+      for (std::size_t j = 0; j < count[b]; ++j, ++next)
+        add_node(drift, static_cast<double>(lags[next]) * d.stability_every_s,
+                 std::max(0.0, value[b]));
+    }
+    budget.components.push_back(drift);
+    // The Allan deviation at a few averaging times, for the certificate.
+    std::string allan;
+    for (std::size_t m = 1; 8 * m <= ns; m *= 4) {  // >= 8 blocks per average
+      std::vector<double> mean;
+      for (std::size_t b = 0; (b + 1) * m <= ns; ++b) {
+        double s = 0;
+        for (std::size_t i = b * m; i < (b + 1) * m; ++i) s += d.stability_residual_m[i];
+        mean.push_back(s / static_cast<double>(m));
+      }
+      double a = 0;
+      for (std::size_t b = 0; b + 1 < mean.size(); ++b) a += std::pow(mean[b + 1] - mean[b], 2);
+      allan += format(" %.0f s: %.3f mm;", static_cast<double>(m) * d.stability_every_s,
+                      std::sqrt(0.5 * a / static_cast<double>(mean.size() - 1)) * 1e3);
+    }
+    report += "budget: Allan deviation of the stability record at" + allan +
+              format(" drift u at %.0f min %.3f mm (beyond the record it is held)\n",
+                     drift.node.back() / 60, std::sqrt(drift.variance_m2.back()) * 1e3);
+  } else {
+    budget.components.push_back(constant(
+        "drift since calibration", spec_step("drift_ps", spec.drift_ps, "ps", spec.drift_given),
+        spec.drift_ps * m_per_ps, true, !spec.drift_given, BudgetScope::same_power_on));
+    budget.unobserved.push_back("drift after the calibration (no stability record)");
+  }
+
+  // Power-on reproducibility: each other power-on's mean residual.
+  std::size_t runs = 0;
+  double sum_d2 = 0;
+  for (std::size_t f = 0; f < d.power_on_residual_m.size(); ++f) {
+    const auto& r = d.power_on_residual_m[f];
+    double s = 0, noise = 0;
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < r.size(); ++i) {
+      if (!std::isfinite(r[i]) || !(d.power_on_amplitude[f][i] > 0)) continue;
+      s += r[i];
+      noise += noise2(std::log(d.power_on_amplitude[f][i]));
+      ++n;
+    }
+    if (n == 0) continue;
+    const double mean = s / static_cast<double>(n);
+    sum_d2 += mean * mean - noise / static_cast<double>(n * n);
+    ++runs;
+  }
+  if (runs > 0) {
+    budget.components.push_back(
+        constant("power-on reproducibility", format("repeats on %zu other power-on(s)", runs),
+                 std::sqrt(std::max(0.0, sum_d2 / static_cast<double>(runs))), false, false,
+                 BudgetScope::other_power_on));
+  } else {
+    budget.components.push_back(
+        constant("power-on reproducibility",
+                 spec_step("power_on_ps", spec.power_on_ps, "ps", spec.power_on_given),
+                 std::sqrt(2.0) * spec.power_on_ps * m_per_ps, true, !spec.power_on_given,
+                 BudgetScope::other_power_on));
+    budget.unobserved.push_back("the offset between power-ons (no repeats on another power-on)");
+  }
+
+  for (const auto& c : budget.components) {
+    if (c.default_specification)
+      report += "warning: budget: " + c.name + " is a type B term from a default (" + c.step +
+                "): state the device's value with --spec\n";
+  }
+  for (const auto& u : budget.unobserved) report += "budget: not observed: " + u + "\n";
+  budget.validate();
+  return result;
+}
+
+BudgetCoverage budget_coverage(std::span<const double> error_m, std::span<const double> sigma_m) {
+  BudgetCoverage c;
+  for (std::size_t i = 0; i < std::min(error_m.size(), sigma_m.size()); ++i) {
+    if (!std::isfinite(error_m[i]) || !(sigma_m[i] > 0)) continue;
+    ++c.rows;
+    c.within_1sigma += std::abs(error_m[i]) <= sigma_m[i] ? 1 : 0;
+    c.within_2sigma += std::abs(error_m[i]) <= 2 * sigma_m[i] ? 1 : 0;
+  }
+  if (c.rows > 0) {
+    c.within_1sigma /= static_cast<double>(c.rows);
+    c.within_2sigma /= static_cast<double>(c.rows);
+  }
+  return c;
+}
+
+namespace {
+
+std::vector<double> residuals_of(const ranging::Pipeline& pipeline,
+                                 std::span<const ranging::Record> rows) {
+  std::vector<ranging::Range> ranges(rows.size());
+  pipeline.apply(ranging::RawColumns::of(rows), ranges);
+  std::vector<double> e(rows.size());
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    e[i] = rows[i].truth.distance_m - ranges[i].distance_m;
+  return e;
+}
+
+}  // namespace
+
+BudgetFitResult fit_model_budget(std::span<const ranging::Record> calibration,
+                                 const ModelFitResult& fit, const ProtocolSteps& steps,
+                                 const BudgetSpecification& specification) {
+  if (fit.out_of_fold_m.size() != calibration.size())
+    throw std::invalid_argument(
+        "budget: needs the cross-validated residual of every calibration row (a confidence "
+        "model fitted by cross-fitting: --confidence calibrated or thesis, no "
+        "--confidence-fraction)");
+  const std::vector<double> residual = residuals_of(fit.pipeline, calibration);
+  const std::vector<double> stability = residuals_of(fit.pipeline, steps.stability);
+  BudgetFitData data;
+  data.rows = calibration;
+  data.out_of_fold_m = fit.out_of_fold_m;
+  data.residual_m = residual;
+  data.tdc_period_ns = steps.tdc_period_ns;
+  data.temperature_parameters = 0;
+  for (const auto& step : fit.pipeline.steps()) {
+    if (step.kind == ranging::StepKind::kTemperature)
+      data.temperature_parameters += 1.0 + static_cast<double>(step.function.knots.size());
+    if (step.kind == ranging::StepKind::kSurface && fit.summary.surface_temperature)
+      data.temperature_parameters += 4.0;  // a temperature axis's cubic B-spline, at least
+  }
+  data.metres_per_ns = ranging::metres_per_ns(fit.pipeline.time_to_distance());
+  data.stability = steps.stability;
+  data.stability_residual_m = stability;
+  data.stability_every_s = steps.stability_every_s;
+  for (const auto& run : steps.power_on_runs) {
+    data.power_on_residual_m.push_back(residuals_of(fit.pipeline, run));
+    std::vector<double> amplitude;
+    for (const auto& r : run) amplitude.push_back(r.raw.amplitude);
+    data.power_on_amplitude.push_back(std::move(amplitude));
+  }
+  BudgetFitResult result = fit_uncertainty_budget(data, specification);
+  result.report += budget_certificate(result.budget, calibration, fit, steps);
+  return result;
+}
+
+std::string budget_certificate(const ranging::UncertaintyBudget& budget,
+                               std::span<const ranging::Record> calibration,
+                               const ModelFitResult& fit, const ProtocolSteps& steps) {
+  std::vector<double> amplitude;
+  for (const auto& r : calibration)
+    if (r.raw.has_echo() && r.raw.amplitude > 0) amplitude.push_back(r.raw.amplitude);
+  if (amplitude.empty()) return {};
+  std::sort(amplitude.begin(), amplitude.end());
+  const auto at = [&](double q) {
+    return amplitude[static_cast<std::size_t>(q * static_cast<double>(amplitude.size() - 1))];
+  };
+  const double nan = ranging::kNaN;
+  const std::vector<double> a = {at(0.1), at(0.5), at(0.9), at(0.5), at(0.5)};
+  const std::vector<double> t = {0, 0, 0, 3600, nan};
+  std::string out = "uncertainty budget (GUM; u = standard uncertainty, share = u^2 / u_c^2):\n";
+  out += budget.table(a, t);
+  // Coverage check: the cross-validated calibration rows (right after the
+  // calibration) and the repeats on other power-ons, against u_c.
+  std::vector<double> err, sig;
+  const auto check = [&](std::span<const ranging::Record> rows, std::span<const double> e,
+                         double since) {
+    err.clear();
+    sig.clear();
+    std::vector<ranging::Range> ranges(rows.size());
+    fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+    const double s[1] = {since};
+    ranging::apply_budget(budget, fit.pipeline, ranging::RawColumns::of(rows), s, ranges);
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      err.push_back(e[i]);
+      sig.push_back(ranges[i].sigma_m);
+    }
+    return budget_coverage(err, sig);
+  };
+  const BudgetCoverage cv = check(calibration, fit.out_of_fold_m, 0.0);
+  out += format(
+      "coverage check: %zu cross-validated calibration rows: %.1f %% within 1 u_c, %.1f %% "
+      "within 2 u_c\n",
+      cv.rows, 100 * cv.within_1sigma, 100 * cv.within_2sigma);
+  for (std::size_t f = 0; f < steps.power_on_runs.size(); ++f) {
+    const auto& run = steps.power_on_runs[f];
+    const std::vector<double> e = residuals_of(fit.pipeline, run);
+    const BudgetCoverage c = check(run, e, nan);
+    out += format(
+        "coverage check: power-on repeat %zu (%zu rows, another power-on): %.1f %% within 1 u_c, "
+        "%.1f %% within 2 u_c (its own offset is one draw: all rows move together)\n",
+        f + 1, c.rows, 100 * c.within_1sigma, 100 * c.within_2sigma);
+  }
+  return out;
+}
+
+}  // namespace tofkit::calib

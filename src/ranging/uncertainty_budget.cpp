@@ -1,0 +1,154 @@
+#include "tofkit/ranging/uncertainty_budget.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <stdexcept>
+#include <vector>
+
+namespace tofkit::ranging {
+namespace {
+
+std::string format(const char* pattern, ...) {
+  char buffer[512];
+  va_list args;
+  va_start(args, pattern);
+  std::vsnprintf(buffer, sizeof buffer, pattern, args);
+  va_end(args);
+  return buffer;
+}
+
+}  // namespace
+
+double BudgetComponent::u_m(double x) const {
+  if (variance_m2.size() == 1 || !(x > node.front())) return std::sqrt(variance_m2.front());
+  if (x >= node.back()) return std::sqrt(variance_m2.back());
+  const auto hi =
+      static_cast<std::size_t>(std::upper_bound(node.begin(), node.end(), x) - node.begin());
+  const std::size_t lo = hi - 1;
+  const double w = (x - node[lo]) / (node[hi] - node[lo]);
+  return std::sqrt((1 - w) * variance_m2[lo] + w * variance_m2[hi]);
+}
+
+void UncertaintyBudget::validate() const {
+  for (std::size_t k = 0; k < components.size(); ++k) {
+    const BudgetComponent& c = components[k];
+    const std::string who = "uncertainty_budget.components[" + std::to_string(k) + "]";
+    if (c.name.empty()) throw std::invalid_argument(who + ".name is empty");
+    if (c.variance_m2.empty() || c.variance_m2.size() != c.node.size())
+      throw std::invalid_argument(who + ": node and variance_m2 must be non-empty, equal length");
+    if (c.axis == BudgetComponent::Axis::none && c.node.size() != 1)
+      throw std::invalid_argument(who + ": a component without an axis has one node");
+    for (std::size_t j = 0; j < c.node.size(); ++j) {
+      if (!std::isfinite(c.node[j]) || (j > 0 && !(c.node[j] > c.node[j - 1])))
+        throw std::invalid_argument(who + ".node must be finite and ascending");
+      if (!(c.variance_m2[j] >= 0) || !(c.variance_m2[j] < 1e6))
+        throw std::invalid_argument(who + ".variance_m2 must be in [0, 1e6) m^2");
+    }
+  }
+}
+
+double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s) const {
+  const BudgetComponent& c = components[k];
+  const bool same = std::isfinite(since_s);
+  if ((c.scope == BudgetScope::same_power_on && !same) ||
+      (c.scope == BudgetScope::other_power_on && same))
+    return 0.0;
+  switch (c.axis) {
+    case BudgetComponent::Axis::log_amplitude:
+      return std::isfinite(amplitude) && amplitude > 0 ? c.u_m(std::log(amplitude)) : kNaN;
+    case BudgetComponent::Axis::time_since_calibration_s:
+      return c.u_m(std::abs(since_s));
+    case BudgetComponent::Axis::none:
+      break;
+  }
+  return c.u_m(0.0);
+}
+
+void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<const double> since_s,
+                                 std::span<double> u_m) const {
+  if (u_m.size() != amplitude.size() || (since_s.size() != 1 && since_s.size() != amplitude.size()))
+    throw std::invalid_argument(
+        "UncertaintyBudget::combined: amplitude, since_s (one or one per row) and u_m differ in "
+        "length");
+  for (std::size_t i = 0; i < amplitude.size(); ++i) {
+    const double since = since_s.size() == 1 ? since_s[0] : since_s[i];
+    double v = 0;
+    for (std::size_t k = 0; k < components.size(); ++k) {
+      const double u = component_u_m(k, amplitude[i], since);
+      v += u * u;
+    }
+    u_m[i] = std::sqrt(v);
+  }
+}
+
+std::string UncertaintyBudget::table(std::span<const double> amplitude,
+                                     std::span<const double> since_s) const {
+  const std::size_t points = std::min(amplitude.size(), since_s.size());
+  std::string out = format("%-40s %-4s ", "component (u mm, share at each point)", "type");
+  for (std::size_t p = 0; p < points; ++p) out += format(" %13s", format("P%zu", p + 1).c_str());
+  out += "  step\n";
+  std::vector<double> total(points, 0.0);
+  for (std::size_t k = 0; k < components.size(); ++k) {
+    for (std::size_t p = 0; p < points; ++p) {
+      const double u = component_u_m(k, amplitude[p], since_s[p]);
+      total[p] += u * u;
+    }
+  }
+  for (std::size_t k = 0; k < components.size(); ++k) {
+    const BudgetComponent& c = components[k];
+    out += format("%-40s %-4s ", c.name.c_str(),
+                  c.type_b ? (c.default_specification ? "B*" : "B") : "A");
+    for (std::size_t p = 0; p < points; ++p) {
+      const double u = component_u_m(k, amplitude[p], since_s[p]);
+      out += format(" %6.3f (%3.0f%%)", u * 1e3, total[p] > 0 ? 100.0 * u * u / total[p] : 0.0);
+    }
+    out += "  " + c.step + "\n";
+  }
+  out += format("%-40s %-4s ", "combined standard uncertainty", "");
+  for (std::size_t p = 0; p < points; ++p)
+    out += format(" %6.3f       ", std::sqrt(total[p]) * 1e3);
+  out += "\n";
+  for (std::size_t p = 0; p < points; ++p) {
+    out +=
+        format("  P%zu: amplitude %.4g, %s\n", p + 1, amplitude[p],
+               std::isfinite(since_s[p])
+                   ? format("%g min after calibration (same power-on)", since_s[p] / 60.0).c_str()
+                   : "another power-on");
+  }
+  if (std::any_of(components.begin(), components.end(),
+                  [](const BudgetComponent& c) { return c.default_specification; }))
+    out += "  B*: type B from a default specification, not one stated for this device\n";
+  return out;
+}
+
+void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, const RawColumns& in,
+                  std::span<const double> since_s, std::span<Range> out) {
+  if (in.size != out.size() || (since_s.size() != 1 && since_s.size() != out.size()))
+    throw std::invalid_argument("apply_budget: rows, since_s (one or one per row) and out differ");
+  const std::size_t n = out.size();
+  std::vector<double> amplitude(n), intensity(n), distance(n), u(n), inside(n);
+  const auto& confidence = pipeline.confidence();
+  const bool by_width = confidence && confidence->intensity_input() == IntensityInput::pulse_width;
+  for (std::size_t i = 0; i < n; ++i) {
+    amplitude[i] = in.amplitude[i];
+    intensity[i] = by_width ? in.pulse_width_ns[i] : amplitude[i];
+    distance[i] = out[i].distance_m;
+  }
+  budget.combined(amplitude, since_s, u);
+  if (confidence) {
+    confidence->sigma(distance, intensity, inside);
+  } else {
+    std::fill(inside.begin(), inside.end(), pipeline.residual_rms_m());
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(out[i].sigma_m)) continue;
+    double extra = 0;
+    if ((out[i].correction_flags & kCorrOutOfDomain) != 0 && std::isfinite(inside[i]))
+      extra = std::max(0.0, out[i].sigma_m * out[i].sigma_m - inside[i] * inside[i]);
+    out[i].sigma_m = std::isfinite(u[i]) ? std::sqrt(u[i] * u[i] + extra) : out[i].sigma_m;
+  }
+}
+
+}  // namespace tofkit::ranging
