@@ -876,7 +876,6 @@ TEST(WalkModel, PartialEchoesFromFalseAlarmsInSunlightAreFitted) {
   struct Figures {
     std::size_t false_alarm_rows = 0, tested = 0;
     double rms_m = 0, worst_m = 0;
-    double noise_m = 0;  // the calibration rows' own repeatability (pooled over their conditions)
   };
   // Plates at 2 m plus a temperature run; test rows at 2 m, 8-37 C.
   const auto calibrate = [](const device::DeviceConfig& config) {
@@ -917,20 +916,6 @@ TEST(WalkModel, PartialEchoesFromFalseAlarmsInSunlightAreFitted) {
       sum2 += e * e;
     }
     f.rms_m = std::sqrt(sum2 / static_cast<double>(fit_rows.size()));
-    {
-      // Repeats of one condition are consecutive in the plan.
-      std::vector<double> raw_errors;
-      std::vector<std::size_t> group;
-      for (std::size_t i = 0; i < fit_rows.size(); ++i) {
-        const auto& r = fit_rows[i];
-        raw_errors.push_back(r.raw.has_echo() ? r.raw.distance_raw_m - r.truth.distance_m
-                                              : std::numeric_limits<double>::quiet_NaN());
-        const bool same = i > 0 && r.truth.reflectance == fit_rows[i - 1].truth.reflectance &&
-                          r.truth.ambient_c == fit_rows[i - 1].truth.ambient_c;
-        group.push_back(i == 0 ? 0 : group.back() + (same ? 0 : 1));
-      }
-      f.noise_m = calib::split_noise_systematic(raw_errors, group).noise_m;
-    }
     for (std::size_t i = calibration.size(); i < rows.size(); ++i) {
       const ranging::Range range = fit.pipeline.apply(rows[i].raw);
       if (!(rows[i].raw.shots_valid >= 0.9 * config.measurement.shots)) continue;
@@ -954,9 +939,10 @@ TEST(WalkModel, PartialEchoesFromFalseAlarmsInSunlightAreFitted) {
         sun, outdoors.false_alarm_rows, outdoors.rms_m * 1e3, indoors.rms_m * 1e3, outdoors.tested,
         outdoors.worst_m * 1e3, indoors.worst_m * 1e3);
     EXPECT_GE(outdoors.false_alarm_rows, 10u);  // the premise
-    // The fit leaves at most 1 mm beyond the rows' own noise (the device's
-    // delay and comparator wander scatter its readings by a few mm).
-    EXPECT_LT(outdoors.rms_m, std::hypot(1e-3, outdoors.noise_m)) << outdoors.noise_m;
+    // The fit leaves at most 1 mm (in quadrature) beyond the same calibration
+    // indoors: same seed, so the same delay and comparator wander, which
+    // scatter the paper device's readings by a few mm and which no fit removes.
+    EXPECT_LT(outdoors.rms_m, std::hypot(1e-3, indoors.rms_m));
     EXPECT_GT(outdoors.tested, 25u);
     EXPECT_LE(outdoors.worst_m, indoors.worst_m + 3e-3);
   }
