@@ -24,6 +24,7 @@
 #include "tofkit/calib/calibration_plan.hpp"
 #include "tofkit/calib/chain_fit.hpp"
 #include "tofkit/calib/model_fit.hpp"
+#include "tofkit/calib/repeatability.hpp"
 #include "tofkit/calib/statistics.hpp"
 #include "tofkit/calib/walk_fit.hpp"
 #include "tofkit/device/device_config.hpp"
@@ -938,7 +939,10 @@ TEST(WalkModel, PartialEchoesFromFalseAlarmsInSunlightAreFitted) {
         sun, outdoors.false_alarm_rows, outdoors.rms_m * 1e3, indoors.rms_m * 1e3, outdoors.tested,
         outdoors.worst_m * 1e3, indoors.worst_m * 1e3);
     EXPECT_GE(outdoors.false_alarm_rows, 10u);  // the premise
-    EXPECT_LT(outdoors.rms_m, 1e-3);
+    // The fit leaves at most 1 mm (in quadrature) beyond the same calibration
+    // indoors: same seed, so the same delay and comparator wander, which
+    // scatter the paper device's readings by a few mm and which no fit removes.
+    EXPECT_LT(outdoors.rms_m, std::hypot(1e-3, indoors.rms_m));
     EXPECT_GT(outdoors.tested, 25u);
     EXPECT_LE(outdoors.worst_m, indoors.worst_m + 3e-3);
   }
@@ -949,7 +953,7 @@ TEST(WalkModel, PartialEchoesFromFalseAlarmsInSunlightAreFitted) {
 // short-tailed ones whose widths end below the clipped plate's; no clipped
 // fit started from those reaches it (on the paper device the fit's own rows
 // kept 8.1 mm of RMS error against 0.3 mm on the unclipped rows). The walk
-// fit must fit its rows: RMS within 2 mm, on four devices.
+// fit must fit its rows: RMS within 2 mm beyond their own noise, on four devices.
 TEST(WalkModel, FitsASmallCalibrationWithAClippedPlate) {
   for (const device::DeviceConfig& config :
        {device::preset("paper"), other_parts(), slow_wide_parts(), fast_parts()}) {
@@ -961,12 +965,23 @@ TEST(WalkModel, FitsASmallCalibrationWithAClippedPlate) {
     const auto rows = experiments::run(device, plan, 1);
     std::size_t clipped = 0;
     for (const auto& r : rows) clipped += (r.raw.flags & ranging::kRawSaturated) ? 1 : 0;
+    // The rows' own noise: the spread of each plate's 3 repeats about their mean.
+    std::vector<double> raw_errors;
+    std::vector<std::size_t> plate_of;
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      raw_errors.push_back(rows[i].raw.distance_raw_m - rows[i].truth.distance_m);
+      plate_of.push_back(i / 3);
+    }
+    const double noise_m = calib::split_noise_systematic(raw_errors, plate_of).noise_m;
     calib::ChainFitOptions options;
     options.steps = calib::parse_chain_steps("offset,walk");
     const calib::ChainFitResult fit = calib::fit_chain(rows, options);
     ASSERT_TRUE(fit.walk.has_value());
-    std::printf("%zu clipped rows: %s\n", clipped, fit.walk->summary().c_str());
-    EXPECT_LE(fit.walk->rms_m, 2e-3) << fit.walk->summary();
+    std::printf("%zu clipped rows, noise %.3f mm: %s\n", clipped, noise_m * 1e3,
+                fit.walk->summary().c_str());
+    // Within 2 mm beyond the rows' own noise (the paper device's readings
+    // wander by a few mm; the failure this guards against left 8.1 mm).
+    EXPECT_LE(fit.walk->rms_m, std::hypot(2e-3, noise_m)) << fit.walk->summary();
   }
 }
 

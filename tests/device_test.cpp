@@ -146,6 +146,7 @@ TEST(Device, AveragingShrinksSpreadAsOneOverSqrtN) {
   // apart: DelayWanderIsOneOverFAcrossTheRunsTime).
   auto cfg = preset("paper");
   cfg.measurement.delay_wander_ps = 0;
+  cfg.discriminator.level_wander_mv = 0;
   const VirtualRangefinder dev(cfg);
   const auto target = Target::plate(7.0, 0.1);
   const auto e = dev.echo(target, {});
@@ -435,6 +436,7 @@ TEST(Device, DelayWanderIsOneOverFAcrossTheRunsTime) {
   cfg.tdc.laser_sync = false;            // the TDC's INL and quantization average out
   cfg.tdc.inl_lsb = 0;
   cfg.measurement.delay_wander_ps = 30.0;  // the paper's Fig. 7 scatter
+  cfg.discriminator.level_wander_mv = 0;   // the comparator's wander: tested apart
   const double flicker_ns = cfg.measurement.delay_wander_ps * 1e-3;
   const VirtualRangefinder dev(cfg);
   const auto target = Target::plate(2.0, 0.5);
@@ -469,6 +471,48 @@ TEST(Device, DelayWanderIsOneOverFAcrossTheRunsTime) {
   for (std::size_t k = 0; k < block.size(); ++k) {
     const auto one = dev.measure(target, {}, 8, 990 + k, 1);
     EXPECT_EQ(std::memcmp(&one, &block[k], sizeof(one)), 0) << k;
+  }
+}
+
+TEST(Device, ComparatorLevelWanderTurnsIntoTimeThroughTheEchosSlope) {
+  // discriminator.level_wander_mv: the comparator's level wanders slowly by
+  // F (rms), the same for all shots of an output; the rising crossing moves by
+  // F / slope (first order), so a weak echo (slow edge) wanders more than a
+  // strong one. Oracle: over outputs far apart in time (independent levels)
+  // the time of flight scatters by sqrt(F^2 + sigma^2 / N) / slope, the
+  // shots' own white noise sigma averaged over N shots beside it; slope and
+  // sigma from echo() at the threshold. Both modes.
+  auto cfg = preset("paper");
+  cfg.measurement.power_on_offset_ps = 0;
+  cfg.measurement.flicker_delay_ps = 0;
+  cfg.measurement.delay_wander_ps = 0;
+  cfg.tdc.laser_sync = false;  // quantization and INL average out
+  cfg.tdc.inl_lsb = 0;
+  cfg.discriminator.level_wander_mv = 2.0;
+  constexpr int kShots = 400, kOutputs = 300;
+  for (const auto mode : {SimulationMode::kAnalytic, SimulationMode::kWaveform}) {
+    const VirtualRangefinder dev(cfg, mode);
+    std::vector<double> predicted, measured;
+    for (const auto& target : {Target::plate(7.0, 0.1), Target::plate(3.0, 0.1)}) {
+      const auto e = dev.echo(target, {});
+      const double level_v = std::hypot(cfg.discriminator.level_wander_mv * 1e-3,
+                                        e.noise_at_rise_v / std::sqrt(double(kShots)));
+      predicted.push_back(level_v / e.rise_slope_v_per_ns);
+      const int outputs = mode == SimulationMode::kWaveform ? kOutputs / 3 : kOutputs;
+      double s = 0, s2 = 0;
+      for (int i = 0; i < outputs; ++i) {
+        Conditions c;
+        c.session_time_s = 1e5 * i;  // far beyond the slowest level (70 min)
+        const double t = dev.measure(target, c, 5, static_cast<std::uint64_t>(i), kShots).tof_ns;
+        s += t;
+        s2 += t * t;
+      }
+      measured.push_back(std::sqrt((s2 - s * s / outputs) / (outputs - 1)));
+      EXPECT_NEAR(measured.back() / predicted.back(), 1.0, 0.2)
+          << target.surfaces[0].distance_m << " m, mode " << static_cast<int>(mode);
+    }
+    // The weak echo (7 m) wanders more than the strong one (3 m).
+    EXPECT_GT(measured[0], 2.0 * measured[1]);
   }
 }
 

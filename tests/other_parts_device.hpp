@@ -41,6 +41,7 @@ inline device::DeviceConfig other_parts() {
   // A quieter timing board than the paper's (whose random wander reproduces
   // the scatter of its repeated tests, Figs. 7 and 9): the slow flicker only.
   set_key(config, "measurement.delay_wander_ps", 0.0);
+  set_key(config, "discriminator.level_wander_mv", 0.0);  // and a steadier comparator
   EXPECT_TRUE(device::validate(config).empty());
   return config;
 }

@@ -48,6 +48,11 @@ device::DeviceConfig coupled_config(double tau_ms, double share = 1.0) {
   device::DeviceConfig c;
   c.memory.time_constant_ms = tau_ms;
   c.memory.coupling_share = share;
+  // The coupling alone: the paper device's slow delay and comparator wander
+  // (4.5 mm between outputs far apart; tested in device_test.cpp) would bury
+  // its millimetre closed forms.
+  c.measurement.delay_wander_ps = 0.0;
+  c.discriminator.level_wander_mv = 0.0;
   return c;
 }
 

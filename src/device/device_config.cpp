@@ -162,6 +162,10 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "comparator threshold. Assumption: rho = 0.1 echoes fade out past 8 m (paper: 8.08 m)"),
       field("discriminator.blanking_ns", &disc.blanking_ns, 0, 1e5,
             "comparator blanked this long after emission: earlier crossings ignored. 0: none"),
+      field("discriminator.level_wander_mv", &disc.level_wander_mv, 0, 1e4,
+            "rms of a slow 1/f wander of the comparator's effective level (reference and "
+            "offset drift); through the echo's slope weak echoes wander more. Assumption: the "
+            "paper's Fig. 7 scatter"),
       field("tdc.lsb_ps", &tdc.lsb_ps, 1e-3, 1e6,
             "fine interpolator LSB (FPGA carry-chain TDC). Assumption"),
       field("tdc.coarse_clock_mhz", &tdc.coarse_clock_mhz, 1e-3, 1e5,
@@ -208,8 +212,8 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("measurement.flicker_delay_ps", &m.flicker_delay_ps, 0, 1e6,
             "rms of a slow 1/f delay wander (averaging floor). Assumption"),
       field("measurement.delay_wander_ps", &m.delay_wander_ps, 0, 1e6,
-            "rms of a random 1/f delay wander over the run's time (1 ms - 70 min). Assumption: "
-            "the paper's Fig. 7 scatter"),
+            "rms of a random 1/f delay wander over the output's time (1 ms - 70 min). Assumption: "
+            "the paper's Fig. 7 and 9 scatter"),
       field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6,
             "false-stop rejection: drop stops this far from the median stop (0: off). Assumption"),
       field("measurement.window_ns", &m.window_ns, 0.01, 1e5,

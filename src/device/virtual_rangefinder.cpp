@@ -397,6 +397,10 @@ struct MeasurementValues {
   // this echo train (baseline_v) plus an unrecovered offset that relaxes over
   // the shots (comparator_level).
   double baseline_v = 0, baseline_offset_v = 0;
+  // The comparator level's slow wander at this measurement's time (V;
+  // discriminator.level_wander_mv): the reference's and the amplifier's
+  // offset drift, the same for all its shots.
+  double level_offset_v = 0;
   double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
   double tdc_bin_scale = 1;   // fine-bin width relative to nominal (timing board temperature)
   double temperature_reading_c = 0;
@@ -467,7 +471,7 @@ struct Lanes {
   std::array<std::size_t, kLanes> fast;  // the lanes on the fast path
   std::array<std::array<std::uint32_t, kLanes>, 4> shot_words, extra_words;  // draws, word-major
   std::array<std::array<double, 2>, kLanes> z, z_extra;
-  std::array<double, kLanes> lag, offsets, level_rise, level_fall, rise, fall;
+  std::array<double, kLanes> lag, offsets, level_offsets, level_rise, level_fall, rise, fall;
   std::array<bool, kLanes> echo;
 };
 
@@ -490,6 +494,8 @@ struct VirtualRangefinder::Impl {
   bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
   double shots_per_time_constant = 0;  // pulses per coupling time constant
   double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
+  bool wandering = false;              // delay or comparator-level wander (add_wander_ns)
+  double level_wander_span_v = 0;      // the level tables' extra span for the level's wander
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -513,6 +519,10 @@ struct VirtualRangefinder::Impl {
         config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
     for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
       pulse_area_ns += pulse(t) * kCompositeStepNs;
+    wandering =
+        config.measurement.delay_wander_ps > 0.0 || config.discriminator.level_wander_mv > 0.0;
+    // 5 sigma of the level's wander (a sum of 12 bounded-variance normals).
+    level_wander_span_v = 5.0 * config.discriminator.level_wander_mv * 1e-3;
   }
 
   /// The comparator's effective level for shot `shot` of a measurement: the
@@ -520,7 +530,7 @@ struct VirtualRangefinder::Impl {
   /// minus the capacitor's voltage), whose unrecovered offset relaxes as
   /// exp(-shot / (f_rep tau)) over the measurement's shots.
   [[nodiscard]] double comparator_level(const MeasurementSetup& m, std::uint32_t shot) const {
-    const double threshold = config.discriminator.threshold_v;
+    const double threshold = config.discriminator.threshold_v + m.level_offset_v;
     if (!coupled) return threshold;
     double offset = m.baseline_offset_v;
     if (offset != 0.0 && shot > 0)
@@ -545,8 +555,9 @@ struct VirtualRangefinder::Impl {
     const double sigma = m.noise_at_threshold_v;
     const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);
     const double hi = m.baseline_v + std::max(m.baseline_offset_v, 0.0);
-    m.level_begin_v = std::max(threshold + lo - kLevelSpanSigma * sigma, 0.05 * threshold);
-    m.level_end_v = threshold + hi + kLevelSpanSigma * sigma;
+    m.level_begin_v =
+        std::max(threshold + lo - kLevelSpanSigma * sigma - level_wander_span_v, 0.05 * threshold);
+    m.level_end_v = threshold + hi + kLevelSpanSigma * sigma + level_wander_span_v;
   }
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
@@ -754,8 +765,9 @@ struct VirtualRangefinder::Impl {
     m.baseline_offset_v = coupled ? cond.baseline_offset_v : 0.0;
     // Comparator levels: the threshold shifted by up to +- 6 sigma of noise.
     const double sigma = m.noise_at_threshold_v;
-    m.level_begin_v = std::max(threshold - kLevelSpanSigma * sigma, 0.05 * threshold);
-    m.level_end_v = threshold + kLevelSpanSigma * sigma;
+    m.level_begin_v =
+        std::max(threshold - kLevelSpanSigma * sigma - level_wander_span_v, 0.05 * threshold);
+    m.level_end_v = threshold + kLevelSpanSigma * sigma + level_wander_span_v;
     m.blanking_ns = config.discriminator.blanking_ns;
     if (!shapes) return Echo::kExact;
     // Fast path: one surface whose echo has a single peak, analytic mode.
@@ -1298,22 +1310,26 @@ struct VirtualRangefinder::Impl {
   /// power-on offset plus the slow 1/f flicker and the random wander at the
   /// measurement's time (stream i starts i measurement periods after power-on).
   [[nodiscard]] double slow_offset_ns(const CounterRng& rng, const RunDraws& run,
-                                      std::uint64_t stream) const {
+                                      std::uint64_t stream, const Conditions& cond,
+                                      MeasurementSetup& m) const {
     double offset = 0;
-    slow_offsets_ns(rng, run, stream, 1, &offset);
+    slow_offsets_ns(rng, run, stream, 1, &cond, &offset, &m.level_offset_v);
     return offset;
   }
 
-  /// Knot j of wander level k: a standard normal of the run (seed), level and
+  /// Knot j of wander level k: a unit-variance draw of the run (seed), level and
   /// knot only, so any output reads the same knots on any thread or grouping.
   /// The last two knots of each level are kept per thread (consecutive outputs
   /// share them).
-  [[nodiscard]] static const std::array<double, 2>& wander_knots(const CounterRng& rng,
-                                                                 std::uint64_t device, int level,
-                                                                 std::uint64_t j) {
+  /// Each knot is a pair of independent draws: [0] for the delay's wander,
+  /// [1] for the comparator level's.
+  using KnotPair = std::array<double, 2>;
+  [[nodiscard]] static const std::array<KnotPair, 2>& wander_knots(const CounterRng& rng,
+                                                                   std::uint64_t device, int level,
+                                                                   std::uint64_t j) {
     struct Knots {
       std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
-      std::array<double, 2> g{};
+      std::array<KnotPair, 2> g{};
     };
     thread_local std::array<Knots, kWanderLevels> cache;
     auto& c = cache[static_cast<std::size_t>(level)];
@@ -1322,12 +1338,16 @@ struct VirtualRangefinder::Impl {
         const auto r =
             rng.draw(kWanderStream - static_cast<std::uint64_t>(level),
                      static_cast<std::uint32_t>(index), static_cast<std::uint32_t>(index >> 32));
-        return normal_pair(r[0], r[1])[0];
+        // Two uniforms each (triangular, unit variance): one draw, no
+        // logarithm; an output sums 24 knots, normal by the central limit.
+        constexpr double kUnitTriangle = 2.449489742783178;  // sqrt(6)
+        return KnotPair{kUnitTriangle * (unit_open(r[0]) + unit_open(r[1]) - 1.0),
+                        kUnitTriangle * (unit_open(r[2]) + unit_open(r[3]) - 1.0)};
       };
       // A step of one knot reuses the shared one.
       c.g = c.device == device && c.seed == rng.seed() && c.j + 1 == j
-                ? std::array<double, 2>{c.g[1], knot(j + 1)}
-                : std::array<double, 2>{knot(j), knot(j + 1)};
+                ? std::array<KnotPair, 2>{c.g[1], knot(j + 1)}
+                : std::array<KnotPair, 2>{knot(j), knot(j + 1)};
       c.device = device;
       c.seed = rng.seed();
       c.j = j;
@@ -1388,38 +1408,73 @@ struct VirtualRangefinder::Impl {
   /// stays 1 at every w, and it decorrelates after s_k). Equal power per two
   /// octaves: a 1/f spectrum from 1 / s_max to 1 / s_0, so averaging over
   /// longer runs stops helping. Each output's value depends on its time and
-  /// the seed only.
-  void add_wander_ns(const CounterRng& rng, std::uint64_t stream0, std::size_t n,
-                     double* offsets) const {
+  /// the seed only; its time is its place in the run (stream x output period)
+  /// plus its conditions' session time (a protocol that waits between points,
+  /// e.g. for a plate swap or a climate chamber, says so there).
+  /// The comparator level's wander (discriminator.level_wander_mv) is a
+  /// second, independent process on the same levels and knot times, added to
+  /// level_offsets (V).
+  /// Also compiled for AVX2, as measure_single_shots (the interpolation vectorizes).
+  __attribute__((target_clones("avx2", "default"))) void add_wander_ns(
+      const CounterRng& rng, std::uint64_t stream0, std::size_t n, const Conditions* conds,
+      double* offsets, double* level_offsets) const {
     const auto& mc = config.measurement;
-    const double amplitude =
-        mc.delay_wander_ps * 1e-3 / std::sqrt(static_cast<double>(kWanderLevels));
+    const double norm = 1.0 / std::sqrt(static_cast<double>(kWanderLevels));
+    const double amplitude = mc.delay_wander_ps * 1e-3 * norm;
+    const double level_amplitude = config.discriminator.level_wander_mv * 1e-3 * norm;
     const double period_s = static_cast<double>(mc.shots) / config.link.laser.repetition_hz;
-    std::array<double, kLanes> t_s, wander;
+    std::array<double, kLanes> t_s, wander, level_wander;
     for (std::size_t i = 0; i < n; ++i) {
-      t_s[i] = static_cast<double>(stream0 + i) * period_s;
+      t_s[i] = static_cast<double>(stream0 + i) * period_s + conds[i].session_time_s;
       wander[i] = 0.0;
+      level_wander[i] = 0.0;
     }
+    // Per level: the knots in a scalar pass (a lookup only where the knot
+    // index changes from the previous lane), then the interpolation over the
+    // lanes in a pass that vectorizes.
+    std::array<double, kLanes> w, g0, g1, h0, h1;
     double inv_scale = 1.0 / kWanderShortestS;
     for (int level = 0; level < kWanderLevels; ++level) {
+      std::uint64_t j_prev = ~std::uint64_t{0};
+      const std::array<KnotPair, 2>* g = nullptr;
       for (std::size_t i = 0; i < n; ++i) {
         const double u = t_s[i] * inv_scale;
         const double floor_u = std::floor(u);
-        const double w = u - floor_u;
-        const auto& g = wander_knots(rng, id, level, static_cast<std::uint64_t>(floor_u));
-        wander[i] += cos_quarter_turn(w) * g[0] + cos_quarter_turn(1.0 - w) * g[1];
+        w[i] = u - floor_u;
+        const auto j = static_cast<std::uint64_t>(floor_u);
+        if (g == nullptr || j != j_prev) {
+          g = &wander_knots(rng, id, level, j);
+          j_prev = j;
+        }
+        g0[i] = (*g)[0][0];
+        g1[i] = (*g)[1][0];
+        h0[i] = (*g)[0][1];
+        h1[i] = (*g)[1][1];
+      }
+      for (std::size_t i = 0; i < n; ++i) {
+        const double c0 = cos_quarter_turn(w[i]), c1 = cos_quarter_turn(1.0 - w[i]);
+        wander[i] += c0 * g0[i] + c1 * g1[i];
+        level_wander[i] += c0 * h0[i] + c1 * h1[i];
       }
       inv_scale /= kWanderLevelRatio;
     }
-    for (std::size_t i = 0; i < n; ++i) offsets[i] += amplitude * wander[i];
+    for (std::size_t i = 0; i < n; ++i) {
+      offsets[i] += amplitude * wander[i];
+      level_offsets[i] = level_amplitude * level_wander[i];
+    }
   }
 
   /// The offsets of n <= kLanes consecutive streams from stream0: power-on
   /// offset, 1/f flicker, random wander.
+  /// level_offsets: the comparator level's wander (V), 0 without wander.
   void slow_offsets_ns(const CounterRng& rng, const RunDraws& run, std::uint64_t stream0,
-                       std::size_t n, double* offsets) const {
+                       std::size_t n, const Conditions* conds, double* offsets,
+                       double* level_offsets) const {
     flicker_offsets_ns(run, stream0, n, offsets);
-    if (config.measurement.delay_wander_ps > 0.0) add_wander_ns(rng, stream0, n, offsets);
+    if (wandering)
+      add_wander_ns(rng, stream0, n, conds, offsets, level_offsets);
+    else
+      std::fill(level_offsets, level_offsets + n, 0.0);
   }
 
   /// Noise alone firing the comparator before the echo (a false alarm) when
@@ -1486,8 +1541,8 @@ struct VirtualRangefinder::Impl {
       return out;
     }
     const CounterRng rng(seed);
-    const auto m = setup(target, cond);
-    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream);
+    auto m = setup(target, cond);
+    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream, cond, m);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
@@ -1565,7 +1620,9 @@ struct VirtualRangefinder::Impl {
       }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
-      slow_offsets_ns(rng, run, stream0, n, lanes.offsets.data());
+      slow_offsets_ns(rng, run, stream0, n, conds.data() + begin, lanes.offsets.data(),
+                      lanes.level_offsets.data());
+      for (std::size_t k = 0; k < n; ++k) m[k].level_offset_v = lanes.level_offsets[k];
       for (std::size_t k = 0; k < n; ++k) {
         lanes.z[k] = normal_pair(lanes.shot_words[0][k], lanes.shot_words[1][k]);
         lanes.z_extra[k] = normal_pair(lanes.extra_words[0][k], lanes.extra_words[1][k]);
@@ -1696,12 +1753,12 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
                                std::uint64_t seed, std::uint64_t stream, std::uint32_t shot) const {
   if (oscillator_) return oscillator_->shoot(target, conditions, seed, stream, shot);
   const CounterRng rng(seed);
-  const auto m = impl_->setup(target, conditions);
+  auto m = impl_->setup(target, conditions);
+  const double offset_ns = impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream, conditions, m);
   Shot s;
   double start = 0, rise = 0, fall = 0;
   s.echo =
-      impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot,
-                  impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream), start, rise, fall);
+      impl_->shot(m, rng.draw(stream, shot, 0), rng, stream, shot, offset_ns, start, rise, fall);
   if (s.echo) {
     s.tof_ns = rise - start;
     s.pulse_width_ns = fall - rise;

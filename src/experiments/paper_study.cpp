@@ -23,6 +23,12 @@ enum RunSeed : std::uint64_t {
   kHoldoutRun,
 };
 
+/// `p` taken `seconds` into its protocol (the device's slow wander follows it).
+PlannedMeasurement at_time(PlannedMeasurement p, double seconds) {
+  p.request.conditions.session_time_s = seconds;
+  return p;
+}
+
 std::vector<ranging::RawMeasurement> raw_of(const std::vector<Record>& records) {
   std::vector<ranging::RawMeasurement> raw;
   raw.reserve(records.size());
@@ -125,26 +131,39 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
     plan.clear();
     group.clear();
   };
-  auto repeat = [&](const PlannedMeasurement& p) {
+  // Each condition `step_s` after the previous one, its repeats a plate swap
+  // (condition_change_s) apart within it: the mean of the repeats averages the
+  // device's slow wander as the paper's readings did, and their spread
+  // (the split's noise) holds it.
+  auto repeat = [&](const PlannedMeasurement& p, double step_s) {
     const std::size_t id = group.empty() ? 0 : group.back() + 1;
+    const double repeat_s = options.condition_change_s;
+    const double condition_s = std::max(step_s, test_repeats * repeat_s);
     for (int k = 0; k < test_repeats; ++k) {
-      plan.push_back(p);
+      plan.push_back(at_time(p, static_cast<double>(id) * condition_s + k * repeat_s));
       group.push_back(id);
     }
   };
+  const double swap_s = options.condition_change_s;
   std::vector<double> calibration_distances{options.grayvalue_distance_m};
   calibration_distances.insert(calibration_distances.end(),
                                options.extra_calibration_distances_m.begin(),
                                options.extra_calibration_distances_m.end());
+  double clock_s = 0;  // the calibration's conditions, one after another
   for (double d : calibration_distances)
-    for (double rho : reflectances)
+    for (double rho : reflectances) {
       for (int k = 0; k < repeats; ++k)
-        plan.push_back(plate(d, rho, options.calibration_ambient_c));
+        plan.push_back(at_time(plate(d, rho, options.calibration_ambient_c), clock_s));
+      clock_s += swap_s;
+    }
   const auto ambients =
       lin_spaced(options.ambient_min_c, options.ambient_max_c, options.temperature_groups);
-  for (double t : ambients)
+  for (double t : ambients) {
+    clock_s += options.temperature_step_s;
     for (int k = 0; k < repeats; ++k)
-      plan.push_back(plate(options.temperature_distance_m, options.temperature_reflectance, t));
+      plan.push_back(at_time(
+          plate(options.temperature_distance_m, options.temperature_reflectance, t), clock_s));
+  }
   result.calibration = run(device, plan, run_seed(kCalibrationRun));
   // Keep only measurements a calibration would accept (90 % of shots echoed).
   std::vector<Record> usable;
@@ -210,7 +229,7 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   progress("gray-value test", 0.35);
   start_test_plan();
   for (double rho : reflectances)
-    repeat(plate(options.grayvalue_distance_m, rho, options.calibration_ambient_c));
+    repeat(plate(options.grayvalue_distance_m, rho, options.calibration_ambient_c), swap_s);
   result.grayvalue_test = run(device, plan, run_seed(kGrayvalueTestRun));
   result.grayvalue_corrected = correct(pipeline, result.grayvalue_test);
   track_fixed_vs_float(result.grayvalue_test, result.grayvalue_corrected);
@@ -222,7 +241,8 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   progress("temperature test", 0.45);
   start_test_plan();
   for (double t : ambients)
-    repeat(plate(options.temperature_distance_m, options.temperature_reflectance, t));
+    repeat(plate(options.temperature_distance_m, options.temperature_reflectance, t),
+           options.temperature_step_s);
   result.temperature_test = run(device, plan, run_seed(kTemperatureTestRun));
   result.temperature_corrected = correct(pipeline, result.temperature_test);
   track_fixed_vs_float(result.temperature_test, result.temperature_corrected);
@@ -234,7 +254,8 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   progress("longest distance", 0.55);
   plan.clear();
   for (double d = 5.0; d <= 12.0 + 1e-9; d += options.max_range_step_m)
-    plan.push_back(plate(d, options.max_range_reflectance, options.calibration_ambient_c));
+    plan.push_back(at_time(plate(d, options.max_range_reflectance, options.calibration_ambient_c),
+                           static_cast<double>(plan.size()) * swap_s));
   result.max_range_scan = run(device, plan, run_seed(kMaxRangeRun));
   for (const auto& r : result.max_range_scan) {
     if (!reliable(r, shots, options.max_range_min_valid_share)) break;
@@ -245,7 +266,7 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   progress("verification", 0.65);
   start_test_plan();
   for (double d : options.verification_distances_m)
-    repeat(plate(d, options.verification_reflectance, options.calibration_ambient_c));
+    repeat(plate(d, options.verification_reflectance, options.calibration_ambient_c), swap_s);
   result.verification = run(device, plan, run_seed(kVerificationRun));
   result.verification_corrected = correct(pipeline, result.verification);
   track_fixed_vs_float(result.verification, result.verification_corrected);
@@ -281,7 +302,7 @@ PaperStudyResult run_paper_study(const device::DeviceConfig& config,
   start_test_plan();
   for (double d : options.holdout_distances_m)
     for (double rho : options.holdout_reflectances)
-      for (double t : options.holdout_ambient_c) repeat(plate(d, rho, t));
+      for (double t : options.holdout_ambient_c) repeat(plate(d, rho, t), swap_s);
   result.holdout = run(device, plan, run_seed(kHoldoutRun));
   result.holdout_corrected = correct(pipeline, result.holdout);
   track_fixed_vs_float(result.holdout, result.holdout_corrected);

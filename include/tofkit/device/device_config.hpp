@@ -14,12 +14,19 @@ namespace tofkit::device {
 
 /// Fixed-threshold comparator (leading- and trailing-edge timing).
 struct DiscriminatorConfig {
-  double threshold_v = 0.04;  ///< comparator threshold. Assumption, set so that echoes from
-                              ///< rho = 0.1 fade out past 8 m (paper: 8.08 m achieved) while
-                              ///< staying 19 x above the noise floor (no false alarms).
-  double blanking_ns = 0.0;   ///< comparator blanked for this long after emission (echo time,
-                              ///< before the chain's fixed delay): crossings, false alarms and
-                              ///< the peak detector before it are ignored. 0: none.
+  double threshold_v = 0.04;     ///< comparator threshold. Assumption, set so that echoes from
+                                 ///< rho = 0.1 fade out past 8 m (paper: 8.08 m achieved) while
+                                 ///< staying 19 x above the noise floor (no false alarms).
+  double blanking_ns = 0.0;      ///< comparator blanked for this long after emission (echo time,
+                                 ///< before the chain's fixed delay): crossings, false alarms and
+                                 ///< the peak detector before it are ignored. 0: none.
+  double level_wander_mv = 1.0;  ///< rms of a slow 1/f wander of the comparator's effective
+                                 ///< level (reference and amplifier offset drift; the 12 levels
+                                 ///< of measurement.delay_wander_ps, independent of it). It
+                                 ///< turns into time through the echo's slope at the crossing,
+                                 ///< so weak echoes wander more: paper Fig. 7's scatter, larger
+                                 ///< on the dark plates and far away. Assumption: half the
+                                 ///< white noise at the threshold (2.1 mV). 0: off.
 };
 
 /// Time-to-digital converter: coarse counter plus fine interpolator.
@@ -90,13 +97,14 @@ struct MeasurementConfig {
                                      ///< on different "days" differ by this. Assumption (1.5 mm).
   double flicker_delay_ps = 5.0;     ///< rms of a slow 1/f delay wander (eight octaves from 1 mHz
                                      ///< to 0.26 Hz), so averaging stops improving. Assumption.
-  double delay_wander_ps = 0.0;      ///< rms of a random delay wander over the run's time (12
+  double delay_wander_ps = 30.0;     ///< rms of a random delay wander over the output's time (12
                                      ///< levels of correlation time 1 ms ... 70 min, equal power
                                      ///< each, drawn per level and time from the seed: a 1/f
                                      ///< spectrum; supply, reference-clock and board-temperature
-                                     ///< fluctuations). 0: off. 30 ps reproduces the scatter of the
-                                     ///< paper's gray-value test at 2.355 m (Fig. 7: 4.60 mm std,
-                                     ///< +-9 mm after the correction; 4.26 mm, +-8.7 mm here).
+                                     ///< fluctuations). 0: off. 30 ps (4.5 mm) reproduces the
+                                     ///< scatter of the paper's tests, whose conditions were set
+                                     ///< minutes apart: Fig. 7 (4.60 mm std after the correction
+                                     ///< at 2.355 m) and Fig. 9 (4.70 mm over 20 temperatures).
   double stop_gate_ns = 2.0;         ///< firmware's false-stop rejection: stops farther than this
                               ///< from the median stop are dropped before averaging (0: off).
                               ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).

@@ -46,7 +46,8 @@ struct Conditions {
   double ms_since_laser_on = 1e9;       ///< laser turn-on transient (large: settled)
   /// Time of the output within its acquisition session (s): slow wander that an
   /// acquisition's consecutive outputs share but points taken apart do not
-  /// (the loop's duty wander) follows it.
+  /// (the loop's duty wander; the pulsed core's delay and comparator-level
+  /// wander, at the output's stream time plus this) follows it.
   double session_time_s = 0.0;
   /// AC-coupled receiver (memory.time_constant_ms > 0): the baseline at the
   /// first shot minus its settled value on this target, V (a scan's memory,

@@ -62,6 +62,15 @@ struct PaperStudyOptions {
   std::vector<double> holdout_reflectances{0.05, 0.1, 0.2, 0.35, 0.6, 0.9};
   std::vector<double> holdout_ambient_c{5.0, 12.0, 20.0, 27.0, 34.0, 40.0};
 
+  /// Time between two conditions of one protocol (s): the device's slow delay
+  /// and comparator wander (measurement.delay_wander_ps,
+  /// discriminator.level_wander_mv) follows each output's time, and the paper's
+  /// conditions were set by hand: a plate swapped or a distance moved in about
+  /// a minute, a climate-chamber step settled in about half an hour. A
+  /// condition's repeats follow each other (one output period apart).
+  double condition_change_s = 60.0;
+  double temperature_step_s = 1800.0;
+
   int grayvalue_max_knots = 4;  ///< the fixed-point chain holds up to 4 knots per hinge
   int temperature_max_knots = 2;
 
