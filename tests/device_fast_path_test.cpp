@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "tofkit/device/virtual_rangefinder.hpp"
+#include "tofkit/physics/pulse_template.hpp"
 
 using namespace tofkit;
 using namespace tofkit::device;
@@ -49,6 +50,20 @@ TEST(DeviceFastPath, CrossingsMatchTheExactPathOverAmplitudeAndTilt) {
     const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
     const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
     const double threshold = cfg.discriminator.threshold_v;
+    // The exact path's peak is the largest sample of its 10 ps grid, below the
+    // true peak by up to half its relative curvature x (5 ps)^2; a spread echo
+    // (a weighted sum of shifted pulses) curves no more than the pulse at its
+    // peak. The curvature grows with the receiver's bandwidth (the paper's 4 ns
+    // pulse: 4e-6; the AccuRange's 0.3 ns pulse through 360 MHz: 1.4e-4). The
+    // fast path refines its peak between 5 ps samples (parabola), so it sits
+    // above the grid's by up to that bound, give or take its own rows'
+    // interpolation in the spread (up to 5e-5 on the paper's wide pulse).
+    const physics::PulseTemplate pulse(cfg.link.laser.pulse_width_ns,
+                                       cfg.link.receiver.bandwidth_mhz);
+    const double tp = pulse.peak_time_ns(), dt = 0.01;
+    const double curvature =
+        -(pulse(tp - dt) - 2.0 * pulse(tp) + pulse(tp + dt)) / (dt * dt) / pulse(tp);
+    const double grid_peak_error = 0.5 * curvature * 0.005 * 0.005;
     double lowest = 1e300, highest = 0, worst_rise = 0, worst_fall = 0;
     int saturated = 0, unsaturated = 0, undetected = 0;
     for (const auto& c : cases()) {
@@ -61,9 +76,9 @@ TEST(DeviceFastPath, CrossingsMatchTheExactPathOverAmplitudeAndTilt) {
       const double ratio = exact.peak_v / threshold;
       lowest = std::min(lowest, ratio);
       highest = std::max(highest, ratio);
-      // The same peak (the grid's largest sample sits below the true peak by
-      // at most the curvature over half a 10 ps step).
-      EXPECT_NEAR(fast.peak_v / exact.peak_v, 1.0, 1e-4);
+      // The same peak, within the grid's sampling error (above).
+      EXPECT_NEAR(fast.peak_v / exact.peak_v, 1.0 + 0.5 * grid_peak_error,
+                  0.5 * grid_peak_error + 6e-5);
       EXPECT_DOUBLE_EQ(grid.peak_v, exact.peak_v);
       EXPECT_EQ(fast.saturated, exact.saturated);
       EXPECT_DOUBLE_EQ(fast.noise_at_rise_v, exact.noise_at_rise_v);

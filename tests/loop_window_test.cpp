@@ -52,7 +52,9 @@ TEST(LoopWindow, TwoTargetsReadTheTimeWeightedHarmonicMeanOfTheirPeriods) {
   const double w = window_ns(c);
   const double t_white = loop.state(kWhite, {}).period_ns;
   const double t_black = loop.state(kBlack, {}).period_ns;
-  ASSERT_GT(t_black - t_white, 0.3);  // the walk: the weak return's period is longer
+  // The walk: the weak return's period is longer (0.28 ns at 360 MHz), so the
+  // time-weighted mean moves by 0.07-0.21 ns over the shares, 35x the tolerance.
+  ASSERT_GT(t_black - t_white, 0.2);
   for (const double share : {0.25, 0.5, 0.75}) {
     const std::vector<device::LoopStretch> s{{kWhite, {}, share * w, 0.0},
                                              {kBlack, {}, (1 - share) * w, 0.0}};

@@ -92,11 +92,11 @@ DeviceConfig accurange_preset() {
   // black beyond ~1.5 m (the thesis measures at 10-30 in). The walk between the
   // chart's greys hardly depends on it (1 mV moves the Fig. 4.18 rows by < 0.02 in).
   c.discriminator.threshold_v = 0.015;
-  c.tdc.coarse_clock_mhz = 80.0;        // thesis: 80 MHz timing clock
-  c.tdc.lsb_ps = 25.0;                  // Assumption: carry-chain interpolator, 3.7 mm of
-                                        // range per code; with the laser firing asynchronously
-                                        // 8-shot outputs spread < 1 mm (thesis Fig. 4.4)
-  c.tdc.inl_lsb = 0.5;                  // Assumption, as the paper preset
+  c.tdc.coarse_clock_mhz = 80.0;  // thesis: 80 MHz timing clock
+  c.tdc.lsb_ps = 25.0;            // Assumption: carry-chain interpolator, 3.7 mm of
+                                  // range per code; with the laser firing asynchronously
+                                  // 8-shot outputs spread < 1 mm (thesis Fig. 4.4)
+  c.tdc.inl_lsb = 0.5;            // Assumption, as the paper preset
 
   // -------------------------------------------------------------- thermal
   // Thesis Section 4.4: range decreases 0.25-0.60 in per 10 C. A delay tempco
@@ -142,11 +142,13 @@ DeviceConfig accurange_preset() {
   // square wave's swing) recovers with a 30 ms time constant (a ~5 Hz corner):
   // after a stronger return the comparator's level stays high, a weak return
   // reads long or loses lock (device/echo_memory.hpp, device/loop_window.hpp).
-  // At the line scans' 0.15 m/s that is about 5 mm of a 2 in black area:
-  // a 6.3-6.8 in swing over three seeds. The same state gives the mirror's edge
-  // spikes (Figs. 3.4-3.5, ~6 mm) and, held out, the line and checkerboard
-  // scans' larger raw spread (Figs. 4.23, 4.27; the checkerboard's random
-  // steps the most).
+  // At the line scans' 0.15 m/s that is about 5 mm of a 2 in black area. Set
+  // for a 6-7 in swing when black's swing was 4.7 times the threshold; with
+  // this receiver (12.6 times) the lock margin is wider and the swing is
+  // 3.3-4.5 in for any time constant from 20 to 80 ms. The same state gives
+  // the mirror's edge spikes (Figs. 3.4-3.5; here 1-3 mm against ~15 mm) and,
+  // held out, part of the line and checkerboard scans' larger raw spread
+  // (Figs. 4.23, 4.27).
   c.memory.time_constant_ms = 30.0;
 
   // ----------------------------------------------------------- the loop

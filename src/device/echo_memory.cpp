@@ -184,13 +184,16 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       }
       stretches.clear();
       double settled_sum = 0, offset_sum = 0, stall_sum = 0, strength_sum = 0;
+      // The loop's duty at this output's time (oscillator.duty_wander) sets the
+      // share of the swing the baseline settles at.
+      const double item_duty = duty + loop_->duty_offset(item.conditions, seed);
       for (int k = 0; k < k_count; ++k) {
         const Target& target = item.path[static_cast<std::size_t>(k)];
         // The baseline this target's square wave would settle at (a miss or a
         // return too weak to lock on: the watchdog keeps toggling the laser, the
         // baseline still goes to the duty share of what comes back).
-        const LoopState settled_state = loop_->state(target, item.conditions);
-        const double settled_v = duty * settled_state.swing_v;
+        const LoopState settled_state = loop_->state(target, item.conditions, item_duty - duty);
+        const double settled_v = item_duty * settled_state.swing_v;
         if (std::isnan(baseline_v)) baseline_v = settled_v;  // a fresh segment: settled
         const double offset_v = baseline_v - settled_v;
         // Lock needs the level (baseline + threshold) below the swing's top; the
@@ -233,7 +236,8 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       if (i + 1 < end) {
         const double idle = items[i + 1].time_s - item.time_s - window_s(shots);
         if (idle > 0) {
-          const double settled_v = duty * loop_->state(item.path.back(), item.conditions).swing_v;
+          const double settled_v =
+              item_duty * loop_->state(item.path.back(), item.conditions).swing_v;
           baseline_v = settled_v + (baseline_v - settled_v) * std::exp(-idle / tau_s);
         }
       }

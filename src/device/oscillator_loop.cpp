@@ -217,6 +217,16 @@ double OscillatorLoop::resolution_m(const Target& target, const Conditions& cond
   return 0.25 * c_nominal_m_per_ns_ * clock_ns * s.period_ns / gate_ns;
 }
 
+double OscillatorLoop::duty_offset(const Conditions& cond, std::uint64_t seed) const {
+  const double wander = config_.oscillator.duty_wander;
+  if (!(wander > 0)) return 0.0;
+  // One draw per correlation time of the session (the run's seed fixes them).
+  const double bucket = std::floor(cond.session_time_s / kDutyWanderCorrelationS);
+  const auto p = philox(seed, static_cast<std::uint64_t>(std::max(bucket, 0.0)), 0, kLoopBlock + 3);
+  // The delays' asymmetry has a finite range: the draw stops at 2.5 rms.
+  return wander * std::clamp(normal_pair(p[0], p[1])[0], -2.5, 2.5);
+}
+
 ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Conditions& cond,
                                                 std::uint64_t seed, std::uint64_t stream,
                                                 int shots) const {
@@ -231,19 +241,10 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   const auto r2 = philox(seed, stream, 0, kLoopBlock + 1);
   const auto z1 = normal_pair(r1[2], r1[3]);
   const auto z2 = normal_pair(r2[0], r2[1]);
-  // The duty's slow wander at this output's time in its session (the run's seed
-  // fixes the octaves' phases) moves the AC-coupled baseline,
-  // so the comparator's level, on both edges: the rise comes later by about
-  // dv / rise slope, the fall earlier by dv / fall slope.
-  double duty_offset = 0;
-  if (osc.duty_wander > 0) {
-    const double bucket = std::floor(cond.session_time_s / kDutyWanderCorrelationS);
-    const auto p =
-        philox(seed, static_cast<std::uint64_t>(std::max(bucket, 0.0)), 0, kLoopBlock + 3);
-    // The delays' asymmetry has a finite range: the draw stops at 2.5 rms.
-    duty_offset = osc.duty_wander * std::clamp(normal_pair(p[0], p[1])[0], -2.5, 2.5);
-  }
-  const auto s = state(target, cond, duty_offset);
+  // The duty's slow wander at this output's time in its session moves the
+  // AC-coupled baseline, so the comparator's level, on both edges: the rise comes
+  // later by about dv / rise slope, the fall earlier by dv / fall slope.
+  const auto s = state(target, cond, duty_offset(cond, seed));
 
   ranging::RawMeasurement out;
   const double internal_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);

@@ -41,6 +41,9 @@ SequenceScan run_sequence_scan(const scan::RayCaster& caster, const scan::Footpr
           scan::record_footprint(fp, b);
           auto& item = items[i];
           item.conditions = options.conditions;
+          // The session's clock runs with the scan: slow wander (the loop's duty)
+          // holds over a line, not over the whole scan.
+          item.conditions.session_time_s = options.conditions.session_time_s + beam.time_s;
           item.time_s = beam.time_s;
           item.shots = shots;
           // The beam moves towards the next beam of its row during the

@@ -92,6 +92,10 @@ class OscillatorLoop {
   [[nodiscard]] Shot shoot(const Target& target, const Conditions& conditions, std::uint64_t seed,
                            std::uint64_t stream, std::uint32_t shot) const;
 
+  /// The loop's duty offset (oscillator.duty_wander) at conditions.session_time_s:
+  /// one draw per second of the session, from the run's seed (0 without wander).
+  [[nodiscard]] double duty_offset(const Conditions& conditions, std::uint64_t seed) const;
+
   /// One output: the board counts the loop over a gate of gate_fraction x
   /// shots / laser.repetition_hz (shots = 0: measurement.shots).
   [[nodiscard]] ranging::RawMeasurement measure(const Target& target, const Conditions& conditions,

@@ -48,6 +48,9 @@ struct LineScanOptions {
   /// Shots per sample: 2^8 at 312.5 kHz gives 1221 samples/s (thesis Fig. 4.4 setting).
   int shots_per_sample = 256;
   /// With 6 in lines, 0.15 m/s gives about 1250 samples per line (thesis: 1235-1255).
+  /// The laser samples while the stage moves (thesis 4.7): unlike the point
+  /// scans, which switch it on at every point, a line runs past the laser's
+  /// turn-on transient (40 ms of a ~1 s line), so the scans are taken settled.
   double stage_speed_m_per_s = 0.15;
   double turnaround_s = 0.5;
   int window_points = 4;  ///< footprint traces per averaging window (the beam moves)
