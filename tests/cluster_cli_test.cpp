@@ -20,6 +20,8 @@
 #include <vector>
 
 #include "cli_runner.hpp"
+#include "tofkit/experiments/device_plan.hpp"
+#include "tofkit/io/model_json.hpp"
 
 namespace fs = std::filesystem;
 
@@ -106,6 +108,28 @@ TEST_F(Cluster, ScanShardsMergeIntoTheOneProcessBytesForEveryOutput) {
     const bool model = scan.find("--raw") == std::string::npos;  // else the factory calibration
     // csv, range/intensity(/sigma) x (png, json, npy), ply, pcd, las, view
     expect_same_files("one", "merged", model ? 14u : 11u);
+  }
+}
+
+TEST_F(Cluster, ScanCorrectsBlocksMeasuredWhileItsFactoryCalibrationRunsAsItsModel) {
+  // The factory calibration runs beside the scan: 191 k beams (6 blocks) are
+  // measured in the time it takes, so blocks are held raw (up to 4), then the
+  // scan waits for it; every beam must come out as with the same model given.
+  const tofkit::device::DeviceConfig config;
+  tofkit::io::save_pipeline(dir_ / "factory.json",
+                            tofkit::experiments::factory_calibration(config).pipeline);
+  const std::string scan = "--threads 2 --max-rows 1000000 scan --scene " +
+                           (kScenes / "blocks.toml").string() +
+                           " --pattern spherical --azimuth=-40:40:0.18 --elevation=-30:30:0.14 "
+                           "--shots 1 --write las,npy,csv";
+  fs::create_directories(dir_ / "beside");
+  fs::create_directories(dir_ / "given");
+  ASSERT_EQ(run(scan + " --out beside").status, 0) << read("stderr.txt");
+  ASSERT_EQ(run(scan + " --model factory.json --out given").status, 0) << read("stderr.txt");
+  EXPECT_GT(read("given/scan.csv").size(), 190000u * 50);
+  // (Compared as a whole: a diff of the MB-long files would flood the log.)
+  for (const char* f : {"scan.csv", "points.las", "range.npy", "intensity.npy", "sigma.npy"}) {
+    EXPECT_TRUE(read(std::string("beside/") + f) == read(std::string("given/") + f)) << f;
   }
 }
 

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <future>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -90,15 +91,21 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
   // (Only where the ranges are corrected: the other ranks send raw ones.)
+  // The calibration runs on its own thread beside the scan (the beams are
+  // measured raw; ranges are corrected as blocks are written), so rank 0's
+  // scan and the other ranks' chunks do not wait for it.
+  std::future<ranging::Pipeline> calibration;
   if (world.rank != 0) {
     pipeline.reset();
   } else if (!pipeline && !o.raw) {
-    try {
-      pipeline = experiments::factory_calibration(config).pipeline;
-    } catch (const std::invalid_argument& e) {
-      throw std::runtime_error(std::string("the factory calibration of this device failed (") +
-                               e.what() + "): give --model FILE or --raw");
-    }
+    calibration = std::async(std::launch::async, [&config] {
+      try {
+        return experiments::factory_calibration(config).pipeline;
+      } catch (const std::invalid_argument& e) {
+        throw std::runtime_error(std::string("the factory calibration of this device failed (") +
+                                 e.what() + "): give --model FILE or --raw");
+      }
+    });
     fmt::print(stderr,
                "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
                "and a distance sweep, seed 1); --model FILE for your own, --raw for none\n");
@@ -106,9 +113,10 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
   }
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
-  // The set-up (scene file, factory calibration, the scene's BVH, the
-  // device's tables, MPI's start) is timed apart from the scan: it does not
-  // grow with the beams, and the summary gives both.
+  // The set-up (scene file, the scene's BVH, the device's tables, MPI's
+  // start) is timed apart from the scan: it does not grow with the beams, and
+  // the summary gives both. (The scan's time includes any wait for the
+  // factory calibration.)
   const device::VirtualRangefinder rangefinder(config, mode);
   // (The scene moves into the caster: a 10^6-triangle mesh is held once.)
   const scan::RayCaster caster(std::move(loaded_scene));
@@ -136,7 +144,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   header.row_last_beam = rows_needed
                              ? scan::row_last_beams(pattern)
                              : std::vector<std::size_t>(static_cast<std::size_t>(pattern.rows), 0);
-  header.has_model = pipeline.has_value();
+  header.has_model = pipeline.has_value() || calibration.valid();
   header.ambient_c = o.scan.ambient_c;
   header.outputs = outputs;
   header.scan_record = {{"scene", o.scan.scene},
@@ -152,7 +160,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   std::optional<ScanShardWriter> shard_writer;
   if (world.rank == 0 && shard.whole()) {
     scan::ScanResult description = scan::describe_scan(pattern, scene);
-    description.has_model = pipeline.has_value();
+    description.has_model = header.has_model;
     writer.emplace(description, header.row_last_beam, scan_writer_settings(o.out, header));
   } else if (world.rank == 0) {
     shard_writer.emplace(o.out, header);
@@ -171,14 +179,40 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
       }
     }
   };
+  // Blocks measured while the calibration runs are held (raw, at most
+  // kHeldBeams: memory stays bounded, the scan then waits) and corrected and
+  // written, in order, once it is done.
+  constexpr std::size_t kHeldBeams = 4 * kScanBlockBeams;
+  std::vector<scan::BeamResult> held;
+  std::size_t held_first = 0;
+  const auto calibrated = [&](bool wait) {
+    if (!calibration.valid()) return true;
+    if (!wait && calibration.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
+      return false;
+    pipeline = calibration.get();
+    if (!held.empty()) {
+      scan::apply_pipeline(*pipeline, held);
+      take(held_first, held);
+      std::vector<scan::BeamResult>().swap(held);
+    }
+    return true;
+  };
+  const auto correct_and_take = [&](std::size_t first, std::span<scan::BeamResult> beams) {
+    if (!calibrated(held.size() + beams.size() > kHeldBeams)) {
+      if (held.empty()) {
+        held_first = first;
+        held.reserve(kHeldBeams);
+      }
+      held.insert(held.end(), beams.begin(), beams.end());
+      return;
+    }
+    if (pipeline) scan::apply_pipeline(*pipeline, beams);
+    take(first, beams);
+  };
   if (world.size == 1) {
     options.progress = Progress{};
     scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, header.first_beam,
-                          header.last_beam, kScanBlockBeams,
-                          [&](std::size_t first, std::span<scan::BeamResult> beams) {
-                            if (pipeline) scan::apply_pipeline(*pipeline, beams);
-                            take(first, beams);
-                          });
+                          header.last_beam, kScanBlockBeams, correct_and_take);
   } else {
     const std::uint64_t beams = header.last_beam - header.first_beam;
     const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
@@ -202,10 +236,10 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
-          if (pipeline) scan::apply_pipeline(*pipeline, received);
-          take(header.first_beam + c * kScanBlockBeams, received);
+          correct_and_take(header.first_beam + c * kScanBlockBeams, received);
         });
   }
+  calibrated(/*wait=*/true);
   if (writer) summary = writer->finish();
   if (shard_writer) shard_writer->finish();
   mpi_done();
@@ -220,7 +254,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
              "tofkit scan: {} beams ({} x {} image, {} pattern, {} rays/beam, {} shots, {} mode, "
              "seed {}): "
              "{} points, {} mixed pixels, {} without echo; {:.2f} s on {} thread(s) after "
-             "{:.2f} s of set-up (scene, calibration, BVH) -> {}{}\n",
+             "{:.2f} s of set-up (scene, BVH) -> {}{}\n",
              summary.beams, pattern.rows, pattern.columns, o.scan.pattern,
              config.scan.rays_per_beam, scan::shots_per_beam(config, shots, pattern), o.mode,
              o.seed, summary.points, summary.mixed, summary.beams - summary.points, seconds,

@@ -20,7 +20,8 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr double kMaxExhaustiveCombinations = 2000;
 constexpr double kMadToSigma = 1.4826;  // MAD -> sigma for Gaussian residuals
 
-double median_of(std::vector<double> v) {
+/// The median of v, reordering v (no copy: the IRLS loops take two a step).
+double median_in_place(std::span<double> v) {
   if (v.empty()) return ranging::kNaN;
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
   std::nth_element(v.begin(), mid, v.end());
@@ -29,12 +30,16 @@ double median_of(std::vector<double> v) {
   return m;
 }
 
+double median_of(std::vector<double> v) {
+  return median_in_place(v);
+}
+
 /// Robust sigma: 1.4826 median |r - median r|.
 double mad_scale(const Eigen::VectorXd& r) {
   std::vector<double> v(r.data(), r.data() + r.size());
-  const double m = median_of(v);
+  const double m = median_in_place(v);
   for (double& e : v) e = std::fabs(e - m);
-  return kMadToSigma * median_of(std::move(v));
+  return kMadToSigma * median_in_place(v);
 }
 
 /// Smallest scale the robust weights may use: residuals of an exact fit are
@@ -155,13 +160,17 @@ class ProfileSolver {
 
   /// Weighted residual sum of squares for ascending knots (inf if infeasible).
   double rss(const std::vector<double>& knots, Eigen::VectorXd* beta = nullptr) const {
-    if (!supported(knots)) return kInf;
     const std::size_t k = knots.size();
     const std::size_t p = 2 + k;
     long double g[8][8];
     long double b[8];
     std::size_t a[6];
-    for (std::size_t j = 0; j < k; ++j) a[j] = first_above(knots[j]);
+    // supported(), with each knot's first row kept for the sums below.
+    for (std::size_t j = 0; j < k; ++j) {
+      a[j] = first_above(knots[j]);
+      if (a[j] < (j > 0 ? a[j - 1] : 0) + min_rows_) return kInf;
+    }
+    if (u_.size() < (k > 0 ? a[k - 1] : 0) + min_rows_) return kInf;
     g[0][0] = s0_[0];
     g[0][1] = s1_[0];
     g[1][1] = s2_[0];
@@ -292,8 +301,8 @@ double refine_knots(const ProfileSolver& solver, const std::vector<double>& grid
       double hi = above == grid.end() ? u_hi : *above;
       if (j > 0) lo = std::max(lo, knots[j - 1]);
       if (j + 1 < knots.size()) hi = std::min(hi, knots[j + 1]);
+      std::vector<double> trial = knots;  // (one copy per knot, not per evaluation)
       const auto f = [&](double kappa) {
-        std::vector<double> trial = knots;
         trial[j] = kappa;
         return solver.rss(trial);
       };
@@ -390,15 +399,15 @@ CountFit fit_count(ProfileSolver& solver, const std::vector<double>& grid, std::
   if (!std::isfinite(rss)) return fit;
   rss = refine_knots(solver, grid, knots, rss);
   const int full_search_iterations = robust.huber_start_iterations + 1;
+  const double y_floor = scale_floor(
+      Eigen::Map<const Eigen::VectorXd>(solver.y().data(), static_cast<Eigen::Index>(n)));
   for (int it = 0;; ++it) {
     Eigen::VectorXd beta;
     if (!std::isfinite(solver.rss(knots, &beta))) return fit;
     fit.knots = knots;
     fit.beta = beta;
     fit.residuals = residuals_of(solver, knots, beta);
-    fit.scale =
-        std::max(mad_scale(fit.residuals), scale_floor(Eigen::Map<const Eigen::VectorXd>(
-                                               solver.y().data(), static_cast<Eigen::Index>(n))));
+    fit.scale = std::max(mad_scale(fit.residuals), y_floor);
     fit.weights = Eigen::Map<const Eigen::VectorXd>(w.data(), static_cast<Eigen::Index>(n));
     fit.iterations = it;
     fit.feasible = true;

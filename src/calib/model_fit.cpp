@@ -1,13 +1,17 @@
 #include "tofkit/calib/model_fit.hpp"
 
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <exception>
 #include <functional>
 #include <limits>
 #include <numbers>
 #include <numeric>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -1033,14 +1037,31 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       }
       fold_options.chain_options.walk_replicates = 0;  // (their sigma is not used)
       result.out_of_fold_m.assign(records.size(), ranging::kNaN);
+      // The folds' refits are independent: fitted on all cores, then taken in
+      // fold order (the first failing fold's error, as one after another).
+      std::vector<std::optional<ranging::Pipeline>> fold_fits(folds);
+      std::vector<std::exception_ptr> fold_errors(folds);
+      tbb::parallel_for(std::size_t{0}, folds, [&](std::size_t k) {
+        std::vector<ranging::Record> train;
+        for (std::size_t i = 0; i < records.size(); ++i) {
+          if (fold_of_group[group[i]] != k) train.push_back(records[i]);
+        }
+        try {
+          fold_fits[k] = fit_correction(train, fold_options, nullptr, nullptr);
+        } catch (...) {
+          fold_errors[k] = std::current_exception();
+        }
+      });
       for (std::size_t k = 0; k < folds; ++k) {
-        std::vector<ranging::Record> train, test;
+        if (fold_errors[k]) std::rethrow_exception(fold_errors[k]);
+        std::vector<ranging::Record> test;
         std::vector<std::size_t> test_index;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          if (fold_of_group[group[i]] == k) test_index.push_back(i);
-          (fold_of_group[group[i]] == k ? test : train).push_back(records[i]);
+          if (fold_of_group[group[i]] != k) continue;
+          test_index.push_back(i);
+          test.push_back(records[i]);
         }
-        const ranging::Pipeline fold_fit = fit_correction(train, fold_options, nullptr, nullptr);
+        const ranging::Pipeline& fold_fit = *fold_fits[k];
         residuals.add(fold_fit, test);
         // Each row's cross-validated residual, for the uncertainty budget
         // (rows the fold's correction extrapolates to are left out, as above).
