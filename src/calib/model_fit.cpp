@@ -416,6 +416,10 @@ ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
       require_two_distances(rows);
       BSplineFitOptions bspline = o.bspline;
       bspline.use_temperature = o.surface_temperature;
+      // On a chain's residual the prior is no correction: where the rows
+      // leave a corner of range x intensity empty (far and weak), the surface
+      // decays to zero instead of extrapolating a twist fitted elsewhere.
+      if (o.chain && bspline.shrink_to_zero == 0) bspline.shrink_to_zero = 1.0;
       if (pulse_width) {
         bspline.log_amplitude = false;
         bspline.intensity = ranging::IntensityInput::pulse_width;
