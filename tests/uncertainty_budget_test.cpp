@@ -173,7 +173,11 @@ Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bo
   steps.tdc_period_ns = protocol.tdc_period_ns;
   calib::ModelFitOptions options;
   options.time_to_distance = device::nominal_time_to_distance(device.config());
-  options.chain = calib::parse_chain_steps("offset,grayvalue,temperature");
+  // The planner's fit line corrects the walk with the physical walk model (it
+  // holds between and below the weak plates, where the gray-value hinge
+  // interpolates linearly); the paper's protocol keeps the paper's chain.
+  options.chain = calib::parse_chain_steps(complete ? "offset,walk,temperature"
+                                                    : "offset,grayvalue,temperature");
   if (complete) options.tdc_period_ns = protocol.tdc_period_ns;
   if (bspline) options.surface = calib::parse_surface_spec("bspline");
   Calibrated c;
@@ -292,14 +296,17 @@ struct HeldOutCase {
 
 class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 
-// The issue's acceptance, measured (figures in the commit message and the
-// closing report): the budget's coverage holds near 95 % only where the
-// correction's own errors are ones the calibration rows show; the weakest
-// echoes of the field (partial shots, at the threshold) keep errors of 6-16 mm
-// that neither the chain nor the B-spline removes, so rows with >= 90 % valid
-// shots are not all within +-3 mm and the weak tercile's coverage falls below
-// 93 % on some devices. Disabled until the correction resolves weak echoes;
-// run it with --gtest_also_run_disabled_tests (about 90 s).
+// The issue's acceptance, measured (figures in the commit messages and the
+// closing report). The planner's protocol now fits the walk model: the weak
+// echoes' bias (the gray-value hinge's linear interpolation between and below
+// the few weak plates: DISABLED_WeakEchoes) is gone. Without delay wander,
+// indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma coverage
+// 95-98 % per tercile and a systematic residual of 0.9 mm (noise 0.29 mm);
+// in sunlight 6.1-6.2 mm worst and 1.5-1.7 mm systematic (noise 0.78 mm);
+// with 30 ps of delay wander the drift of 0-60 min gives 11-13 mm worst rows
+// and coverage 99-100 % (the budget's drift term, from the stability record,
+// over-covers). Still short of the acceptance, so disabled; run it with
+// --gtest_also_run_disabled_tests (about 2-6 min: the walk model's fit).
 TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
@@ -509,6 +516,105 @@ TEST_F(BudgetCli, SigmaFollowsTheTimeSinceCalibrationAndEvaluateSplitsByFile) {
   EXPECT_EQ(negative.status, 1);
   EXPECT_NE(negative.err.find("--since-calibration"), std::string::npos) << negative.err;
   EXPECT_FALSE(std::filesystem::exists(dir_ / "x.csv"));
+}
+
+}  // namespace
+}  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
+// Diagnosis of the weak-echo residual (issue 34): one held-out device,
+// calibrated by the planner's protocol (chain); each field target measured 20
+// times right after the calibration, its mean error against the calibration
+// rows' domain in amplitude and pulse width.
+TEST(UncertaintyBudgetDiagnosis, DISABLED_WeakEchoes) {
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const Calibrated c = calibrate(device, true, false);
+  double amin = 1e9, pmin = 1e9, pmax = 0;
+  std::vector<ranging::Record> cal;
+  {
+    calib::CalibrationPlanOptions field;
+    field.range_min_m = 0.7;
+    field.range_max_m = 7.4;
+    field.reflectance_min = 0.06;
+    field.reflectance_max = 0.85;
+    experiments::ProtocolOptions po;
+    const auto protocol = experiments::plan_protocol(device, field, po);
+    for (const auto& step : protocol.steps) {
+      if (step.role != experiments::StepRole::calibration) continue;
+      const auto rows =
+          experiments::run(device, experiments::plate_grid_plan(step.grid), step.seed, step.timing);
+      cal.insert(cal.end(), rows.begin(), rows.end());
+    }
+  }
+  std::vector<ranging::Range> cr(cal.size());
+  c.fit.pipeline.apply(ranging::RawColumns::of(cal), cr);
+  const int shots = device.config().measurement.shots;
+  std::printf("calibration targets (weakest 12):\n");
+  std::map<std::tuple<double, double, double>, std::vector<std::size_t>> by;
+  for (std::size_t i = 0; i < cal.size(); ++i)
+    if (cal[i].raw.has_echo())
+      by[{cal[i].truth.distance_m, cal[i].truth.reflectance, cal[i].truth.ambient_c}].push_back(i);
+  std::vector<std::tuple<double, std::string>> lines;
+  for (const auto& [k, idx] : by) {
+    double a = 0, p = 0, v = 0, e = 0;
+    for (auto i : idx) {
+      a += cal[i].raw.amplitude;
+      p += cal[i].raw.pulse_width_ns;
+      v += cal[i].raw.shots_valid / double(shots);
+      e += cal[i].truth.distance_m - cr[i].distance_m;
+      amin = std::min(amin, cal[i].raw.amplitude);
+      pmin = std::min(pmin, cal[i].raw.pulse_width_ns);
+      pmax = std::max(pmax, cal[i].raw.pulse_width_ns);
+    }
+    const double n = idx.size();
+    char buf[256];
+    std::snprintf(buf, sizeof buf,
+                  "  d %.2f rho %.3f T %.0f amp %.4f pw %.3f valid %.2f err %.2f\n", std::get<0>(k),
+                  std::get<1>(k), std::get<2>(k), a / n, p / n, v / n, e / n * 1e3);
+    lines.emplace_back(a / n, buf);
+  }
+  std::sort(lines.begin(), lines.end());
+  for (std::size_t i = 0; i < std::min<std::size_t>(12, lines.size()); ++i)
+    std::printf("%s", std::get<1>(lines[i]).c_str());
+  std::printf("calibration amplitude min %.4f, pulse width %.3f-%.3f\n", amin, pmin, pmax);
+  experiments::PlateGrid grid;
+  grid.distances_m = {4.1, 4.9, 5.8, 6.6, 7.4};
+  grid.reflectances = {0.06, 0.15};
+  grid.ambient_c = {8, 17, 27, 37};
+  grid.count = 20;
+  const auto rows =
+      experiments::run(device, experiments::plate_grid_plan(grid), 1, {c.calibration_start_s, 0});
+  std::vector<ranging::Range> ranges(rows.size());
+  c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+  std::map<std::tuple<double, double, double>, std::vector<std::size_t>> g;
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    if (rows[i].raw.has_echo())
+      g[{rows[i].truth.distance_m, rows[i].truth.reflectance, rows[i].truth.ambient_c}].push_back(
+          i);
+  std::printf("field targets (20 repeats): mean error, its standard error, the row noise\n");
+  for (const auto& [k, idx] : g) {
+    double a = 0, p = 0, v = 0, e = 0, e2 = 0, t = 0;
+    unsigned ood = 0;
+    for (auto i : idx) {
+      const double err = rows[i].truth.distance_m - ranges[i].distance_m;
+      a += rows[i].raw.amplitude;
+      p += rows[i].raw.pulse_width_ns;
+      t += rows[i].raw.temperature_c;
+      v += rows[i].raw.shots_valid / double(shots);
+      e += err;
+      e2 += err * err;
+      ood += (ranges[i].correction_flags & ranging::kCorrOutOfDomain) != 0;
+    }
+    const double n = idx.size();
+    const double mean = e / n, sd = std::sqrt(std::max(0.0, e2 / n - mean * mean));
+    std::printf(
+        "  d %.2f rho %.2f T %.0f: n %2.0f amp %.4f pw %.3f Tint %.1f valid %.2f err %6.2f +- %.2f "
+        "(row sd %.2f) ood %u\n",
+        std::get<0>(k), std::get<1>(k), std::get<2>(k), n, a / n, p / n, t / n, v / n, mean * 1e3,
+        sd / std::sqrt(n) * 1e3, sd * 1e3, ood);
+  }
 }
 
 }  // namespace

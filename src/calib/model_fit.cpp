@@ -420,6 +420,10 @@ ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
       require_two_distances(rows);
       BSplineFitOptions bspline = o.bspline;
       bspline.use_temperature = o.surface_temperature;
+      // On a chain's residual the prior is no correction: where the rows
+      // leave a corner of range x intensity empty (far and weak), the surface
+      // decays to zero instead of extrapolating a twist fitted elsewhere.
+      if (o.chain && bspline.shrink_to_zero == 0) bspline.shrink_to_zero = 1.0;
       if (pulse_width) {
         bspline.log_amplitude = false;
         bspline.intensity = ranging::IntensityInput::pulse_width;
@@ -427,7 +431,28 @@ ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
       return fit_bspline_surface(data, bspline);
     };
     const bool bspline = o.surface.kind == SurfaceKind::bspline;
-    const bool try_amplitude = !bspline || o.surface_intensity != SurfaceIntensity::pulse_width;
+    // On a chain's residual, an amplitude reading that clips (its peak
+    // detector's ceiling: several rows read exactly the largest amplitude,
+    // whatever their overdrive) cannot index the saturated echoes' residual,
+    // which the rows' cross-validation does not see (few such targets, each
+    // predicted from its clipped neighbours): the automatic axis is then the
+    // pulse width. Measured on a held-out device: saturated field echoes
+    // 7.8 mm off on the amplitude axis, 3.4 mm worst row on the pulse width.
+    std::size_t echoes = 0, at_ceiling = 0;
+    double ceiling = 0;
+    bool widths = true;
+    for (const auto& r : rows)
+      if (r.raw.has_echo() && std::isfinite(r.raw.amplitude)) {
+        ++echoes;
+        ceiling = std::max(ceiling, r.raw.amplitude);
+        widths = widths && std::isfinite(r.raw.pulse_width_ns);
+      }
+    for (const auto& r : rows)
+      if (r.raw.has_echo() && r.raw.amplitude == ceiling) ++at_ceiling;
+    const bool amplitude_clips = o.chain && widths && at_ceiling >= 3 && 50 * at_ceiling >= echoes;
+    const bool try_amplitude =
+        !bspline || o.surface_intensity == SurfaceIntensity::amplitude ||
+        (o.surface_intensity != SurfaceIntensity::pulse_width && !amplitude_clips);
     const bool try_pulse_width = bspline && o.surface_intensity != SurfaceIntensity::amplitude;
     SurfaceRows input, other_input;
     SurfaceFitResult surface;
@@ -462,6 +487,8 @@ ranging::Pipeline fit_main_correction(std::span<const ranging::Record> rows,
     pipeline.set_residual_rms_m(surface.residual_rms_m);
     if (report) {
       *report += surface.summary() + (pulse_width ? ", intensity axis: pulse width" : "");
+      if (amplitude_clips && o.surface_intensity == SurfaceIntensity::choose)
+        *report += format(" (the amplitude reading clips: %zu rows at %g)", at_ceiling, ceiling);
       if (other_cv > 0) {
         *report += format(" (%s axis: cross-validated RMS %.3f mm)",
                           pulse_width ? "amplitude" : "pulse-width", other_cv * 1e3);

@@ -444,6 +444,8 @@ void BSplineFitOptions::validate() const {
   if (!(smoothing >= 0) || !(smoothing <= kMaxBSplineSmoothing)) {
     throw std::invalid_argument("BSplineFitOptions.smoothing must be in [0, 1e6]");
   }
+  if (!(shrink_to_zero >= 0) || !(shrink_to_zero <= 1e3))
+    throw std::invalid_argument("BSplineFitOptions.shrink_to_zero must be in [0, 1000]");
   for (int k = 0; k < 3; ++k) {
     if (!(axis_weight[k] > 0) || !std::isfinite(axis_weight[k])) {
       throw std::invalid_argument("BSplineFitOptions.axis_weight[" + std::to_string(k) +
@@ -653,7 +655,7 @@ struct GridFit {
 
 GridFit fit_on_grid(const Columns& c, const std::vector<Fold>& folds, const Grid& grid,
                     double smoothing, const double* axis_weight, bool choose_smoothing,
-                    bool with_condition) {
+                    bool with_condition, double shrink_to_zero) {
   MatrixXd gram;
   VectorXd rhs;
   accumulate_normal_equations(c, grid, gram, rhs);
@@ -668,6 +670,11 @@ GridFit fit_on_grid(const Columns& c, const std::vector<Fold>& folds, const Grid
   const auto penalty_of = [&](const double* w) {
     MatrixXd penalty = w[0] * axis_penalty[0];
     for (int axis = 1; axis < grid.dims; ++axis) penalty += w[axis] * axis_penalty[axis];
+    // The ridge toward zero (BSplineFitOptions::shrink_to_zero), scaled with
+    // the penalty so the smoothing's choice by cross-validation sees it.
+    if (shrink_to_zero > 0)
+      penalty.diagonal().array() +=
+          shrink_to_zero * penalty_trace / static_cast<double>(penalty.rows());
     return penalty;
   };
   // Penalty weight relative to the data term, so `smoothing` does not depend
@@ -861,7 +868,7 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
     const auto try_grid = [&](const AxisChoice* choice) {
       set_axes(choice);
       GridFit fit = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones,
-                                choose_smoothing, false);
+                                choose_smoothing, false, options.shrink_to_zero);
       if (fit.score < best.score * (1.0 - 1e-9)) {
         best = std::move(fit);
         std::copy_n(choice, 3, chosen);
@@ -908,10 +915,11 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
       for (int k = 0; k < 3; ++k) chosen[k] = {counts[k].front(), KnotPlacement::uniform};
       set_axes(chosen);
       best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing, ones, choose_smoothing,
-                         false);
+                         false, options.shrink_to_zero);
     }
     set_axes(chosen);
-    best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true);
+    best = fit_on_grid(c, folds, make_grid(p, dims), best.smoothing, best.axis_weight, false, true,
+                       options.shrink_to_zero);
   } else {
     chosen[0] = {options.intervals_range, options.knot_placement[0]};
     chosen[1] = {options.intervals_amplitude, options.knot_placement[1]};
@@ -929,7 +937,8 @@ SurfaceFitResult fit_bspline_surface(const SurfaceFitData& data, const BSplineFi
           " smoothing solves in bounded time; use fewer knot intervals");
     }
     best = fit_on_grid(c, folds, make_grid(p, dims), options.smoothing,
-                       choose_smoothing ? ones : options.axis_weight, choose_smoothing, true);
+                       choose_smoothing ? ones : options.axis_weight, choose_smoothing, true,
+                       options.shrink_to_zero);
   }
   const PenalizedSolution& sol = best.solution;
   p.coefficients.assign(sol.coefficients.data(), sol.coefficients.data() + sol.coefficients.size());

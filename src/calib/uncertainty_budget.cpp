@@ -297,7 +297,9 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     return m * m - mean_noise(*t);
   };
 
-  // Correction residual (cross-validated) per amplitude tercile of the reference targets.
+  // Correction residual (cross-validated) per amplitude bin of the reference
+  // targets: up to 6 bins of >= 10 targets, so that the weak end (where the
+  // walk curves most) has its own value rather than a tercile's mean.
   if (reference.size() < 3)
     throw std::invalid_argument(format(
         "budget: the correction residual needs >= 3 cross-validated targets at the reference "
@@ -309,7 +311,8 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
                            reference.size(), reference_c);
   systematic.axis = BudgetComponent::Axis::log_amplitude;
   for (const auto& [b, e] :
-       bins(reference.size(), std::min<std::size_t>(3, reference.size() / 4))) {
+       bins(reference.size(),
+            std::max<std::size_t>(1, std::min<std::size_t>(6, reference.size() / 10)))) {
     double sum = 0, x = 0;
     for (std::size_t k = b; k < e; ++k) {
       sum += excess(reference[k]);
@@ -421,6 +424,17 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     // adjacent violators (least squares, pairs as weights): a drift's
     // variance does not fall with the lag, and the noisy long lags (few
     // pairs) must not push the curve up as a running maximum would.
+    // The record's own short-term noise (half its structure function at one
+    // step) may exceed a row's repeatability (flicker between back-to-back
+    // repeats and rows 15 s apart): D(lag) holds it twice, once for the row at
+    // the calibration (averaged away by the calibration's many rows) and once
+    // for the field row; a field row keeps its excess over the repeatability
+    // once, so D(lag) loses 2 u_rep^2 + max(0, D(1) / 2 - u_rep^2).
+    double d1 = 0;
+    for (std::size_t i = 0; i + 1 < ns; ++i)
+      d1 += std::pow(d.stability_residual_m[i + 1] - d.stability_residual_m[i], 2);
+    d1 /= static_cast<double>(ns - 1);
+    const double short_excess2 = std::max(0.0, 0.5 * d1 - white2);
     std::vector<double> value, weight;
     std::vector<std::size_t> count;  // lags pooled into each block
     for (const std::size_t lag : lags) {
@@ -430,7 +444,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         sum += dd * dd;
       }
       const double pairs = static_cast<double>(ns - lag);
-      value.push_back(sum / pairs - 2 * white2);
+      value.push_back(sum / pairs - 2 * white2 - short_excess2);
       weight.push_back(pairs);
       count.push_back(1);
       while (value.size() > 1 && value[value.size() - 2] > value.back()) {

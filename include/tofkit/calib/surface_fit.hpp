@@ -87,6 +87,14 @@ struct BSplineFitOptions {
   /// intervals, smoothing, placement and axis_weight the options refit its
   /// surface with the same choices (a refit that is linear in the data).
   double axis_weight[3] = {1, 1, 1};
+  /// A ridge toward a zero surface, relative to the penalty (its weight per
+  /// coefficient is this times the mean diagonal of the second-difference
+  /// penalty, times the smoothing). 0: none. For a surface on a chain's
+  /// residual, whose prior is no correction: where the data leave a corner of
+  /// the grid empty (far and weak), the second-difference penalty alone
+  /// extrapolates its null space (a bilinear twist fitted elsewhere) into it;
+  /// with the ridge the surface decays to zero there within a knot or two.
+  double shrink_to_zero = 0;
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
 };
