@@ -1,9 +1,10 @@
 #include "tofkit/calib/uncertainty_budget.hpp"
 
+#include <fmt/printf.h>
+
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <map>
 #include <numbers>
@@ -15,15 +16,6 @@ namespace {
 
 using ranging::BudgetComponent;
 using ranging::BudgetScope;
-
-std::string format(const char* pattern, ...) {
-  char buffer[1024];
-  va_list args;
-  va_start(args, pattern);
-  std::vsnprintf(buffer, sizeof buffer, pattern, args);
-  va_end(args);
-  return buffer;
-}
 
 /// One target: repeats of one truth.
 struct Target {
@@ -115,7 +107,7 @@ void add_node(BudgetComponent& c, double x, double v) {
 }
 
 std::string spec_step(const char* key, double value, const char* unit, bool given) {
-  return format("specification %s = %g %s%s", key, value, unit, given ? "" : " (default)");
+  return fmt::sprintf("specification %s = %g %s%s", key, value, unit, given ? "" : " (default)");
 }
 
 }  // namespace
@@ -123,7 +115,7 @@ std::string spec_step(const char* key, double value, const char* unit, bool give
 void BudgetSpecification::validate() const {
   const auto check = [](double v, double hi, const char* key) {
     if (!(std::isfinite(v) && v >= 0 && v <= hi))
-      throw std::invalid_argument(format("specification %s must be in [0, %g]", key, hi));
+      throw std::invalid_argument(fmt::sprintf("specification %s must be in [0, %g]", key, hi));
   };
   check(tdc_inl_ps, 1e5, "tdc_inl_ps");
   check(delay_tempco_ps_per_c, 1e4, "delay_tempco_ps_per_c");
@@ -184,9 +176,9 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     if (t.n >= 2 && std::isfinite(t.variance_m2)) repeated.push_back(&t);
   if (repeated.size() < 3)
     throw std::invalid_argument(
-        format("budget: the repeatability needs >= 3 targets measured two or more times, the "
-               "rows have %zu",
-               repeated.size()));
+        fmt::sprintf("budget: the repeatability needs >= 3 targets measured two or more times, the "
+                     "rows have %zu",
+                     repeated.size()));
   BudgetComponent repeat;
   repeat.name = "repeatability (one row)";
   repeat.step = "repeats of every target";
@@ -264,10 +256,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     const double u2 = std::max(0.0, power - bias);
     budget.components.push_back(
         constant("periodic residual (TDC, time of flight)",
-                 format("%zu targets (plates, rail) over %.2f-%.2f m (period %.3f m)",
-                        reference.size(), dmin, dmax, period_m),
+                 fmt::sprintf("%zu targets (plates, rail) over %.2f-%.2f m (period %.3f m)",
+                              reference.size(), dmin, dmax, period_m),
                  std::sqrt(u2), false, false));
-    report += format(
+    report += fmt::sprintf(
         "budget: periodic residual %.3f mm (harmonics 1-%d of the %.3f ns period in the "
         "cross-validated means of %zu targets; fit noise %.3f mm removed)\n",
         std::sqrt(u2) * 1e3, kHarmonics, d.tdc_period_ns, reference.size(), std::sqrt(bias) * 1e3);
@@ -284,9 +276,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
                  !spec.tdc_inl_given));
     budget.unobserved.push_back(
         d.tdc_period_ns > 0
-            ? format("the TDC's nonlinearity, periodic in the time of flight (the targets span "
-                     "%.2f m, less than one %.3f m period: no rail)",
-                     std::max(0.0, dmax - dmin), period_m)
+            ? fmt::sprintf(
+                  "the TDC's nonlinearity, periodic in the time of flight (the targets span "
+                  "%.2f m, less than one %.3f m period: no rail)",
+                  std::max(0.0, dmax - dmin), period_m)
             : std::string("the TDC's nonlinearity (its period is unknown)"));
   }
   const auto index_of = [&](const Target* t) {
@@ -301,14 +294,14 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   // targets: up to 6 bins of >= 10 targets, so that the weak end (where the
   // walk curves most) has its own value rather than a tercile's mean.
   if (reference.size() < 3)
-    throw std::invalid_argument(format(
+    throw std::invalid_argument(fmt::sprintf(
         "budget: the correction residual needs >= 3 cross-validated targets at the reference "
         "temperature (%g C), the rows have %zu",
         reference_c, reference.size()));
   BudgetComponent systematic;
   systematic.name = "correction residual (cross-validated)";
-  systematic.step = format("%zu targets at %g C, each predicted by a fit without it",
-                           reference.size(), reference_c);
+  systematic.step = fmt::sprintf("%zu targets at %g C, each predicted by a fit without it",
+                                 reference.size(), reference_c);
   systematic.axis = BudgetComponent::Axis::log_amplitude;
   for (const auto& [b, e] :
        bins(reference.size(),
@@ -363,7 +356,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   std::sort(nodes.begin(), nodes.end());
   for (const auto& [x, v] : nodes) add_node(temperature, x, v);
   if (!nodes.empty()) {
-    temperature.step = format(
+    temperature.step = fmt::sprintf(
         "temperature run: %zu plate(s) at %zu temperatures besides %g C (optimism for %g "
         "parameters)",
         nodes.size(), temperatures, reference_c, p_t);
@@ -377,7 +370,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
           constant("temperature residual by echo strength",
                    spec_step("walk_tempco_ps_per_c", spec.walk_tempco_ps_per_c, "ps/C",
                              spec.walk_tempco_given) +
-                       format(" over +-%g C", spec.temperature_half_range_c),
+                       fmt::sprintf(" over +-%g C", spec.temperature_half_range_c),
                    u, true, !spec.walk_tempco_given));
       budget.unobserved.push_back(
           "the temperature dependence's change with echo strength (temperature run on one "
@@ -390,7 +383,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         constant("temperature model residual",
                  spec_step("delay_tempco_ps_per_c", spec.delay_tempco_ps_per_c, "ps/C",
                            spec.delay_tempco_given) +
-                     format(" over +-%g C", spec.temperature_half_range_c),
+                     fmt::sprintf(" over +-%g C", spec.temperature_half_range_c),
                  u, true, !spec.delay_tempco_given));
     budget.unobserved.push_back(
         "the delay's temperature dependence (no temperature run with its plate also at the "
@@ -410,8 +403,9 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     white2 = counted > 0 ? white2 / static_cast<double>(counted) : 0.0;
     BudgetComponent drift;
     drift.name = "drift since calibration";
-    drift.step = format("stability record: %zu rows every %g s (%.1f min)", ns, d.stability_every_s,
-                        static_cast<double>(ns - 1) * d.stability_every_s / 60);
+    drift.step =
+        fmt::sprintf("stability record: %zu rows every %g s (%.1f min)", ns, d.stability_every_s,
+                     static_cast<double>(ns - 1) * d.stability_every_s / 60);
     drift.scope = BudgetScope::same_power_on;
     drift.axis = BudgetComponent::Axis::time_since_calibration_s;
     add_node(drift, 0.0, 0.0);
@@ -476,12 +470,12 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
       }
       double a = 0;
       for (std::size_t b = 0; b + 1 < mean.size(); ++b) a += std::pow(mean[b + 1] - mean[b], 2);
-      allan += format(" %.0f s: %.3f mm;", static_cast<double>(m) * d.stability_every_s,
-                      std::sqrt(0.5 * a / static_cast<double>(mean.size() - 1)) * 1e3);
+      allan += fmt::sprintf(" %.0f s: %.3f mm;", static_cast<double>(m) * d.stability_every_s,
+                            std::sqrt(0.5 * a / static_cast<double>(mean.size() - 1)) * 1e3);
     }
     report += "budget: Allan deviation of the stability record at" + allan +
-              format(" drift u at %.0f min %.3f mm (beyond the record it is held)\n",
-                     drift.node.back() / 60, std::sqrt(drift.variance_m2.back()) * 1e3);
+              fmt::sprintf(" drift u at %.0f min %.3f mm (beyond the record it is held)\n",
+                           drift.node.back() / 60, std::sqrt(drift.variance_m2.back()) * 1e3);
   } else {
     budget.components.push_back(constant(
         "drift since calibration", spec_step("drift_ps", spec.drift_ps, "ps", spec.drift_given),
@@ -509,7 +503,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   }
   if (runs > 0) {
     budget.components.push_back(
-        constant("power-on reproducibility", format("repeats on %zu other power-on(s)", runs),
+        constant("power-on reproducibility", fmt::sprintf("repeats on %zu other power-on(s)", runs),
                  std::sqrt(std::max(0.0, sum_d2 / static_cast<double>(runs))), false, false,
                  BudgetScope::other_power_on));
   } else {
@@ -631,7 +625,7 @@ std::string budget_certificate(const ranging::UncertaintyBudget& budget,
     return budget_coverage(err, sig);
   };
   const BudgetCoverage cv = check(calibration, fit.out_of_fold_m, 0.0);
-  out += format(
+  out += fmt::sprintf(
       "coverage check: %zu cross-validated calibration rows: %.1f %% within 1 u_c, %.1f %% "
       "within 2 u_c\n",
       cv.rows, 100 * cv.within_1sigma, 100 * cv.within_2sigma);
@@ -639,7 +633,7 @@ std::string budget_certificate(const ranging::UncertaintyBudget& budget,
     const auto& run = steps.power_on_runs[f];
     const std::vector<double> e = residuals_of(fit.pipeline, run);
     const BudgetCoverage c = check(run, e, nan);
-    out += format(
+    out += fmt::sprintf(
         "coverage check: power-on repeat %zu (%zu rows, another power-on): %.1f %% within 1 u_c, "
         "%.1f %% within 2 u_c (its own offset is one draw: all rows move together)\n",
         f + 1, c.rows, 100 * c.within_1sigma, 100 * c.within_2sigma);

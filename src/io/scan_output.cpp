@@ -200,11 +200,11 @@ int write_to_sink(spng_ctx*, void* user, void* data, std::size_t length) {
   return 0;
 }
 
-}  // namespace
-
-void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
-                       const std::function<void(int, std::span<float>)>& row,
-                       const std::function<void(std::string_view)>& write) {
+// One progressive encoder for every image written by rows: `row(r)` returns
+// row r's bytes (bit_depth and colour type as the header says).
+void encode_png_byte_rows(int rows, int columns, int bit_depth, int color_type,
+                          const std::function<std::span<const unsigned char>(int)>& row,
+                          const std::function<void(std::string_view)>& write) {
   spng_ctx* ctx = spng_ctx_new(SPNG_CTX_ENCODER);
   if (ctx == nullptr) throw std::runtime_error("PNG: cannot create an encoder");
   std::function<void(std::string_view)> sink = write;
@@ -212,21 +212,36 @@ void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
   spng_ihdr ihdr{};
   ihdr.width = static_cast<std::uint32_t>(columns);
   ihdr.height = static_cast<std::uint32_t>(rows);
-  ihdr.bit_depth = 16;
-  ihdr.color_type = SPNG_COLOR_TYPE_GRAYSCALE;
+  ihdr.bit_depth = static_cast<std::uint8_t>(bit_depth);
+  ihdr.color_type = static_cast<std::uint8_t>(color_type);
   spng_set_ihdr(ctx, &ihdr);
   int err = spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG,
                               SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
-  std::vector<float> values(static_cast<std::size_t>(columns));
-  std::vector<std::uint16_t> pixels(static_cast<std::size_t>(columns));
   for (int r = 0; r < rows && err == 0; ++r) {
-    row(r, values);
-    png16_row(values, scale, pixels.data());
-    err = spng_encode_row(ctx, pixels.data(), pixels.size() * sizeof(std::uint16_t));
+    const std::span<const unsigned char> bytes = row(r);
+    err = spng_encode_row(ctx, const_cast<unsigned char*>(bytes.data()), bytes.size());
     if (err == SPNG_EOI) err = 0;
   }
   spng_ctx_free(ctx);
   if (err != 0) throw std::runtime_error(std::string("PNG encoding failed: ") + spng_strerror(err));
+}
+
+}  // namespace
+
+void encode_png16_rows(int rows, int columns, const Png16Scale& scale,
+                       const std::function<void(int, std::span<float>)>& row,
+                       const std::function<void(std::string_view)>& write) {
+  std::vector<float> values(static_cast<std::size_t>(columns));
+  std::vector<std::uint16_t> pixels(static_cast<std::size_t>(columns));
+  encode_png_byte_rows(
+      rows, columns, 16, SPNG_COLOR_TYPE_GRAYSCALE,
+      [&](int r) {
+        row(r, values);
+        png16_row(values, scale, pixels.data());
+        return std::span<const unsigned char>(reinterpret_cast<const unsigned char*>(pixels.data()),
+                                              pixels.size() * sizeof(std::uint16_t));
+      },
+      write);
 }
 
 Png16 encode_png16(const scan::Image& image) {
@@ -246,26 +261,14 @@ Png16 encode_png16(const scan::Image& image) {
 void encode_png_rgb_rows(int rows, int columns,
                          const std::function<void(int, std::span<unsigned char>)>& row,
                          const std::function<void(std::string_view)>& write) {
-  spng_ctx* ctx = spng_ctx_new(SPNG_CTX_ENCODER);
-  if (ctx == nullptr) throw std::runtime_error("PNG: cannot create an encoder");
-  std::function<void(std::string_view)> sink = write;
-  spng_set_png_stream(ctx, write_to_sink, &sink);
-  spng_ihdr ihdr{};
-  ihdr.width = static_cast<std::uint32_t>(columns);
-  ihdr.height = static_cast<std::uint32_t>(rows);
-  ihdr.bit_depth = 8;
-  ihdr.color_type = SPNG_COLOR_TYPE_TRUECOLOR;
-  spng_set_ihdr(ctx, &ihdr);
-  int err = spng_encode_image(ctx, nullptr, 0, SPNG_FMT_PNG,
-                              SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
   std::vector<unsigned char> rgb(static_cast<std::size_t>(columns) * 3);
-  for (int r = 0; r < rows && err == 0; ++r) {
-    row(r, rgb);
-    err = spng_encode_row(ctx, rgb.data(), rgb.size());
-    if (err == SPNG_EOI) err = 0;
-  }
-  spng_ctx_free(ctx);
-  if (err != 0) throw std::runtime_error(std::string("PNG encoding failed: ") + spng_strerror(err));
+  encode_png_byte_rows(
+      rows, columns, 8, SPNG_COLOR_TYPE_TRUECOLOR,
+      [&](int r) {
+        row(r, rgb);
+        return std::span<const unsigned char>(rgb);
+      },
+      write);
 }
 
 std::string encode_png_rgb(int rows, int columns, const std::vector<unsigned char>& rgb) {

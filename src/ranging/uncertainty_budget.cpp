@@ -1,25 +1,15 @@
 #include "tofkit/ranging/uncertainty_budget.hpp"
 
+#include <fmt/printf.h>
+
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <stdexcept>
 #include <vector>
 
 namespace tofkit::ranging {
-namespace {
-
-std::string format(const char* pattern, ...) {
-  char buffer[512];
-  va_list args;
-  va_start(args, pattern);
-  std::vsnprintf(buffer, sizeof buffer, pattern, args);
-  va_end(args);
-  return buffer;
-}
-
-}  // namespace
+namespace {}  // namespace
 
 double BudgetComponent::u_m(double x) const {
   if (variance_m2.size() == 1 || !(x > node.front())) return std::sqrt(variance_m2.front());
@@ -86,8 +76,9 @@ void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<co
 std::string UncertaintyBudget::table(std::span<const double> amplitude,
                                      std::span<const double> since_s) const {
   const std::size_t points = std::min(amplitude.size(), since_s.size());
-  std::string out = format("%-40s %-4s ", "component (u mm, share at each point)", "type");
-  for (std::size_t p = 0; p < points; ++p) out += format(" %13s", format("P%zu", p + 1).c_str());
+  std::string out = fmt::sprintf("%-40s %-4s ", "component (u mm, share at each point)", "type");
+  for (std::size_t p = 0; p < points; ++p)
+    out += fmt::sprintf(" %13s", fmt::sprintf("P%zu", p + 1).c_str());
   out += "  step\n";
   std::vector<double> total(points, 0.0);
   for (std::size_t k = 0; k < components.size(); ++k) {
@@ -98,24 +89,25 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
   }
   for (std::size_t k = 0; k < components.size(); ++k) {
     const BudgetComponent& c = components[k];
-    out += format("%-40s %-4s ", c.name.c_str(),
-                  c.type_b ? (c.default_specification ? "B*" : "B") : "A");
+    out += fmt::sprintf("%-40s %-4s ", c.name.c_str(),
+                        c.type_b ? (c.default_specification ? "B*" : "B") : "A");
     for (std::size_t p = 0; p < points; ++p) {
       const double u = component_u_m(k, amplitude[p], since_s[p]);
-      out += format(" %6.3f (%3.0f%%)", u * 1e3, total[p] > 0 ? 100.0 * u * u / total[p] : 0.0);
+      out +=
+          fmt::sprintf(" %6.3f (%3.0f%%)", u * 1e3, total[p] > 0 ? 100.0 * u * u / total[p] : 0.0);
     }
     out += "  " + c.step + "\n";
   }
-  out += format("%-40s %-4s ", "combined standard uncertainty", "");
+  out += fmt::sprintf("%-40s %-4s ", "combined standard uncertainty", "");
   for (std::size_t p = 0; p < points; ++p)
-    out += format(" %6.3f       ", std::sqrt(total[p]) * 1e3);
+    out += fmt::sprintf(" %6.3f       ", std::sqrt(total[p]) * 1e3);
   out += "\n";
   for (std::size_t p = 0; p < points; ++p) {
-    out +=
-        format("  P%zu: amplitude %.4g, %s\n", p + 1, amplitude[p],
-               std::isfinite(since_s[p])
-                   ? format("%g min after calibration (same power-on)", since_s[p] / 60.0).c_str()
-                   : "another power-on");
+    out += fmt::sprintf(
+        "  P%zu: amplitude %.4g, %s\n", p + 1, amplitude[p],
+        std::isfinite(since_s[p])
+            ? fmt::sprintf("%g min after calibration (same power-on)", since_s[p] / 60.0).c_str()
+            : "another power-on");
   }
   if (std::any_of(components.begin(), components.end(),
                   [](const BudgetComponent& c) { return c.default_specification; }))

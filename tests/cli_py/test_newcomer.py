@@ -79,7 +79,11 @@ def test_default_scan_of_a_plane_at_3m_lies_on_the_plane(tmp_path):
     assert len(points) == 61 * 61
     worst = max(abs(x - 3.0) for x, _, _ in points)  # the plane x = 3 m
     print(f"plane at 3 m: {len(points)} points, max point-to-plane distance {worst * 1e3:.2f} mm")
-    assert worst < 0.005
+    # The paper's stated accuracy over 1-8 m (Table 2): +-11 mm. The default
+    # device scatters as the paper's does (delay and comparator wander, a
+    # power-on offset): the plane's mean moves 0.9-3.7 mm between power-ons
+    # (seeds 1, 2, 3, 2022) and its points scatter 1.9 mm about it.
+    assert worst < 0.011
 
 
 def test_raw_scan_gives_the_raw_ranges(tmp_path):
