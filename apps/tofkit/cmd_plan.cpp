@@ -178,7 +178,7 @@ void run_plan(const PlanOptions& o, const AppContext& ctx) {
     }
     line += fmt::format(" --count {}", step.grid.count);
     if (step.seed != 1) line += fmt::format(" --seed {}", step.seed);
-    if (step.timing.start_s > 0) line += fmt::format(" --start-s {}", step.timing.start_s);
+    if (step.timing.start_s > 0) line += fmt::format(" --start-s {:.10g}", step.timing.start_s);
     if (step.timing.every_s > 0) line += fmt::format(" --every {:g}", step.timing.every_s);
     fmt::print("{} --out {}\n", line, step.file);
     switch (step.role) {
