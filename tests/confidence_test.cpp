@@ -219,6 +219,45 @@ TEST(ThesisConfidence, RecoversAPolynomialSquaredErrorAndAppliesTheFloor) {
   EXPECT_NEAR(p.floor_m2, 0.05 * mean_e2, 1e-15);
 }
 
+TEST(ThesisConfidence, UsesTheFloorAloneAboveTheStatedIntensity) {
+  // Thesis Section 4.8: "above intensity 72 a floor of 0.005 in^2 is used". E^2
+  // rising with intensity above the threshold (where the thesis's cubic would be
+  // large) must still give sqrt(floor) there, and the polynomial below it.
+  const auto f = [](double a) { return 1e-5 * (1.0 + (a - 100.0) * (a - 100.0) / 2500.0); };
+  Residuals data;
+  for (int k = 0; k < 400; ++k) {
+    const double a = 10.0 + 380.0 * k / 399.0;
+    data.range_m.push_back(5.0);
+    data.amplitude.push_back(a);
+    data.residual_m.push_back((k % 2 ? 1.0 : -1.0) * std::sqrt(f(a)));
+  }
+  ThesisConfidenceOptions options;
+  options.floor_m2 = 0.005 * 0.0254 * 0.0254;
+  options.floor_above_amplitude = 72.0;
+  const auto model = fit_thesis_confidence(data.data(), options);
+  std::vector<double> sigma(data.amplitude.size());
+  model->sigma(data.range_m, data.amplitude, sigma);
+  std::size_t above = 0;
+  for (std::size_t k = 0; k < sigma.size(); ++k) {
+    const double a = data.amplitude[k];
+    if (a > 72.0) {
+      EXPECT_DOUBLE_EQ(sigma[k], std::sqrt(options.floor_m2)) << "a " << a;
+      ++above;
+    } else {
+      EXPECT_NEAR(sigma[k], std::sqrt(std::max(f(a), options.floor_m2)), 1e-9) << "a " << a;
+    }
+  }
+  EXPECT_GT(above, 300u);
+  // Without the threshold the floor is only a lower bound (f(390) = 3.5e-4 m^2).
+  options.floor_above_amplitude = 0;
+  const std::vector<double> r{5.0}, a{390.0};
+  std::vector<double> s(1);
+  fit_thesis_confidence(data.data(), options)->sigma(r, a, s);
+  EXPECT_NEAR(s[0], std::sqrt(f(390.0)), 1e-9);
+  options.floor_above_amplitude = -1;
+  EXPECT_THROW((void)fit_thesis_confidence(data.data(), options), std::invalid_argument);
+}
+
 TEST(Confidence, DegenerateDataThrows) {
   Residuals few = make_residuals(20, Tail::gaussian, 400);
   EXPECT_THROW((void)fit_calibrated_confidence(few.data()), std::invalid_argument);

@@ -156,6 +156,10 @@ std::shared_ptr<const ConfidenceModel> fit_thesis_confidence(
   if (!(options.floor_m2 >= 0) || !std::isfinite(options.floor_m2)) {
     throw std::invalid_argument("ThesisConfidenceOptions.floor_m2 must be finite and >= 0");
   }
+  if (!(options.floor_above_amplitude >= 0) || !std::isfinite(options.floor_above_amplitude)) {
+    throw std::invalid_argument(
+        "ThesisConfidenceOptions.floor_above_amplitude must be finite and >= 0");
+  }
   const SurfaceDomain d = validate_data(data, false, who);
   const std::size_t n = data.residual_m.size();
   const Index terms = options.order + 1;
@@ -184,6 +188,7 @@ std::shared_ptr<const ConfidenceModel> fit_thesis_confidence(
   const VectorXd c = design.colPivHouseholderQr().solve(e2);
   p.coefficients.assign(c.data(), c.data() + c.size());
   p.floor_m2 = options.floor_m2 > 0 ? options.floor_m2 : 0.05 * mean_e2;
+  p.floor_above_amplitude = options.floor_above_amplitude;
   return std::make_shared<const ThesisConfidence>(std::move(p));
 }
 

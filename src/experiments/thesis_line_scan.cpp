@@ -280,6 +280,10 @@ void LineScanOptions::validate() const {
   if (!(turnaround_s >= 0)) fail("turnaround_s", "must be >= 0");
   if (window_points < 1 || window_points > 64) fail("window_points", "must be in 1..64");
   if (polynomial_orders.empty()) fail("polynomial_orders", "needs one or more");
+  if (!(thesis_floor_in2 > 0)) fail("thesis_floor_in2", "must be positive");
+  if (!(intensity_full_scale_counts > 0)) fail("intensity_full_scale_counts", "must be positive");
+  if (!std::isfinite(thesis_floor_intensity_counts))
+    fail("thesis_floor_intensity_counts", "must be finite");
   bspline.validate();
   confidence.validate();
 }
@@ -396,8 +400,15 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
     for (const auto& m : models)
       if (m.model == best_poly->model) poly = m.surface;
     const auto poly_conf_resid = residuals(*poly, conf);
+    calib::ThesisConfidenceOptions thesis_options = options.thesis_confidence;
+    thesis_options.floor_m2 = options.thesis_floor_in2 * kMetersPerInch * kMetersPerInch;
+    thesis_options.floor_above_amplitude = options.thesis_floor_intensity_counts > 0
+                                               ? options.thesis_floor_intensity_counts /
+                                                     options.intensity_full_scale_counts *
+                                                     device.config().link.receiver.amplitude_clip_v
+                                               : 0.0;
     result.thesis_confidence = calib::fit_thesis_confidence(
-        {conf.range_m, conf.amplitude, poly_conf_resid}, options.thesis_confidence);
+        {conf.range_m, conf.amplitude, poly_conf_resid}, thesis_options);
     result.stripe_images_thesis =
         chart_images(test_scan.images, test_chart.pixel_grey, *poly, *result.thesis_confidence);
     result.checker_images_thesis = chart_images(checker_scan.images, checker_board.pixel_grey,

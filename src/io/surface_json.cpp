@@ -339,6 +339,7 @@ json thesis_json(const calib::ThesisConfidence& m) {
           {"scaling", {{"amplitude", scaling_json(p.amplitude_scaling)}}},
           {"domain", {{"amplitude", interval(p.amplitude_min, p.amplitude_max)}}},
           {"floor_m2", p.floor_m2},
+          {"floor_above_amplitude", p.floor_above_amplitude},
           {"fit", {{"rows", p.rows}}}};
 }
 
@@ -350,6 +351,8 @@ std::shared_ptr<const calib::ConfidenceModel> thesis_from_json(const json& j,
   read_interval(field(j, "domain", where), "amplitude", where + ".domain", p.amplitude_min,
                 p.amplitude_max);
   p.floor_m2 = number(j, "floor_m2", where);
+  if (j.contains("floor_above_amplitude"))  // optional: files written before it floor everywhere
+    p.floor_above_amplitude = number(j, "floor_above_amplitude", where);
   p.rows = count(field(j, "fit", where), "rows", where + ".fit");
   return construct(where,
                    [&] { return std::make_shared<const calib::ThesisConfidence>(std::move(p)); });

@@ -100,6 +100,9 @@ ThesisConfidence::ThesisConfidence(ThesisConfidenceParams params) : params_(std:
   if (!(p.floor_m2 > 0) || !std::isfinite(p.floor_m2)) {
     throw std::invalid_argument("ThesisConfidence: floor_m2 must be positive");
   }
+  if (!(p.floor_above_amplitude >= 0) || !std::isfinite(p.floor_above_amplitude)) {
+    throw std::invalid_argument("ThesisConfidence: floor_above_amplitude must be finite and >= 0");
+  }
   require_finite_sigma(*this, p.amplitude_min, p.amplitude_max, 1.0, 1.0, false,
                        "ThesisConfidence");
 }
@@ -123,8 +126,10 @@ void ThesisConfidence::sigma(std::span<const double> range_m, std::span<const do
         p.amplitude_scaling.apply(clamp_to(amplitude[k], p.amplitude_min, p.amplitude_max));
     double e2 = 0;
     for (std::size_t j = p.coefficients.size(); j-- > 0;) e2 = e2 * x + p.coefficients[j];
-    // Thesis Section 4.8: the cubic goes negative at high intensity, so E^2 is floored.
-    sigma_m[k] = std::sqrt(std::max(e2, p.floor_m2));
+    // Thesis Section 4.8: the cubic goes negative at high intensity, so E^2 is
+    // floored; the thesis uses the floor alone above a stated intensity.
+    const bool above = p.floor_above_amplitude > 0 && amplitude[k] > p.floor_above_amplitude;
+    sigma_m[k] = std::sqrt(above ? p.floor_m2 : std::max(e2, p.floor_m2));
   }
 }
 

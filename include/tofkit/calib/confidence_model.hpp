@@ -30,6 +30,9 @@ struct ConfidenceFitData {
 struct ThesisConfidenceOptions {
   int order = 3;        ///< polynomial order of E^2 vs intensity (thesis: 3)
   double floor_m2 = 0;  ///< floor on E^2; 0: 5 % of the mean squared error
+  /// Above this intensity E^2 is floor_m2 alone (thesis: above intensity 72); 0: the
+  /// floor is only a lower bound.
+  double floor_above_amplitude = 0;
 };
 
 /// The thesis's metric (Section 4.8): E^2 = poly(intensity), floored; sigma = sqrt.

@@ -60,7 +60,16 @@ struct LineScanOptions {
   calib::BSplineFitOptions bspline = line_bspline_options();
   calib::CalibratedConfidenceOptions confidence{};
   /// The thesis's own metric (Section 4.8), fitted on its best polynomial's residuals.
+  /// Its floor_m2 and floor_above_amplitude are set from the two fields below.
   calib::ThesisConfidenceOptions thesis_confidence{};
+  /// Thesis Section 4.8: "above intensity 72 a floor of 0.005 in^2 is used" (the cubic
+  /// goes negative there). Assumption: the thesis's intensity is the unit's 8-bit
+  /// amplitude (0-255), mapped onto the twin's intensity output as the same share of
+  /// its full scale (receiver.amplitude_clip_v): 72 / 255 of 4 V = 1.13 V on the
+  /// accurange preset, so greys 0-102 at 15-22 in sit on the floor.
+  double thesis_floor_in2 = 0.005;
+  double thesis_floor_intensity_counts = 72.0;  ///< <= 0: the floor is only a lower bound
+  double intensity_full_scale_counts = 255.0;
   void validate() const;
   /// B-spline over (range, log intensity): 3 intervals along range, 8 along intensity.
   [[nodiscard]] static calib::BSplineFitOptions line_bspline_options();

@@ -36,7 +36,10 @@ struct ThesisConfidenceParams {
   AxisScaling amplitude_scaling;
   double amplitude_min = 0, amplitude_max = 0;  ///< fitting domain; inputs are clamped to it
   double floor_m2 = 0;                          ///< E^2 never below this
-  std::size_t rows = 0;                         ///< fitting rows
+  /// Above this intensity E^2 is the floor, whatever the polynomial gives (thesis
+  /// Section 4.8: "above intensity 72 a floor of 0.005 in^2 is used"); 0: none.
+  double floor_above_amplitude = 0;
+  std::size_t rows = 0;  ///< fitting rows
 };
 
 class ThesisConfidence final : public ConfidenceModel {
@@ -44,7 +47,8 @@ class ThesisConfidence final : public ConfidenceModel {
   /// Validates (throws std::invalid_argument naming the field).
   explicit ThesisConfidence(ThesisConfidenceParams params);
   [[nodiscard]] std::string kind() const override { return "thesis"; }
-  /// sigma = sqrt(max(E^2(clamped intensity), floor)); range is not used.
+  /// sigma = sqrt(max(E^2(clamped intensity), floor)), sqrt(floor) above
+  /// floor_above_amplitude (when set); range is not used.
   void sigma(std::span<const double> range_m, std::span<const double> amplitude,
              std::span<double> sigma_m) const override;
   [[nodiscard]] const ThesisConfidenceParams& params() const { return params_; }
