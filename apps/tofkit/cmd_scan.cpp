@@ -264,19 +264,17 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     std::vector<scan::BeamResult> received;
     mpi_ordered_chunks(
         chunks,
-        [&](std::size_t c) {
-          std::string bytes;
+        [&](std::size_t c, std::string& bytes) {
           const std::size_t begin = header.first_beam + c * kScanBlockBeams;
           const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
           // In sub-blocks, the last chunk's send advanced between them.
-          bytes.reserve((end - begin) * sizeof(scan::BeamResult));
+          bytes.reserve(bytes.size() + (end - begin) * sizeof(scan::BeamResult));
           scan::run_scan_blocks(
               caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
               [&](std::size_t, std::span<scan::BeamResult> b) {
                 bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
                 mpi_progress();
               });
-          return bytes;
         },
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
