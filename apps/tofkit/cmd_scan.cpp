@@ -260,26 +260,29 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                           header.last_beam, kScanBlockBeams, correct_and_take);
   } else {
     const std::uint64_t beams = header.last_beam - header.first_beam;
-    const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
+    // Chunks of a quarter block: the last one, made by one rank while the
+    // others have nothing left, is short.
+    constexpr std::size_t kChunkBeams = kScanBlockBeams / 4;
+    const std::size_t chunks = (beams + kChunkBeams - 1) / kChunkBeams;
     std::vector<scan::BeamResult> received;
     mpi_ordered_chunks(
         chunks,
         [&](std::size_t c, std::string& bytes) {
-          const std::size_t begin = header.first_beam + c * kScanBlockBeams;
-          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
+          const std::size_t begin = header.first_beam + c * kChunkBeams;
+          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kChunkBeams);
           // In sub-blocks, the last chunk's send advanced between them.
           bytes.reserve(bytes.size() + (end - begin) * sizeof(scan::BeamResult));
-          scan::run_scan_blocks(
-              caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
-              [&](std::size_t, std::span<scan::BeamResult> b) {
-                bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
-                mpi_progress();
-              });
+          scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, begin, end,
+                                kChunkBeams / 16, [&](std::size_t, std::span<scan::BeamResult> b) {
+                                  bytes.append(reinterpret_cast<const char*>(b.data()),
+                                               b.size_bytes());
+                                  mpi_progress();
+                                });
         },
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
-          correct_and_take(header.first_beam + c * kScanBlockBeams, received);
+          correct_and_take(header.first_beam + c * kChunkBeams, received);
         });
   }
   calibrated(/*wait=*/true);
