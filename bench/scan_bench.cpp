@@ -4,6 +4,14 @@
 // Embree casting the same rays (rtcIntersect1 on the same scene, no
 // refinement, no footprint grouping). Stages:
 //   EmbreeBare/R     the R rays of every beam, bare Embree
+//   CastSingle/R     tofkit's casts of a footprint's rays (the axis and the R
+//                    sub-rays), one RayCaster::cast each (float traversal + double
+//                    refinement), as the footprint traced them before packets
+//   CastPacket/R     the same rays through RayCaster::cast over spans (Embree
+//                    packets of up to 16): the same hits; its ratio to CastSingle
+//                    is the packets' gain
+//   EmbreePacket/R   the CastPacket rays as bare Embree packets (rtcIntersect16,
+//                    the rest one by one; no refinement): the packets' baseline
 //   Footprint/R      tofkit casting + double refinement + grouping into a Target
 //   Measured/R       footprint + the device's measurement (analytic, 1 shot), a block
 //                    of beams' targets measured in one call as the scanner does (single
@@ -167,6 +175,101 @@ void over_beams(benchmark::State& state, PerBeam per_beam) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(f.pattern.beams.size()));
 }
 
+// The rays Footprint::trace casts for beam i: its axis, then (R > 1) the R sub-rays.
+void footprint_rays(const Footprint& fp, const Beam& beam, std::vector<Vec3>& origins,
+                    std::vector<Vec3>& directions) {
+  origins.assign(1, beam.origin_m);
+  directions.assign(1, beam.direction);
+  if (fp.sub_rays().size() == 1) return;
+  Vec3 e1, e2;
+  plane_axes(beam.direction, e1, e2);
+  for (const auto& s : fp.sub_rays()) {
+    origins.push_back(beam.origin_m + (fp.exit_radius_m() * s.x) * e1 +
+                      (fp.exit_radius_m() * s.y) * e2);
+    directions.push_back(normalized(beam.direction + std::tan(fp.half_divergence_rad() * s.x) * e1 +
+                                    std::tan(fp.half_divergence_rad() * s.y) * e2));
+  }
+}
+
+void cast_rays(benchmark::State& state, bool packets) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  auto& f = fixture();
+  const Footprint fp(config_with(static_cast<int>(state.range(0))));
+  over_beams(state, [&](std::size_t i, Footprint::Result&) {
+    thread_local std::vector<Vec3> origins, directions;
+    thread_local std::vector<Hit> hits;
+    footprint_rays(fp, f.pattern.beams[i], origins, directions);
+    hits.resize(origins.size());
+    if (packets) {
+      f.caster.cast(origins, directions, hits);
+    } else {
+      for (std::size_t k = 0; k < hits.size(); ++k)
+        hits[k] = f.caster.cast(origins[k], directions[k]);
+    }
+    double sum = 0;
+    for (const auto& h : hits) sum += h.hit() ? h.distance_m : 0.0;
+    return sum;
+  });
+}
+
+void BM_EmbreePacket(benchmark::State& state) {
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(state.range(1)));
+  auto& f = fixture();
+  const Footprint fp(config_with(static_cast<int>(state.range(0))));
+  const RTCScene scene = f.caster.embree_scene();
+  over_beams(state, [&](std::size_t i, Footprint::Result&) {
+    thread_local std::vector<Vec3> origins, directions;
+    footprint_rays(fp, f.pattern.beams[i], origins, directions);
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    double sum = 0;
+    std::size_t first = 0;
+    for (; origins.size() - first >= 16; first += 16) {
+      alignas(64) int valid[16];
+      alignas(64) RTCRayHit16 rh{};
+      for (int k = 0; k < 16; ++k) {
+        const auto& o = origins[first + static_cast<std::size_t>(k)];
+        const auto& d = directions[first + static_cast<std::size_t>(k)];
+        valid[k] = -1;
+        rh.ray.org_x[k] = static_cast<float>(o[0]), rh.ray.org_y[k] = static_cast<float>(o[1]);
+        rh.ray.org_z[k] = static_cast<float>(o[2]);
+        rh.ray.dir_x[k] = static_cast<float>(d[0]), rh.ray.dir_y[k] = static_cast<float>(d[1]);
+        rh.ray.dir_z[k] = static_cast<float>(d[2]);
+        rh.ray.tfar[k] = std::numeric_limits<float>::infinity();
+        rh.ray.mask[k] = 0xFFFFFFFFu;
+        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+      }
+      rtcIntersect16(valid, scene, &context, &rh);
+      for (int k = 0; k < 16; ++k) sum += rh.ray.tfar[k];
+    }
+    for (; first < origins.size(); ++first) {
+      RTCRayHit rh{};
+      const auto& o = origins[first];
+      const auto& d = directions[first];
+      rh.ray.org_x = static_cast<float>(o[0]), rh.ray.org_y = static_cast<float>(o[1]);
+      rh.ray.org_z = static_cast<float>(o[2]);
+      rh.ray.dir_x = static_cast<float>(d[0]), rh.ray.dir_y = static_cast<float>(d[1]);
+      rh.ray.dir_z = static_cast<float>(d[2]);
+      rh.ray.tfar = std::numeric_limits<float>::infinity();
+      rh.ray.mask = 0xFFFFFFFFu;
+      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+      rtcIntersect1(scene, &context, &rh);
+      sum += rh.ray.tfar;
+    }
+    return sum;
+  });
+}
+
+void BM_CastSingle(benchmark::State& state) {
+  cast_rays(state, false);
+}
+
+void BM_CastPacket(benchmark::State& state) {
+  cast_rays(state, true);
+}
+
 void BM_Footprint(benchmark::State& state) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(state.range(1)));
@@ -281,6 +384,9 @@ void rays_and_threads(benchmark::internal::Benchmark* b) {
 }
 
 BENCHMARK(BM_EmbreeBare)->Apply(rays_and_threads);
+BENCHMARK(BM_EmbreePacket)->Apply(rays_and_threads);
+BENCHMARK(BM_CastSingle)->Apply(rays_and_threads);
+BENCHMARK(BM_CastPacket)->Apply(rays_and_threads);
 BENCHMARK(BM_Footprint)->Apply(rays_and_threads);
 BENCHMARK(BM_Measured)->Apply(rays_and_threads);
 BENCHMARK(BM_Scan)->Apply(rays_and_threads);

@@ -115,6 +115,8 @@ TEST_F(Cluster, ScanCorrectsBlocksMeasuredWhileItsFactoryCalibrationRunsAsItsMod
   // The factory calibration runs beside the scan: 191 k beams (6 blocks) are
   // measured in the time it takes, so blocks are held raw (up to 4), then the
   // scan waits for it; every beam must come out as with the same model given.
+  // (Made, not read from the calibration cache.)
+  const tofkit::test::ScopedEnv no_cache("TOFKIT_CACHE_DIR", "off");
   const tofkit::device::DeviceConfig config;
   tofkit::io::save_pipeline(dir_ / "factory.json",
                             tofkit::experiments::factory_calibration(config).pipeline);

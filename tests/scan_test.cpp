@@ -143,6 +143,126 @@ TEST(ScanRayCaster, BoxAndCubeMeshMatchClosedForm) {
   }
 }
 
+TEST(ScanRayCaster, PacketsGiveTheHitsOfSingleCasts) {
+  // A scene of every kind: a ground of 2 x 24 x 24 triangles sharing edges
+  // and vertices, a box, a sphere, a capped cylinder, a plane with stripes.
+  Scene scene;
+  Primitive ground;
+  ground.kind = PrimitiveKind::kMesh;
+  ground.name = "ground";
+  ground.reflectance.value = 0.3;
+  constexpr int kGrid = 25;
+  for (int i = 0; i < kGrid; ++i)
+    for (int j = 0; j < kGrid; ++j)
+      ground.vertices.push_back({-2.0 + 0.5 * i, -6.0 + 0.5 * j, -1.7 + 0.01 * std::sin(i * j)});
+  for (std::uint32_t i = 0; i + 1 < kGrid; ++i) {
+    for (std::uint32_t j = 0; j + 1 < kGrid; ++j) {
+      const std::uint32_t a = i * kGrid + j, b = a + 1, c = a + kGrid, d = c + 1;
+      ground.triangles.push_back({a, c, d});
+      ground.triangles.push_back({a, d, b});
+    }
+  }
+  scene.primitives.push_back(ground);
+  Primitive box;
+  box.kind = PrimitiveKind::kBox;
+  box.name = "box";
+  box.min_m = {4.0, -1.0, -1.7};
+  box.max_m = {5.0, 0.5, -0.2};
+  scene.primitives.push_back(box);
+  Primitive sphere;
+  sphere.kind = PrimitiveKind::kSphere;
+  sphere.name = "sphere";
+  sphere.center_m = {6.0, 2.0, -0.5};
+  sphere.radius_m = 0.7;
+  scene.primitives.push_back(sphere);
+  Primitive cylinder;
+  cylinder.kind = PrimitiveKind::kCylinder;
+  cylinder.name = "cylinder";
+  cylinder.base_m = {3.0, 3.0, -1.7};
+  cylinder.radius_m = 0.4;
+  cylinder.height_m = 1.5;
+  scene.primitives.push_back(cylinder);
+  Primitive wall = plane({9.0, 0, 0}, {-1, 0, 0}, 12.0, 4.0, 0.5);
+  wall.reflectance.kind = Reflectance::Kind::kStripes;
+  wall.reflectance.values = {0.1, 0.9};
+  wall.reflectance.cell_m = 0.3;
+  scene.primitives.push_back(wall);
+  ASSERT_TRUE(scene.validate().empty());
+  const RayCaster caster(scene);
+
+  // Rays from near the sensor to every vertex, every edge's midpoint and
+  // every triangle's centroid of the ground (ties between triangles), to the
+  // analytic primitives' edges, and beams' footprints (20 coherent rays).
+  std::vector<Vec3> origins, directions;
+  const auto aim = [&](const Vec3& o, const Vec3& at) {
+    origins.push_back(o);
+    directions.push_back(normalized(at - o));
+  };
+  for (std::size_t k = 0; k < ground.vertices.size(); ++k)
+    aim(origin(int(k % 7)), ground.vertices[k]);
+  for (const auto& t : ground.triangles) {
+    const Vec3 &a = ground.vertices[t[0]], &b = ground.vertices[t[1]], &c = ground.vertices[t[2]];
+    aim({0, 0, 0}, 0.5 * (a + b));
+    aim({0, 0, 0}, 0.5 * (b + c));
+    aim({0, 0, 0}, 0.5 * (c + a));
+    aim({0, 0.01, 0}, (1.0 / 3.0) * (a + b + c));
+  }
+  for (int i = 0; i < 400; ++i) {
+    const double y = -1.0 + 1.5 * i / 399.0;
+    aim({0, 0, 0}, {4.0, y, -0.2});  // the box's top edge
+    aim({0, 0, 0}, {4.0, y, -1.7});  // where the box meets the ground
+    aim({0, 0, 0}, {6.0, 2.0 + 0.7 * std::cos(i), -0.5 + 0.7 * std::sin(i)});  // sphere's rim
+  }
+  const Footprint footprint(3e-3, 20e-3, 19);
+  for (int i = 0; i < 300; ++i) {
+    const double az = -0.7 + 1.4 * i / 299.0, el = -0.35 + 0.5 * std::sin(3.0 * i);
+    const Vec3 axis{std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)};
+    Vec3 e1, e2;
+    plane_axes(axis, e1, e2);
+    origins.push_back({0, 0, 0});
+    directions.push_back(axis);
+    for (const auto& s : footprint.sub_rays()) {
+      origins.push_back((footprint.exit_radius_m() * s.x) * e1 +
+                        (footprint.exit_radius_m() * s.y) * e2);
+      directions.push_back(normalized(axis + std::tan(footprint.half_divergence_rad() * s.x) * e1 +
+                                      std::tan(footprint.half_divergence_rad() * s.y) * e2));
+    }
+  }
+  std::vector<Hit> single(origins.size());
+  std::size_t hits = 0;
+  for (std::size_t i = 0; i < origins.size(); ++i) {
+    single[i] = caster.cast(origins[i], directions[i]);
+    hits += single[i].hit() ? 1 : 0;
+  }
+  EXPECT_GT(hits, origins.size() * 3 / 4);
+  EXPECT_LT(hits, origins.size());  // some miss
+  // In batches of every size from 1 to 40 (packets of 16, 8, 4 and single rays).
+  for (std::size_t size = 1; size <= 40; ++size) {
+    std::vector<Hit> packed(origins.size());
+    for (std::size_t first = 0; first < origins.size(); first += size) {
+      const std::size_t n = std::min(size, origins.size() - first);
+      caster.cast(std::span(origins).subspan(first, n), std::span(directions).subspan(first, n),
+                  std::span(packed).subspan(first, n));
+    }
+    std::size_t differ = 0;
+    for (std::size_t i = 0; i < origins.size(); ++i) {
+      const Hit &a = single[i], &b = packed[i];
+      if (!(same(a.distance_m, b.distance_m) && same(a.normal, b.normal) &&
+            same(a.reflectance, b.reflectance) && a.primitive == b.primitive && a.part == b.part)) {
+        if (++differ < 5)
+          ADD_FAILURE() << "batch " << size << ", ray " << i << ": single " << a.distance_m
+                        << " (primitive " << a.primitive << " part " << a.part << "), packet "
+                        << b.distance_m << " (primitive " << b.primitive << " part " << b.part
+                        << ")";
+      }
+    }
+    EXPECT_EQ(differ, 0u) << "batch " << size;
+  }
+  std::vector<Hit> wrong(3);
+  EXPECT_THROW(caster.cast(std::span(origins).first(2), std::span(directions).first(2), wrong),
+               std::invalid_argument);
+}
+
 TEST(ScanRayCaster, CylinderSideAndCapMatchClosedForm) {
   Primitive c;
   c.kind = PrimitiveKind::kCylinder;

@@ -23,6 +23,7 @@
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/device_plan.hpp"
 #include "tofkit/io/atomic_file.hpp"
+#include "tofkit/io/calibration_cache.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scan_writer.hpp"
@@ -65,6 +66,31 @@ std::set<std::string> parse_write(const std::string& text) {
   return picked;
 }
 
+/// The factory calibration's seed (`tofkit plan`'s measurements at seed 1).
+constexpr std::uint64_t kFactorySeed = 1;
+
+struct MadeCalibration {
+  ranging::Pipeline pipeline;
+  std::string note;  // the cache could not keep it (one line), or ""
+};
+
+// The device's factory calibration as the cache holds it: the model (a hit),
+// or the key to store a made one under (a miss), or neither (the cache off).
+struct FactoryModel {
+  std::optional<ranging::Pipeline> cached;
+  std::optional<io::FactoryCalibrationKey> key;
+  std::string note;  // an unusable entry, a build without an id (one line), or ""
+};
+
+FactoryModel find_factory_model(const device::DeviceConfig& config) {
+  FactoryModel found;
+  const auto directory = io::calibration_cache_directory();
+  if (!directory) return found;
+  found.key = io::factory_calibration_key(*directory, config, kFactorySeed, found.note);
+  if (found.key) found.cached = io::load_factory_calibration(*found.key, found.note);
+  return found;
+}
+
 // A one-line progress indicator on a terminal; silent when stderr is a file.
 struct Progress {
   bool tty = ::isatty(STDERR_FILENO) != 0;
@@ -94,21 +120,38 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   // The calibration runs on its own thread beside the scan (the beams are
   // measured raw; ranges are corrected as blocks are written), so rank 0's
   // scan and the other ranks' chunks do not wait for it.
-  std::future<ranging::Pipeline> calibration;
+  // A made calibration is kept in the cache (io/calibration_cache.hpp): the
+  // next scan of this device by this build reads it back instead.
+  std::future<MadeCalibration> calibration;
   if (world.rank != 0) {
     pipeline.reset();
   } else if (!pipeline && !o.raw) {
-    calibration = std::async(std::launch::async, [&config] {
-      try {
-        return experiments::factory_calibration(config).pipeline;
-      } catch (const std::invalid_argument& e) {
-        throw std::runtime_error(std::string("the factory calibration of this device failed (") +
-                                 e.what() + "): give --model FILE or --raw");
-      }
-    });
+    const FactoryModel factory = find_factory_model(config);
+    if (!factory.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", factory.note);
+    if (factory.cached) {
+      pipeline = *factory.cached;
+    } else {
+      calibration = std::async(std::launch::async, [&config, key = factory.key] {
+        try {
+          MadeCalibration made;
+          made.pipeline =
+              experiments::factory_calibration(io::calibration_config(config), kFactorySeed)
+                  .pipeline;
+          if (key) io::store_factory_calibration(*key, made.pipeline, made.note);
+          return made;
+        } catch (const std::invalid_argument& e) {
+          throw std::runtime_error(std::string("the factory calibration of this device failed (") +
+                                   e.what() + "): give --model FILE or --raw");
+        }
+      });
+    }
     fmt::print(stderr,
                "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
-               "and a distance sweep, seed 1); --model FILE for your own, --raw for none\n");
+               "and a distance sweep, seed {}; {}); --model FILE for your own, --raw for none\n",
+               kFactorySeed,
+               factory.cached ? "from the cache"
+               : factory.key  ? "made now and cached"
+                              : "made now; cache off");
   } else if (o.raw) {
     fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
   }
@@ -189,7 +232,9 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     if (!calibration.valid()) return true;
     if (!wait && calibration.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
       return false;
-    pipeline = calibration.get();
+    MadeCalibration made = calibration.get();
+    pipeline = std::move(made.pipeline);
+    if (!made.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", made.note);
     if (!held.empty()) {
       scan::apply_pipeline(*pipeline, held);
       take(held_first, held);
@@ -215,28 +260,29 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                           header.last_beam, kScanBlockBeams, correct_and_take);
   } else {
     const std::uint64_t beams = header.last_beam - header.first_beam;
-    const std::size_t chunks = (beams + kScanBlockBeams - 1) / kScanBlockBeams;
+    // Chunks of a quarter block: the last one, made by one rank while the
+    // others have nothing left, is short.
+    constexpr std::size_t kChunkBeams = kScanBlockBeams / 4;
+    const std::size_t chunks = (beams + kChunkBeams - 1) / kChunkBeams;
     std::vector<scan::BeamResult> received;
     mpi_ordered_chunks(
         chunks,
-        [&](std::size_t c) {
-          std::string bytes;
-          const std::size_t begin = header.first_beam + c * kScanBlockBeams;
-          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kScanBlockBeams);
+        [&](std::size_t c, std::string& bytes) {
+          const std::size_t begin = header.first_beam + c * kChunkBeams;
+          const std::size_t end = std::min<std::size_t>(header.last_beam, begin + kChunkBeams);
           // In sub-blocks, the last chunk's send advanced between them.
-          bytes.reserve((end - begin) * sizeof(scan::BeamResult));
-          scan::run_scan_blocks(
-              caster, footprint, rangefinder, pattern, options, begin, end, kScanBlockBeams / 64,
-              [&](std::size_t, std::span<scan::BeamResult> b) {
-                bytes.append(reinterpret_cast<const char*>(b.data()), b.size_bytes());
-                mpi_progress();
-              });
-          return bytes;
+          bytes.reserve(bytes.size() + (end - begin) * sizeof(scan::BeamResult));
+          scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, begin, end,
+                                kChunkBeams / 16, [&](std::size_t, std::span<scan::BeamResult> b) {
+                                  bytes.append(reinterpret_cast<const char*>(b.data()),
+                                               b.size_bytes());
+                                  mpi_progress();
+                                });
         },
         [&](std::size_t c, std::string_view bytes) {
           received.resize(bytes.size() / sizeof(scan::BeamResult));
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
-          correct_and_take(header.first_beam + c * kScanBlockBeams, received);
+          correct_and_take(header.first_beam + c * kChunkBeams, received);
         });
   }
   calibrated(/*wait=*/true);

@@ -91,7 +91,8 @@ class Dispatcher {
       if (!arrived) break;
       int count = 0;
       MPI_Get_count(&status, MPI_BYTE, &count);
-      std::string bytes(static_cast<std::size_t>(count), '\0');
+      std::string bytes = spare();
+      bytes.resize(static_cast<std::size_t>(count));
       check(MPI_Recv(bytes.data(), count, MPI_BYTE, status.MPI_SOURCE, kChunkTag, MPI_COMM_WORLD,
                      MPI_STATUS_IGNORE),
             "MPI_Recv");
@@ -127,14 +128,16 @@ class Dispatcher {
     }
   }
 
-  void run(const std::function<std::string(std::size_t)>& make) {
+  void run(const std::function<void(std::size_t, std::string&)>& make) {
     while (written_ < chunks_) {
       serve();
       write_held();
       if (written_ >= chunks_) break;
       if (next_ < chunks_ && may_hand_out()) {
         const std::size_t c = next_++;
-        held_.emplace(c, Held{make(c), 0});
+        std::string bytes = spare();
+        make(c, bytes);
+        held_.emplace(c, Held{std::move(bytes), 0});
         continue;
       }
       ::usleep(100);
@@ -151,9 +154,18 @@ class Dispatcher {
 
  private:
   [[nodiscard]] bool may_hand_out() const { return next_ < written_ + window_; }
+  // An empty buffer, with the capacity of a written chunk's when there is one.
+  std::string spare() {
+    if (spare_.empty()) return {};
+    std::string bytes = std::move(spare_.back());
+    spare_.pop_back();
+    bytes.clear();
+    return bytes;
+  }
   void write_held() {
     for (auto it = held_.find(written_); it != held_.end(); it = held_.find(written_)) {
       if (take_) take_(written_, std::string_view(it->second.bytes).substr(it->second.offset));
+      spare_.push_back(std::move(it->second.bytes));
       held_.erase(it);
       ++written_;
     }
@@ -167,6 +179,7 @@ class Dispatcher {
     std::size_t offset;  // where the chunk's bytes start (after a received chunk's index)
   };
   std::map<std::size_t, Held> held_;
+  std::vector<std::string> spare_;  // written chunks' buffers, for the next ones
   const std::function<void(std::size_t, std::string_view)>& take_;
 };
 
@@ -192,12 +205,15 @@ void mpi_done() {
   g_done = true;
 }
 
-void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
+void mpi_ordered_chunks(std::size_t chunks,
+                        const std::function<void(std::size_t, std::string&)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take) {
   const MpiWorld w = mpi_world();
   if (w.size == 1) {  // one process (no launcher): nothing to share
+    std::string bytes;
     for (std::size_t c = 0; c < chunks; ++c) {
-      const std::string bytes = make(c);
+      bytes.clear();
+      make(c, bytes);
       if (take) take(c, bytes);
     }
     return;
@@ -215,8 +231,10 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
     return;
   }
   // The other ranks: ask for a chunk, make it, send it (its index first) and
-  // ask again while it is on its way.
-  std::string sending;
+  // ask again while it is on its way; two buffers, one being sent while the
+  // next chunk is made in the other.
+  std::string buffers[2];
+  int next = 0;
   MPI_Request& request = g_pending;
   for (;;) {
     char ask = 0;
@@ -231,12 +249,12 @@ void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std:
       ::usleep(100);
     }
     if (chunk == kNoMore) break;
-    std::string bytes(sizeof chunk, '\0');
-    std::memcpy(bytes.data(), &chunk, sizeof chunk);
-    bytes += make(static_cast<std::size_t>(chunk));
-    wait_politely(request);
-    sending = std::move(bytes);
-    check(MPI_Isend(sending.data(), static_cast<int>(sending.size()), MPI_BYTE, 0, kChunkTag,
+    std::string& bytes = buffers[next];
+    next ^= 1;
+    bytes.assign(reinterpret_cast<const char*>(&chunk), sizeof chunk);
+    make(static_cast<std::size_t>(chunk), bytes);
+    wait_politely(request);  // (the other buffer's send)
+    check(MPI_Isend(bytes.data(), static_cast<int>(bytes.size()), MPI_BYTE, 0, kChunkTag,
                     MPI_COMM_WORLD, &request),
           "MPI_Isend");
   }
@@ -277,9 +295,15 @@ void mpi_done() {
   g_done = true;
 }
 
-void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
+void mpi_ordered_chunks(std::size_t chunks,
+                        const std::function<void(std::size_t, std::string&)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take) {
-  for (std::size_t c = 0; c < chunks; ++c) take(c, make(c));
+  std::string bytes;
+  for (std::size_t c = 0; c < chunks; ++c) {
+    bytes.clear();
+    make(c, bytes);
+    if (take) take(c, bytes);
+  }
 }
 
 void mpi_broadcast(std::string&) {}

@@ -25,13 +25,15 @@ struct MpiWorld {
 /// outputs are committed).
 void mpi_done();
 
-/// Chunks 0 .. chunks - 1, each made (`make`) by whichever rank asks for work
-/// next (rank 0 too), and rank 0 hands every chunk's bytes to `take` in chunk
-/// order (memory: at most 2 x size chunks held by rank 0, one or two per
-/// other rank).
-void mpi_ordered_chunks(std::size_t chunks, const std::function<std::string(std::size_t)>& make,
+/// Chunks 0 .. chunks - 1, each made (`make(chunk, bytes)`, which appends
+/// the chunk's bytes to `bytes`) by whichever rank asks for work next (rank 0
+/// too), and rank 0 hands every chunk's bytes to `take` in chunk order
+/// (memory: at most 2 x size chunks held by rank 0, one or two per other
+/// rank). The chunks' buffers are reused (a fresh multi-megabyte buffer a
+/// chunk cost both ranks its page faults).
+void mpi_ordered_chunks(std::size_t chunks,
+                        const std::function<void(std::size_t, std::string&)>& make,
                         const std::function<void(std::size_t, std::string_view)>& take);
-
 /// Advances this rank's chunk on its way to rank 0 (call it now and then
 /// while making the next one).
 void mpi_progress();

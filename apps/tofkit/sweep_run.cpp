@@ -112,16 +112,14 @@ SweepRunSummary run_sweep(const io::SweepPlan& plan, const AppContext& ctx, cons
     std::memcpy(missing.data(), bytes.data(), bytes.size());
   }
   const std::size_t batches = (missing.size() + kBatchPoints - 1) / kBatchPoints;
-  auto make_batch = [&](std::size_t b) {
+  auto make_batch = [&](std::size_t b, std::string& joined) {
     const std::size_t begin = b * kBatchPoints;
     const std::size_t n = std::min<std::size_t>(kBatchPoints, missing.size() - begin);
     std::vector<std::string> batch(n);
     tbb::parallel_for(std::size_t{0}, n, [&](std::size_t k) {
       batch[k] = io::sweep_row(plan, base, missing[begin + k]);
     });
-    std::string joined;
     for (const auto& row : batch) joined += row + "\n";
-    return joined;
   };
   if (world.rank != 0) {
     mpi_ordered_chunks(batches, make_batch, {});

@@ -63,19 +63,35 @@ void Footprint::trace(const RayCaster& caster, const Vec3& origin, const Vec3& a
     }
     return;
   }
-  result.true_range_m = caster.cast(origin, axis).distance_m;
+  // The axis and the sub-rays, traced together as packets (the hits of
+  // single casts; coherent rays trace faster so).
+  const std::size_t rays = sub_rays_.size();
+  thread_local std::vector<Vec3> origins, directions;
+  thread_local std::vector<Hit> hits;
+  origins.resize(rays + 1);
+  directions.resize(rays + 1);
+  hits.resize(rays + 1);
   // Cross-section axes of the beam.
   Vec3 e1, e2;
   plane_axes(axis, e1, e2);
+  origins[0] = origin;
+  directions[0] = axis;
+  for (std::size_t k = 0; k < rays; ++k) {
+    const SubRay& s = sub_rays_[k];
+    origins[k + 1] = origin + (exit_radius_m_ * s.x) * e1 + (exit_radius_m_ * s.y) * e2;
+    directions[k + 1] = normalized(axis + tilts_[k].x * e1 + tilts_[k].y * e2);
+  }
+  caster.cast(origins, directions, hits);
+  result.true_range_m = hits[0].distance_m;
   Group groups[16];
   std::vector<Group> more;
   std::size_t count = 0;
   const double tan_half_divergence = std::tan(half_divergence_rad_);
-  for (std::size_t k = 0; k < sub_rays_.size(); ++k) {
+  for (std::size_t k = 0; k < rays; ++k) {
     const SubRay& s = sub_rays_[k];
-    const Vec3 o = origin + (exit_radius_m_ * s.x) * e1 + (exit_radius_m_ * s.y) * e2;
-    const Vec3 d = normalized(axis + tilts_[k].x * e1 + tilts_[k].y * e2);
-    const Hit h = caster.cast(o, d);
+    const Vec3& o = origins[k + 1];
+    const Vec3& d = directions[k + 1];
+    const Hit& h = hits[k + 1];
     if (!h.hit()) continue;
     const Vec3 point = o + h.distance_m * d;
     const double along_axis = dot(point - origin, axis);

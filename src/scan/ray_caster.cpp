@@ -358,6 +358,84 @@ RTCScene RayCaster::embree_scene() const {
   return impl_->rtc_scene;
 }
 
+namespace {
+
+using RefineTables = std::vector<std::vector<RefineTriangle>>;
+
+// A closest hit as Embree's float traversal found it, refined on the double
+// ray: the closed form for analytic primitives, double Moller-Trumbore for
+// the hit triangle (float traversal chose which one).
+Hit refined_hit(const Scene& scene, const RefineTables& refine, unsigned geom_id, unsigned prim_id,
+                float tfar, const Vec3& float_normal, const Vec3& o, const Vec3& d) {
+  Hit hit;
+  if (geom_id == RTC_INVALID_GEOMETRY_ID) return hit;
+  const auto& p = scene.primitives[geom_id];
+  hit.primitive = geom_id;
+  hit.part = prim_id;
+  double t = 0;
+  Vec3 n;
+  bool refined = false;
+  if (p.kind == PrimitiveKind::kMesh) {
+    refined = intersect_triangle(refine[geom_id][prim_id], o, d, t, n);
+  } else {
+    std::uint32_t part = 0;
+    refined = intersect_primitive(p, o, d, 0.0, kInf, t, n, part);
+    if (refined) hit.part = part;
+  }
+  if (!refined) {  // the float hit, where the double ray just misses
+    t = tfar;
+    n = normalized(facing(float_normal, d));
+  }
+  hit.distance_m = t;
+  hit.normal = n;
+  hit.reflectance = p.reflectance.value;
+  if (p.kind == PrimitiveKind::kPlane && p.reflectance.kind != Reflectance::Kind::kUniform) {
+    Vec3 u, v;
+    plane_axes(p.normal, u, v);
+    const Vec3 rel = o + t * d - p.center_m;
+    hit.reflectance =
+        p.reflectance.at(dot(rel, u) + 0.5 * p.size_m[0], dot(rel, v) + 0.5 * p.size_m[1]);
+  }
+  return hit;
+}
+
+// Up to W rays as one Embree packet (RTCRayHit4/8/16), the lanes past n
+// invalid: the same hits as W single casts (the same float ray per lane,
+// the same closest-hit traversal and triangle test, the same refinement).
+template <int W, class RayHitW, class IntersectW>
+void cast_packet(const Scene& scene, const RefineTables& refine, RTCScene rtc_scene, const Vec3* o,
+                 const Vec3* d, std::size_t n, Hit* out, IntersectW intersect) {
+  alignas(64) int valid[W];
+  alignas(64) RayHitW rh;
+  for (int i = 0; i < W; ++i) {
+    const auto lane = static_cast<std::size_t>(i);
+    const std::size_t k = lane < n ? lane : 0;
+    valid[i] = lane < n ? -1 : 0;
+    rh.ray.org_x[i] = static_cast<float>(o[k][0]);
+    rh.ray.org_y[i] = static_cast<float>(o[k][1]);
+    rh.ray.org_z[i] = static_cast<float>(o[k][2]);
+    rh.ray.dir_x[i] = static_cast<float>(d[k][0]);
+    rh.ray.dir_y[i] = static_cast<float>(d[k][1]);
+    rh.ray.dir_z[i] = static_cast<float>(d[k][2]);
+    rh.ray.tnear[i] = 0;
+    rh.ray.tfar[i] = std::numeric_limits<float>::infinity();
+    rh.ray.mask[i] = 0xFFFFFFFFu;
+    rh.ray.time[i] = 0;
+    rh.ray.flags[i] = 0;
+    rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+  }
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  intersect(valid, rtc_scene, &context, &rh);
+  for (std::size_t i = 0; i < n; ++i) {
+    out[i] = refined_hit(scene, refine, rh.hit.geomID[i], rh.hit.primID[i], rh.ray.tfar[i],
+                         {rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]}, o[i], d[i]);
+  }
+}
+
+}  // namespace
+
 Hit RayCaster::cast(const Vec3& o, const Vec3& d) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
@@ -376,38 +454,39 @@ Hit RayCaster::cast(const Vec3& o, const Vec3& d) const {
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(impl_->rtc_scene, &context, &rh);
-  Hit hit;
-  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return hit;
-  const auto& p = impl_->scene.primitives[rh.hit.geomID];
-  hit.primitive = rh.hit.geomID;
-  hit.part = rh.hit.primID;
-  // Refine on the double ray: the closed form for analytic primitives, double
-  // Moller-Trumbore for the hit triangle (float traversal chose which one).
-  double t = 0;
-  Vec3 n;
-  bool refined = false;
-  if (p.kind == PrimitiveKind::kMesh) {
-    refined = intersect_triangle(impl_->refine[rh.hit.geomID][rh.hit.primID], o, d, t, n);
-  } else {
-    std::uint32_t part = 0;
-    refined = intersect_primitive(p, o, d, 0.0, kInf, t, n, part);
-    if (refined) hit.part = part;
+  return refined_hit(impl_->scene, impl_->refine, rh.hit.geomID, rh.hit.primID, rh.ray.tfar,
+                     {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z}, o, d);
+}
+
+void RayCaster::cast(std::span<const Vec3> origins, std::span<const Vec3> directions,
+                     std::span<Hit> hits) const {
+  if (origins.size() != directions.size() || origins.size() != hits.size())
+    throw std::invalid_argument("RayCaster::cast: origins, directions and hits differ in size");
+  const Scene& scene = impl_->scene;
+  const RefineTables& refine = impl_->refine;
+  const RTCScene rtc_scene = impl_->rtc_scene;
+  for (std::size_t first = 0; first < hits.size();) {
+    const std::size_t n = std::min<std::size_t>(hits.size() - first, 16);
+    const Vec3* o = origins.data() + first;
+    const Vec3* d = directions.data() + first;
+    Hit* out = hits.data() + first;
+    if (n > 8) {
+      cast_packet<16, RTCRayHit16>(scene, refine, rtc_scene, o, d, n, out,
+                                   [](const int* v, RTCScene s, RTCIntersectContext* c,
+                                      RTCRayHit16* r) { rtcIntersect16(v, s, c, r); });
+    } else if (n > 4) {
+      cast_packet<8, RTCRayHit8>(scene, refine, rtc_scene, o, d, n, out,
+                                 [](const int* v, RTCScene s, RTCIntersectContext* c,
+                                    RTCRayHit8* r) { rtcIntersect8(v, s, c, r); });
+    } else if (n > 1) {
+      cast_packet<4, RTCRayHit4>(scene, refine, rtc_scene, o, d, n, out,
+                                 [](const int* v, RTCScene s, RTCIntersectContext* c,
+                                    RTCRayHit4* r) { rtcIntersect4(v, s, c, r); });
+    } else {
+      out[0] = cast(o[0], d[0]);
+    }
+    first += n;
   }
-  if (!refined) {  // the float hit, where the double ray just misses
-    t = rh.ray.tfar;
-    n = normalized(facing({rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z}, d));
-  }
-  hit.distance_m = t;
-  hit.normal = n;
-  hit.reflectance = p.reflectance.value;
-  if (p.kind == PrimitiveKind::kPlane && p.reflectance.kind != Reflectance::Kind::kUniform) {
-    Vec3 u, v;
-    plane_axes(p.normal, u, v);
-    const Vec3 rel = o + t * d - p.center_m;
-    hit.reflectance =
-        p.reflectance.at(dot(rel, u) + 0.5 * p.size_m[0], dot(rel, v) + 0.5 * p.size_m[1]);
-  }
-  return hit;
 }
 
 }  // namespace tofkit::scan

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <span>
 
 #include "tofkit/scan/scene.hpp"
 
@@ -36,6 +37,12 @@ class RayCaster {
 
   /// Closest hit of the ray origin + t direction, t > 0 (direction: unit).
   [[nodiscard]] Hit cast(const Vec3& origin, const Vec3& direction) const;
+  /// The closest hits of many rays, each the hit cast() gives: traced as
+  /// Embree packets of up to 16 rays (coherent rays, such as a beam's
+  /// footprint, trace faster so). Throws std::invalid_argument when the
+  /// spans' sizes differ.
+  void cast(std::span<const Vec3> origins, std::span<const Vec3> directions,
+            std::span<Hit> hits) const;
 
   [[nodiscard]] const Scene& scene() const;
   /// The committed Embree scene (for baselines that cast the same rays bare).
