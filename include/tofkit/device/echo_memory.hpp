@@ -28,8 +28,13 @@
 /// loses lock until the baseline has come down, and the counting window around
 /// the stall (device/loop_window.hpp) reads long or not by where its gate falls
 /// on it (thesis Fig. 4.28: black after mid grey swings erratically). After a
-/// weaker return the level is low and the range reads short (a negative spike,
-/// Figs. 3.4-3.5).
+/// weaker return the level is low: the rise comes earlier and the fall later,
+/// so the period, counted over both edges, barely moves on an unsaturated echo
+/// (at most 0.05 in short at 19 in), and a saturated echo's slow fall from the
+/// clip reads long (white after black: +1.9 in). The loop therefore reads
+/// short only after a still stronger return (at most 0.7 in); the thesis's
+/// short readings on black (Fig. 4.28, 15.65 in at ~19.5 in) need a cause this
+/// model does not have.
 ///  - **Motion**: a beam moving during the averaging window sweeps several
 ///    targets (`SequenceItem::path`); the shots are shared among them, the window
 ///    reports the valid-shot average of their times, widths and amplitudes (the
