@@ -127,6 +127,73 @@ TEST(Device, PulseWidthGrowsWithAmplitudeAndBendsAtSaturation) {
   EXPECT_NEAR(knee.fall_crossing_ns - knee.rise_crossing_ns, 6.5, 0.5);
 }
 
+// Overdrive has limits (issue 30). A laser diode emits nothing before its
+// drive current crosses the lasing threshold: with that onset the echo has a
+// first instant, so however strong the return, its threshold crossing comes
+// no earlier than the onset (walk is bounded). Without it the Gaussian's foot
+// crosses ever earlier, as sqrt(2 ln(A / V_th)) pulse sigmas.
+TEST(Device, LasingOnsetBoundsWalkUnderStrongEchoes) {
+  const auto cfg = preset("paper");  // (the clip shapes the fall, not the rise)
+  const double onset_ns = 0.6;
+  auto with_onset = cfg;
+  with_onset.link.laser.lasing_onset_ns = onset_ns;
+  const VirtualRangefinder bare(cfg), limited(with_onset);
+  const double delay_ns = 2.0 * 1.0 / 0.299702547;  // 1 m in air, about
+  double previous = 1e9;
+  for (double rho = 0.1; rho <= 1e6; rho *= 10.0) {
+    const auto e = limited.echo(Target::plate(1.0, rho), {});
+    ASSERT_TRUE(e.detected);
+    // Monotone: stronger crosses earlier, never before the onset.
+    EXPECT_LE(e.rise_crossing_ns, previous + 1e-9);
+    EXPECT_GE(e.rise_crossing_ns, delay_ns - onset_ns - 0.01) << rho;
+    previous = e.rise_crossing_ns;
+  }
+  // The last decades move the crossing by less and less: bounded, not log-like.
+  const double r4 = limited.echo(Target::plate(1.0, 1e4), {}).rise_crossing_ns;
+  const double r5 = limited.echo(Target::plate(1.0, 1e5), {}).rise_crossing_ns;
+  const double r6 = limited.echo(Target::plate(1.0, 1e6), {}).rise_crossing_ns;
+  EXPECT_LT(r5 - r6, 0.6 * (r4 - r5));
+  // Without the onset the Gaussian foot keeps walking: past the onset's bound.
+  EXPECT_LT(bare.echo(Target::plate(1.0, 1e6), {}).rise_crossing_ns, delay_ns - onset_ns - 0.05);
+  // The template itself: dark before the onset, the Gaussian's shape after it.
+  const physics::PulseTemplate whole(1.0, 150.0), cut(1.0, 150.0, 5.0, onset_ns);
+  EXPECT_EQ(cut(-onset_ns - 0.01), 0.0);
+  EXPECT_GT(whole(-onset_ns - 0.01), 0.0);
+  EXPECT_NEAR(cut.begin_ns(), -onset_ns, 1e-12);
+}
+
+// APD space charge: the echo at the comparator is A / (1 + A / A_sc) of its
+// linear amplitude A (the link budget's), so it never exceeds A_sc, and the
+// amplifier's overdrive (and with it the recovery's stretch of the pulse
+// width) is bounded.
+TEST(Device, SpaceChargeBoundsTheEchoAndThePulseWidth) {
+  auto cfg = preset("paper");
+  const VirtualRangefinder linear(cfg);
+  auto limited_cfg = cfg;
+  const double a_sc = 20.0;
+  limited_cfg.link.receiver.space_charge_v = a_sc;
+  const VirtualRangefinder limited(limited_cfg);
+  for (double rho : {0.05, 0.5, 5.0, 500.0}) {
+    const double a = linear.echo(Target::plate(2.355, rho), {}).peak_v;
+    const double v = limited.echo(Target::plate(2.355, rho), {}).peak_v;
+    EXPECT_NEAR(v, a / (1.0 + a / a_sc), 1e-6 * a) << rho;
+    EXPECT_LT(v, a_sc);
+  }
+  // The width stops growing: the recovery's stretch is bounded by
+  // recovery_ns_per_neper ln(A_sc / V_sat), where the linear device's keeps growing.
+  auto width = [&](double rho) {
+    const auto e = limited.echo(Target::plate(2.355, rho), {});
+    return e.fall_crossing_ns - e.rise_crossing_ns;
+  };
+  const double w_far = width(1e6), w_farther = width(1e8);
+  EXPECT_NEAR(w_far, w_farther, 1e-3);
+  auto linear_width = [&](double rho) {
+    const auto e = linear.echo(Target::plate(2.355, rho), {});
+    return e.fall_crossing_ns - e.rise_crossing_ns;
+  };
+  EXPECT_GT(linear_width(1e8) - linear_width(1e6), 2.0);
+}
+
 TEST(Device, SingleShotSpreadGrowsWithRange) {
   const VirtualRangefinder dev(preset("paper"));
   const auto at2 = single_shots(dev, Target::plate(2.0, 0.1), 4000);

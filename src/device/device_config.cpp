@@ -94,6 +94,11 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("laser.turn_on_time_constant_ms", &laser.turn_on_time_constant_ms, 1e-6, 1e7,
             "decay time of the turn-on bias. Assumption"),
 
+      field_or_off("laser.lasing_onset_ns", &laser.lasing_onset_ns, 1e-3, 100,
+                   "emission starts this long before the pulse's peak (the drive current "
+                   "crosses the lasing threshold; bounds walk under strong echoes). 0: a whole "
+                   "Gaussian"),
+
       // receiver: optics, APD, transimpedance amplifier
       field("receiver.aperture_diameter_mm", &rx.aperture_diameter_mm, 1e-3, 1000,
             "receiving aperture diameter, Table 1"),
@@ -121,6 +126,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "amplifier output clip level. Assumption: saturation starts at the 6.5 ns echo width"),
       field("receiver.recovery_ns_per_neper", &rx.recovery_ns_per_neper, 0, 1000,
             "extra clipped time per e-fold of overdrive (charge storage). Assumption"),
+      field_or_off("receiver.space_charge_v", &rx.space_charge_v, 1e-6, 1e4,
+                   "APD space charge: the linear echo amplitude at which the gain has halved, "
+                   "A / (1 + A / this); bounds overdrive. 0: none"),
       field("receiver.amplitude_noise_rel", &rx.amplitude_noise_rel, 0, 1,
             "relative noise of the amplitude (peak) reading"),
       field("receiver.nominal_temperature_c", &rx.nominal_temperature_c, -60, 150,

@@ -350,11 +350,12 @@ class SpreadEchoTable {
 
 /// Tables shared by devices with the same pulse (a few kept; the key is exact).
 std::shared_ptr<const SpreadEchoTable> spread_table(const physics::PulseTemplate& pulse,
-                                                    double fwhm_ns, double bandwidth_mhz) {
+                                                    double fwhm_ns, double bandwidth_mhz,
+                                                    double onset_ns) {
   static std::mutex mutex;
-  static std::map<std::pair<double, double>, std::shared_ptr<const SpreadEchoTable>> cache;
+  static std::map<std::array<double, 3>, std::shared_ptr<const SpreadEchoTable>> cache;
   const std::lock_guard lock(mutex);
-  const std::pair key{fwhm_ns, bandwidth_mhz};
+  const std::array key{fwhm_ns, bandwidth_mhz, onset_ns};
   if (const auto it = cache.find(key); it != cache.end()) return it->second;
   if (cache.size() >= 8) cache.clear();  // devices keep their own reference
   auto table = std::make_shared<const SpreadEchoTable>(pulse);
@@ -500,7 +501,8 @@ struct VirtualRangefinder::Impl {
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
         mode(m),
-        pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz),
+        pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz, 5.0,
+              config.link.laser.lasing_onset_ns),
         tdc(config.tdc),
         id(next_device_id.fetch_add(1)) {
     const auto& rx = config.link.receiver;
@@ -511,7 +513,8 @@ struct VirtualRangefinder::Impl {
     waveform_dt_ns = waveform_step_ns(config);
     // The table serves the pulsed core only: an oscillator-loop device never asks.
     if (mode == SimulationMode::kAnalytic && !config.oscillator.enabled)
-      shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz);
+      shapes = spread_table(pulse, config.link.laser.pulse_width_ns, rx.bandwidth_mhz,
+                            config.link.laser.lasing_onset_ns);
     // None on a white surface facing the receiver: none on any (Eq. 9's terms are >= 0).
     background_free = physics::background_power_w(config.link, 1.0, 0.0) == 0.0;
     coupled = config.memory.time_constant_ms > 0.0 && config.memory.coupling_share > 0.0;
@@ -624,6 +627,14 @@ struct VirtualRangefinder::Impl {
     return c;
   }
 
+  /// The APD's space charge: a strong pulse's own carriers screen the
+  /// multiplication field, so the gain falls as the current grows,
+  /// A / (1 + A / A_sc), and no echo exceeds A_sc however strong the return.
+  [[nodiscard]] double space_charge_limited_v(double linear_v) const {
+    const double a_sc = config.link.receiver.space_charge_v;
+    return a_sc > 0.0 ? linear_v / (1.0 + linear_v / a_sc) : linear_v;
+  }
+
   /// One surface's echo; false when it returns nothing.
   [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
                                   SurfaceEcho& out) const {
@@ -636,7 +647,7 @@ struct VirtualRangefinder::Impl {
         s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
         physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
     if (power_w <= 0.0) return false;
-    out.amplitude_v = power_w * c.volts_per_watt;
+    out.amplitude_v = space_charge_limited_v(power_w * c.volts_per_watt);
     // The comparator is re-armed at every pulse: an echo later than the pulse
     // period arrives after a later pulse and is timed from that one (ambiguity).
     out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;

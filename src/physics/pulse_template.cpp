@@ -15,11 +15,13 @@ double two_pole_time_constant_ns(double bandwidth_mhz) {
   return 1e3 / (2.0 * kPi * pole_mhz);
 }
 
-PulseTemplate::PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double step_ps) {
+PulseTemplate::PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double step_ps,
+                             double lasing_onset_ns) {
   const double sigma_ns = pulse_fwhm_ns / (2.0 * std::sqrt(2.0 * std::log(2.0)));
   pole_tau_ns_ = two_pole_time_constant_ns(bandwidth_mhz);
   const double step_ns = step_ps * 1e-3;
-  begin_ns_ = -6.0 * sigma_ns;
+  // The diode is dark before its current crosses the lasing threshold.
+  begin_ns_ = lasing_onset_ns > 0.0 ? -std::min(lasing_onset_ns, 6.0 * sigma_ns) : -6.0 * sigma_ns;
   end_ns_ = 6.0 * sigma_ns + 20.0 * pole_tau_ns_;
   const auto n = static_cast<std::size_t>(std::ceil((end_ns_ - begin_ns_) / step_ns)) + 1;
   // Impulse response of two equal poles, unit area: h(t) = t / tau^2 exp(-t / tau).

@@ -1,7 +1,10 @@
 #pragma once
 /// \file The shape of an echo at the comparator: the emitted Gaussian laser
 /// pulse convolved with the receiver's impulse response (two equal real poles,
-/// overall -3 dB bandwidth B; rise time about 0.35 / B).
+/// overall -3 dB bandwidth B; rise time about 0.35 / B). A laser diode emits
+/// nothing until its drive current crosses the lasing threshold: with an
+/// onset, the Gaussian starts there (zero before), so the echo has a first
+/// instant no strong echo can cross before (bounded walk).
 
 #include <cstddef>
 #include <vector>
@@ -10,8 +13,11 @@ namespace tofkit::physics {
 
 class PulseTemplate {
  public:
-  /// `pulse_fwhm_ns`: emitted pulse FWHM; `bandwidth_mhz`: receiver -3 dB bandwidth.
-  PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double step_ps = 5.0);
+  /// `pulse_fwhm_ns`: emitted pulse FWHM; `bandwidth_mhz`: receiver -3 dB bandwidth;
+  /// `lasing_onset_ns`: emission starts this long before the pulse's peak (0: a
+  /// whole Gaussian, no onset).
+  PulseTemplate(double pulse_fwhm_ns, double bandwidth_mhz, double step_ps = 5.0,
+                double lasing_onset_ns = 0.0);
 
   /// Normalized shape (peak 1) at time t after the emitted pulse's centre.
   [[nodiscard]] double operator()(double t_ns) const {

@@ -47,6 +47,12 @@ struct ReceiverConfig {
                                   ///< receiver's optical axes. The receiver's field (aperture plus
                                   ///< field angle) overlaps the beam only past a blind zone.
                                   ///< Assumption: side-by-side 3 mm beam and 26 mm lens.
+  /// APD space charge: a strong pulse's own carriers screen the multiplication
+  /// field, so the echo at the comparator is A / (1 + A / space_charge_v) of its
+  /// linear amplitude A: no echo exceeds it, and the amplifier's overdrive (so
+  /// walk and the recovery's stretch) is bounded. 0: none (the paper device:
+  /// its Fig. 6 plates reach 7.5 ns; 20 V would stop them at 6.7 ns).
+  double space_charge_v = 0.0;
 };
 
 }  // namespace tofkit::physics
