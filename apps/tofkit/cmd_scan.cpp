@@ -27,6 +27,7 @@
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scan_writer.hpp"
 #include "tofkit/io/scene_file.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 #include "tofkit/scan/scanner.hpp"
 
 namespace tofkit::app {
@@ -83,7 +84,11 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   scan::Scene loaded_scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
-  if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
+  ranging::UncertaintyBudget budget;  // sigma_m is its combined uncertainty where there is one
+  if (!o.model.empty()) {
+    pipeline = io::load_pipeline(o.model);
+    budget = io::load_budget(o.model);
+  }
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
   // Under mpirun, rank 0 corrects and writes; every rank measures its chunks.
@@ -94,13 +99,13 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   // The calibration runs on its own thread beside the scan (the beams are
   // measured raw; ranges are corrected as blocks are written), so rank 0's
   // scan and the other ranks' chunks do not wait for it.
-  std::future<ranging::Pipeline> calibration;
+  std::future<calib::ModelFitResult> calibration;
   if (world.rank != 0) {
     pipeline.reset();
   } else if (!pipeline && !o.raw) {
     calibration = std::async(std::launch::async, [&config] {
       try {
-        return experiments::factory_calibration(config).pipeline;
+        return experiments::factory_calibration(config);
       } catch (const std::invalid_argument& e) {
         throw std::runtime_error(std::string("the factory calibration of this device failed (") +
                                  e.what() + "): give --model FILE or --raw");
@@ -185,13 +190,30 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   constexpr std::size_t kHeldBeams = 4 * kScanBlockBeams;
   std::vector<scan::BeamResult> held;
   std::size_t held_first = 0;
+  // The scan is a run of its own power-on (its seed): with a budget, sigma_m
+  // is the combined uncertainty of a row on another power-on than the
+  // calibration's (ranging::apply_budget, time since calibration unknown).
+  const auto correct = [&](std::span<scan::BeamResult> beams) {
+    scan::apply_pipeline(*pipeline, beams);
+    if (budget.empty() || beams.empty()) return;
+    std::vector<ranging::Range> ranges(beams.size());
+    for (std::size_t i = 0; i < beams.size(); ++i) ranges[i] = beams[i].range;
+    const double unknown[1] = {ranging::kNaN};
+    ranging::apply_budget(
+        budget, *pipeline,
+        ranging::RawColumns::of(&beams[0].raw, beams.size(), sizeof(scan::BeamResult)), unknown,
+        ranges);
+    for (std::size_t i = 0; i < beams.size(); ++i) beams[i].range.sigma_m = ranges[i].sigma_m;
+  };
   const auto calibrated = [&](bool wait) {
     if (!calibration.valid()) return true;
     if (!wait && calibration.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
       return false;
-    pipeline = calibration.get();
+    calib::ModelFitResult factory = calibration.get();
+    pipeline = std::move(factory.pipeline);
+    budget = std::move(factory.budget);
     if (!held.empty()) {
-      scan::apply_pipeline(*pipeline, held);
+      correct(held);
       take(held_first, held);
       std::vector<scan::BeamResult>().swap(held);
     }
@@ -206,7 +228,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
       held.insert(held.end(), beams.begin(), beams.end());
       return;
     }
-    if (pipeline) scan::apply_pipeline(*pipeline, beams);
+    if (pipeline) correct(beams);
     take(first, beams);
   };
   if (world.size == 1) {

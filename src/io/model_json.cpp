@@ -360,6 +360,8 @@ const char* axis_name(ranging::BudgetComponent::Axis a) {
       return "log_amplitude";
     case ranging::BudgetComponent::Axis::time_since_calibration_s:
       return "time_since_calibration_s";
+    case ranging::BudgetComponent::Axis::temperature_c:
+      return "temperature_c";
     case ranging::BudgetComponent::Axis::none:
       break;
   }
@@ -427,8 +429,11 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
       c.axis = ranging::BudgetComponent::Axis::log_amplitude;
     } else if (axis == "time_since_calibration_s") {
       c.axis = ranging::BudgetComponent::Axis::time_since_calibration_s;
+    } else if (axis == "temperature_c") {
+      c.axis = ranging::BudgetComponent::Axis::temperature_c;
     } else {
-      fail(where + ".axis", "expected none, log_amplitude or time_since_calibration_s");
+      fail(where + ".axis",
+           "expected none, log_amplitude, time_since_calibration_s or temperature_c");
     }
     c.node = numbers(cj, "node", where);
     c.variance_m2 = numbers(cj, "variance_m2", where);

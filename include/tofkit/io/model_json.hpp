@@ -19,7 +19,7 @@
 ///    "residual_rms_m": ..., "fit": {...}  (free-form fit statistics, optional),
 ///    "uncertainty_budget": {"components": [{"name", "step", "type": "A" | "B",
 ///        "default_specification", "scope": "always" | "same_power_on" | "other_power_on",
-///        "axis": "none" | "log_amplitude" | "time_since_calibration_s",
+///        "axis": "none" | "log_amplitude" | "time_since_calibration_s" | "temperature_c",
 ///        "node": [], "variance_m2": []}], "unobserved": [...]}  (optional: models
 ///        written before the budget have none, and read as before)}
 ///
