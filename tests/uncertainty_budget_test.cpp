@@ -377,28 +377,45 @@ TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
   EXPECT_TRUE(full.budget.budget.unobserved.empty());
 }
 
+/// The oracles' set-up: the paper device with only one slow cause left
+/// (delay wander or the power-on offset, in ps; the flicker off), plates at
+/// `distances` x reflectance 0.1, 0.3, 0.8, 4 repeats, at 20 C on power-on 1,
+/// fitted with offset + gray value (cross-fitted: the budget's input).
+struct SmallCalibration {
+  SmallCalibration(std::initializer_list<double> distances, double wander_ps, double power_on_ps)
+      : config(configure(wander_ps, power_on_ps)), device(config) {
+    for (const double d : distances)
+      for (const double rho : {0.1, 0.3, 0.8})
+        for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
+    calibration = experiments::run(device, plan, 1);
+    calib::ModelFitOptions options;
+    options.time_to_distance = device::nominal_time_to_distance(config);
+    options.chain = calib::parse_chain_steps("offset,grayvalue");
+    fit = calib::fit_model(calibration, options);
+  }
+  static device::DeviceConfig configure(double wander_ps, double power_on_ps) {
+    device::DeviceConfig config = device::preset("paper");
+    set_key(config, "measurement.flicker_delay_ps", 0.0);
+    set_key(config, "measurement.delay_wander_ps", wander_ps);
+    set_key(config, "measurement.power_on_offset_ps", power_on_ps);
+    return config;
+  }
+  device::DeviceConfig config;
+  device::VirtualRangefinder device;
+  std::vector<experiments::PlannedMeasurement> plan;
+  std::vector<ranging::Record> calibration;
+  calib::ModelFitResult fit;
+};
+
 TEST(UncertaintyBudget, PowerOnTermRecoversTheDevicesPowerOnOffset) {
   // Oracle: the device draws a delay offset per power-on (seed) of
   // measurement.power_on_offset_ps; two power-ons differ by sqrt(2) times it
   // (x c/2). The flicker and wander are switched off, so nothing else moves.
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "measurement.flicker_delay_ps", 0.0);
-  set_key(config, "measurement.delay_wander_ps", 0.0);
-  set_key(config, "measurement.power_on_offset_ps", 20.0);
-  const device::VirtualRangefinder device(config);
-  std::vector<experiments::PlannedMeasurement> plan;
-  for (double d : {1.0, 1.7, 2.4, 3.1, 3.8})
-    for (double rho : {0.1, 0.3, 0.8})
-      for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
-  const auto calibration = experiments::run(device, plan, 1);
-  calib::ModelFitOptions options;
-  options.time_to_distance = device::nominal_time_to_distance(config);
-  options.chain = calib::parse_chain_steps("offset,grayvalue");
-  const calib::ModelFitResult fit = calib::fit_model(calibration, options);
+  const SmallCalibration c({1.0, 1.7, 2.4, 3.1, 3.8}, 0.0, 20.0);
   calib::ProtocolSteps steps;
   for (std::uint64_t seed = 2; seed < 42; ++seed)
-    steps.power_on_runs.push_back(experiments::run(device, plan, seed));
-  const auto budget = calib::fit_model_budget(calibration, fit, steps, {});
+    steps.power_on_runs.push_back(experiments::run(c.device, c.plan, seed));
+  const auto budget = calib::fit_model_budget(c.calibration, c.fit, steps, {});
   double u = 0;
   for (const auto& c : budget.budget.components)
     if (c.name == "power-on reproducibility") u = std::sqrt(c.variance_m2[0]);
@@ -426,20 +443,8 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
   // power-ons (two rows each, 30 min apart), against the drift term each of
   // 8 power-ons' stability record (60 min, every 15 s) gives at 30 min. Only
   // the delay wander moves the rows.
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "measurement.flicker_delay_ps", 0.0);
-  set_key(config, "measurement.power_on_offset_ps", 0.0);
-  set_key(config, "measurement.delay_wander_ps", 30.0);
-  const device::VirtualRangefinder device(config);
-  std::vector<experiments::PlannedMeasurement> plan;
-  for (double d : {1.0, 2.0, 3.0, 4.0})
-    for (double rho : {0.1, 0.3, 0.8})
-      for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
-  const auto calibration = experiments::run(device, plan, 1);
-  calib::ModelFitOptions options;
-  options.time_to_distance = device::nominal_time_to_distance(config);
-  options.chain = calib::parse_chain_steps("offset,grayvalue");
-  const calib::ModelFitResult fit = calib::fit_model(calibration, options);
+  const SmallCalibration c({1.0, 2.0, 3.0, 4.0}, 30.0, 0.0);
+  const device::VirtualRangefinder& device = c.device;
   const std::vector<experiments::PlannedMeasurement> one = {experiments::plate(2.0, 0.3, 20.0)};
   constexpr double kLag_s = 1800;
   double ensemble = 0;
@@ -459,9 +464,9 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
     calib::ProtocolSteps steps;
     steps.stability = rows;
     steps.stability_every_s = 15;
-    const auto b = calib::fit_model_budget(calibration, fit, steps, {});
-    for (const auto& c : b.budget.components)
-      if (c.name == "drift since calibration") budget += std::pow(c.u_m(kLag_s), 2);
+    const auto b = calib::fit_model_budget(c.calibration, c.fit, steps, {});
+    for (const auto& component : b.budget.components)
+      if (component.name == "drift since calibration") budget += std::pow(component.u_m(kLag_s), 2);
   }
   budget /= kRecords;
   std::printf(

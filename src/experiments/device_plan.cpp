@@ -132,6 +132,15 @@ std::vector<PlateGrid> grids_of(const std::vector<calib::PlannedPlate>& plates, 
   return grids;
 }
 
+/// The grid at the plan's distance: the one with the most plates (the
+/// field's middle powers; the others are plates moved for the extremes).
+PlateGrid main_grid(const std::vector<calib::PlannedPlate>& plates, int count) {
+  const std::vector<PlateGrid> grids = grids_of(plates, count);
+  return *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
+    return a.reflectances.size() < b.reflectances.size();
+  });
+}
+
 }  // namespace
 
 Protocol plan_protocol(const device::VirtualRangefinder& device,
@@ -229,11 +238,7 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
     if (o.complete) {
       // A weak, the middle and a strong plate of the plan's distance: the
       // APD's gain and the walk change with temperature by echo strength.
-      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
-      const PlateGrid& at =
-          *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
-            return a.reflectances.size() < b.reflectances.size();
-          });
+      const PlateGrid at = main_grid(plan.plates, o.count);
       s.grid.distances_m = at.distances_m;
       s.grid.reflectances = {at.reflectances.front(), at.reflectances[at.reflectances.size() / 2],
                              at.reflectances.back()};
@@ -253,11 +258,7 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
       s.file = "poweron" + std::to_string(k + 2) + ".csv";
       s.observes = "the offset between power-ons";
       s.role = StepRole::power_on;
-      // The plates at the plan's distance (the most plates: the field's middle powers).
-      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
-      s.grid = *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
-        return a.reflectances.size() < b.reflectances.size();
-      });
+      s.grid = main_grid(plan.plates, o.count);
       s.seed = static_cast<std::uint64_t>(k + 2);
       s.timing.start_s = protocol.calibration_start_s;
       s.bench_minutes = o.stability_minutes + 2.0 * static_cast<double>(s.grid.reflectances.size());
