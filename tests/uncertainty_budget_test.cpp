@@ -319,16 +319,17 @@ struct HeldOutCase {
 class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 
 // The acceptance, measured (figures in the commit messages and the
-// closing report). The planner's protocol now fits the walk model: the weak
-// echoes' bias (the gray-value hinge's linear interpolation between and below
-// the few weak plates: DISABLED_WeakEchoes) is gone. Without delay wander,
-// indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma coverage
-// 95-98 % per tercile and a systematic residual of 0.9 mm (noise 0.29 mm);
-// in sunlight 6.1-6.2 mm worst and 1.5-1.7 mm systematic (noise 0.78 mm);
-// with 30 ps of delay wander the drift of 0-60 min gives 11-13 mm worst rows
-// and coverage 99-100 % (the budget's drift term, from the stability record,
-// over-covers). Still short of the acceptance, so disabled; run it with
-// --gtest_also_run_disabled_tests (about 2-6 min: the walk model's fit).
+// closing report). The planner's protocol fits the walk model. Without delay
+// wander, indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma
+// coverage 97.0-97.7 % (terciles 95.8-99.2 %) and a systematic residual of
+// 0.93-0.98 mm (noise 0.31 mm); in sunlight 7.3-7.5 mm worst, 95.8-98.0 %,
+// systematic 1.6 mm (noise 0.65 mm); with 30 ps of delay wander the drift of
+// 0-60 min gives 12-13 mm worst rows and 94.4-97.9 % overall, but per time
+// band 84-100 %: each band's drift is one draw of one power-on (the drift
+// term matches the ensemble of power-ons: DriftTermFollowsTheEnsembleOfPowerOns).
+// Still short of the acceptance (worst rows, the systematic residual, the time
+// bands), so disabled; run it with --gtest_also_run_disabled_tests (about 2-6
+// min: the walk model's fit).
 TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
@@ -348,10 +349,16 @@ TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   }
 }
 
+// The paper's protocol: 90.7-96.3 % overall, but the weak tercile 80-89 %:
+// its misses are the field's weakest targets (5.8-7.4 m at reflectance 0.06),
+// three e-folds of amplitude below its weakest plate (out of the domain:
+// errors of 18-32 mm against sigma 5.5 mm), and drift beyond the default
+// drift_ps (15 ps) on the devices with 30 ps of wander.
 TEST_P(HeldOut, DISABLED_PaperProtocolStaysHonest) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
   const Calibrated c = calibrate(device, false, false);
+  std::printf("%s", c.budget.report.c_str());
   const FieldFigures f = field_test(device, c);
   print("paper protocol, chain", f);
   EXPECT_GE(f.within_2sigma, 0.90);
