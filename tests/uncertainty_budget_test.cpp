@@ -558,6 +558,74 @@ TEST_F(BudgetCli, SigmaFollowsTheTimeSinceCalibrationAndEvaluateSplitsByFile) {
 namespace tofkit {
 namespace {
 
+TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
+  // measure --start-s writes time_s (start + k x the output period, or x --every).
+  ASSERT_EQ(run("measure --distance 1.5,3 --reflectance 0.05,0.2,0.8 --count 3 --start-s 100 --out "
+                "a.csv")
+                .status,
+            0);
+  ASSERT_EQ(run("measure --distance 2 --reflectance 0.3 --count 41 --every 15 --start-s 200 --out "
+                "s.csv")
+                .status,
+            0);
+  std::vector<double> time_s;
+  const auto a = io::read_raw_csv(dir_ / "a.csv", &time_s);
+  ASSERT_EQ(time_s.size(), a.size());
+  const double period = experiments::output_period_s(device::preset("paper"));
+  for (std::size_t k = 0; k < time_s.size(); ++k)
+    EXPECT_DOUBLE_EQ(time_s[k], 100 + static_cast<double>(k) * period);
+  (void)io::read_raw_csv(dir_ / "s.csv", &time_s);
+  EXPECT_DOUBLE_EQ(time_s.back(), 200 + 40 * 15.0);
+  // A file without the column (written before it) reads as before: NaN times.
+  io::write_raw_csv(dir_ / "old.csv", a);
+  EXPECT_EQ(read("old.csv").find("time_s"), std::string::npos);
+  const auto old = io::read_raw_csv(dir_ / "old.csv", &time_s);
+  ASSERT_EQ(old.size(), a.size());
+  EXPECT_TRUE(std::isnan(time_s.front()));
+  // The fit keeps the calibration's time (the median row's: 100 s and a few ms).
+  ASSERT_EQ(run("fit --in a.csv --chain offset,grayvalue --budget --stability s.csv "
+                "--stability-every 15 --out model.json")
+                .status,
+            0);
+  const ranging::UncertaintyBudget budget = io::load_budget(dir_ / "model.json");
+  EXPECT_NEAR(budget.calibration_time_s, 100 + 9 * period, 1e-9);
+  // Field rows 10 min after it: correct reads their time_s, as if told
+  // --since-calibration 600 - 9 periods for the whole file.
+  ASSERT_EQ(run("measure --distance 1:4:1 --reflectance 0.1,0.5 --start-s 700 --out f.csv").status,
+            0);
+  ASSERT_EQ(run("correct --model model.json --in f.csv --out timed.csv").status, 0);
+  ASSERT_EQ(
+      run("correct --model model.json --in f.csv --since-calibration 0 --out zero.csv").status, 0);
+  ASSERT_EQ(run("correct --model model.json --in old.csv --out unknown.csv").status, 0);
+  const auto timed = io::read_corrected_csv((dir_ / "timed.csv").string());
+  const auto zero = io::read_corrected_csv((dir_ / "zero.csv").string());
+  ranging::UncertaintyBudget drift_only;
+  for (const auto& c : budget.components)
+    if (c.name == "drift since calibration") drift_only.components.push_back(c);
+  ASSERT_EQ(drift_only.components.size(), 1u);
+  for (std::size_t i = 0; i < timed.size(); ++i) {
+    const double since = 700 + static_cast<double>(i) * period - budget.calibration_time_s;
+    const double drift = drift_only.component_u_m(0, 1.0, since);
+    EXPECT_NEAR(timed[i].range.sigma_m * timed[i].range.sigma_m,
+                zero[i].range.sigma_m * zero[i].range.sigma_m + drift * drift, 1e-12);
+  }
+  // Without time_s: another power-on (the power-on term, type B here).
+  ASSERT_EQ(run("correct --model model.json --in a.csv --since-calibration 0 --out a0.csv").status,
+            0);
+  const auto unknown = io::read_corrected_csv((dir_ / "unknown.csv").string());
+  const auto same = io::read_corrected_csv((dir_ / "a0.csv").string());
+  ASSERT_EQ(unknown.size(), same.size());
+  for (std::size_t i = 0; i < unknown.size(); ++i)
+    if (std::isfinite(same[i].range.sigma_m))
+      EXPECT_GT(unknown[i].range.sigma_m, same[i].range.sigma_m);
+}
+
+}  // namespace
+}  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
 // Diagnosis of the weak-echo residual (issue 34): one held-out device,
 // calibrated by the planner's protocol (chain); each field target measured 20
 // times right after the calibration, its mean error against the calibration

@@ -394,7 +394,9 @@ json budget_to_json(const ranging::UncertaintyBudget& budget) {
                           {"node", c.node},
                           {"variance_m2", c.variance_m2}});
   }
-  return {{"components", components}, {"unobserved", budget.unobserved}};
+  json j = {{"components", components}, {"unobserved", budget.unobserved}};
+  if (std::isfinite(budget.calibration_time_s)) j["calibration_time_s"] = budget.calibration_time_s;
+  return j;
 }
 
 ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& context) {
@@ -447,6 +449,11 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
         fail(context + ".unobserved[" + std::to_string(k) + "]", "expected a string");
       budget.unobserved.push_back(u[k].get<std::string>());
     }
+  }
+  if (j.contains("calibration_time_s")) {
+    budget.calibration_time_s = number(j["calibration_time_s"], context + ".calibration_time_s");
+    if (!(budget.calibration_time_s >= 0))
+      fail(context + ".calibration_time_s", "expected a time since power-on >= 0 s");
   }
   try {
     budget.validate();

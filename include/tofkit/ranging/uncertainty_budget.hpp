@@ -48,6 +48,10 @@ struct UncertaintyBudget {
   std::vector<BudgetComponent> components;
   /// Causes the calibration rows did not observe (their type B terms stand in).
   std::vector<std::string> unobserved;
+  /// When the calibration rows were taken, s after power-on (the median of
+  /// their raw CSV's time_s; NaN: unknown): a row's time_s less it is its time
+  /// since calibration, on the calibration's power-on.
+  double calibration_time_s = kNaN;
 
   /// Throws std::invalid_argument naming the bad component and field.
   void validate() const;
