@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
 #include <string>
@@ -22,6 +23,7 @@
 #include "tofkit/experiments/device_plan.hpp"
 #include "tofkit/experiments/measurement_grid.hpp"
 #include "tofkit/io/model_json.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace fs = std::filesystem;
 
@@ -46,11 +48,14 @@ std::map<std::string, std::string> files_of(const fs::path& dir) {
   return files;
 }
 
-// The factory calibration of the default device, made once for the tests here.
-const tofkit::ranging::Pipeline& factory_pipeline() {
-  static const tofkit::ranging::Pipeline pipeline =
-      tofkit::experiments::factory_calibration(tofkit::device::DeviceConfig{}, 1).pipeline;
-  return pipeline;
+// The factory calibration of the default device (model and budget), made once
+// for the tests here.
+const tofkit::io::FactoryCalibration& factory_made() {
+  static const tofkit::io::FactoryCalibration made = [] {
+    auto fit = tofkit::experiments::factory_calibration(tofkit::device::DeviceConfig{}, 1);
+    return tofkit::io::FactoryCalibration{std::move(fit.pipeline), std::move(fit.budget)};
+  }();
+  return made;
 }
 
 }  // namespace
@@ -133,7 +138,7 @@ TEST(CalibrationCache, AnEntryGivesBackExactlyTheStoredModel) {
   ASSERT_TRUE(key) << note;
   EXPECT_FALSE(io::load_factory_calibration(*key, note));
   EXPECT_EQ(note, "");  // absent: no note
-  ASSERT_TRUE(io::store_factory_calibration(*key, factory_pipeline(), note)) << note;
+  ASSERT_TRUE(io::store_factory_calibration(*key, factory_made(), note)) << note;
   const auto loaded = io::load_factory_calibration(*key, note);
   ASSERT_TRUE(loaded) << note;
   EXPECT_EQ(note, "");
@@ -141,7 +146,11 @@ TEST(CalibrationCache, AnEntryGivesBackExactlyTheStoredModel) {
   EXPECT_EQ(files_of(dir).size(), 1u);
   // The model JSON, and the ranges of measurements over the field (ranges,
   // reflectances, temperatures; out of domain too), to the bit.
-  EXPECT_EQ(io::pipeline_to_json(*loaded).dump(), io::pipeline_to_json(factory_pipeline()).dump());
+  EXPECT_EQ(io::pipeline_to_json(loaded->pipeline).dump(),
+            io::pipeline_to_json(factory_made().pipeline).dump());
+  ASSERT_FALSE(factory_made().budget.empty());
+  EXPECT_EQ(io::budget_to_json(loaded->budget).dump(),
+            io::budget_to_json(factory_made().budget).dump());
   std::vector<experiments::PlannedMeasurement> plan;
   for (double d = 0.3; d < 12; d += 0.37)
     for (const double rho : {0.02, 0.1, 0.5, 0.9})
@@ -150,9 +159,14 @@ TEST(CalibrationCache, AnEntryGivesBackExactlyTheStoredModel) {
   const auto records = experiments::run(device, plan, 7);
   std::vector<ranging::RawMeasurement> raw;
   for (const auto& r : records) raw.push_back(r.raw);
+  // Corrected, then sigma_m from the budget (another power-on), as a scan does.
   std::vector<ranging::Range> a(raw.size()), b(raw.size());
-  factory_pipeline().apply(raw, a);
-  loaded->apply(raw, b);
+  const auto columns = ranging::RawColumns::of(raw);
+  const double unknown = std::numeric_limits<double>::quiet_NaN();
+  factory_made().pipeline.apply(raw, a);
+  ranging::apply_budget(factory_made().budget, factory_made().pipeline, columns, {&unknown, 1}, a);
+  loaded->pipeline.apply(raw, b);
+  ranging::apply_budget(loaded->budget, loaded->pipeline, columns, {&unknown, 1}, b);
   std::size_t finite = 0;
   for (std::size_t i = 0; i < raw.size(); ++i) {
     EXPECT_EQ(std::memcmp(&a[i].distance_m, &b[i].distance_m, sizeof(double)), 0) << i;
@@ -170,7 +184,7 @@ TEST(CalibrationCache, UnusableEntriesAndUnwritableCachesAreNotesNeverErrors) {
   std::string note;
   const auto key = io::factory_calibration_key(dir, device::DeviceConfig{}, 1, note);
   ASSERT_TRUE(key) << note;
-  ASSERT_TRUE(io::store_factory_calibration(*key, factory_pipeline(), note)) << note;
+  ASSERT_TRUE(io::store_factory_calibration(*key, factory_made(), note)) << note;
   const std::string good = tofkit::test::read_file(key->entry());
   const auto refused = [&](const std::string& content, const std::string& why) {
     std::ofstream(key->entry(), std::ios::binary | std::ios::trunc) << content;
@@ -186,7 +200,7 @@ TEST(CalibrationCache, UnusableEntriesAndUnwritableCachesAreNotesNeverErrors) {
   // Another key in the file (a hash collision, a hand-copied entry).
   auto other = *key;
   other.seed = 2;
-  ASSERT_TRUE(io::store_factory_calibration(other, factory_pipeline(), note)) << note;
+  ASSERT_TRUE(io::store_factory_calibration(other, factory_made(), note)) << note;
   refused(tofkit::test::read_file(other.entry()), "another key");
   // A model that does not read.
   std::string broken = good;
@@ -198,7 +212,7 @@ TEST(CalibrationCache, UnusableEntriesAndUnwritableCachesAreNotesNeverErrors) {
   auto unwritable = *key;
   unwritable.directory = dir / "file" / "cache";
   note.clear();
-  EXPECT_FALSE(io::store_factory_calibration(unwritable, factory_pipeline(), note));
+  EXPECT_FALSE(io::store_factory_calibration(unwritable, factory_made(), note));
   EXPECT_NE(note.find("not cached"), std::string::npos) << note;
   EXPECT_FALSE(io::load_factory_calibration(unwritable, note));
   fs::remove_all(dir);

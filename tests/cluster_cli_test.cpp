@@ -118,8 +118,8 @@ TEST_F(Cluster, ScanCorrectsBlocksMeasuredWhileItsFactoryCalibrationRunsAsItsMod
   // (Made, not read from the calibration cache.)
   const tofkit::test::ScopedEnv no_cache("TOFKIT_CACHE_DIR", "off");
   const tofkit::device::DeviceConfig config;
-  tofkit::io::save_pipeline(dir_ / "factory.json",
-                            tofkit::experiments::factory_calibration(config).pipeline);
+  const auto factory = tofkit::experiments::factory_calibration(config);
+  tofkit::io::save_pipeline(dir_ / "factory.json", factory.pipeline, nullptr, &factory.budget);
   const std::string scan = "--threads 2 --max-rows 1000000 scan --scene " +
                            (kScenes / "blocks.toml").string() +
                            " --pattern spherical --azimuth=-40:40:0.18 --elevation=-30:30:0.14 "

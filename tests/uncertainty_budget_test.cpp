@@ -28,6 +28,8 @@
 #include "tofkit/experiments/measurement_grid.hpp"
 #include "tofkit/io/model_json.hpp"
 #include "tofkit/io/raw_csv.hpp"
+#include "tofkit/scan/pattern.hpp"
+#include "tofkit/scan/scanner.hpp"
 
 namespace tofkit {
 namespace {
@@ -66,6 +68,20 @@ TEST(UncertaintyBudget, CombinesInQuadratureByScopeAndAxis) {
   EXPECT_NEAR(u[1], std::sqrt(25e-6 + 36e-6), 1e-12);   // a quarter of the drift variance
   EXPECT_NEAR(u[2], std::sqrt(25e-6 + 144e-6), 1e-12);  // held beyond the last node
   EXPECT_NEAR(u[3], std::sqrt(25e-6 + 144e-6), 1e-12);  // another power-on
+  // The temperature model's residual follows the row's temperature reading
+  // (none at the calibration's 25 C, 6 mm at 5 C); unknown: its largest.
+  ranging::BudgetComponent cold = component("temperature", 0);
+  cold.axis = ranging::BudgetComponent::Axis::temperature_c;
+  cold.node = {5.0, 25.0, 45.0};
+  cold.variance_m2 = {36e-6, 0.0, 4e-6};
+  b.components.push_back(cold);
+  b.validate();
+  const std::vector<double> reading = {25.0, 15.0, 0.0, ranging::kNaN};
+  b.combined(amplitude, since, u, reading);
+  EXPECT_NEAR(u[0], 5e-3, 1e-12);
+  EXPECT_NEAR(u[1], std::sqrt(25e-6 + 36e-6 + 18e-6), 1e-12);
+  EXPECT_NEAR(u[2], std::sqrt(25e-6 + 144e-6 + 36e-6), 1e-12);  // held below the coldest node
+  EXPECT_NEAR(u[3], std::sqrt(25e-6 + 144e-6 + 36e-6), 1e-12);
 }
 
 TEST(UncertaintyBudget, TravelsInTheModelFileAndOldModelsHaveNone) {
@@ -73,6 +89,10 @@ TEST(UncertaintyBudget, TravelsInTheModelFileAndOldModelsHaveNone) {
   b.components.push_back(component("a", 3e-3));
   b.components.back().type_b = true;
   b.components.back().default_specification = true;
+  b.components.push_back(component("temperature", 0));
+  b.components.back().axis = ranging::BudgetComponent::Axis::temperature_c;
+  b.components.back().node = {5.0, 25.0};
+  b.components.back().variance_m2 = {4e-6, 0.0};
   b.unobserved = {"drift"};
   const auto dir = std::filesystem::temp_directory_path() / "tofkit_budget_test";
   std::filesystem::create_directories(dir);
@@ -81,7 +101,9 @@ TEST(UncertaintyBudget, TravelsInTheModelFileAndOldModelsHaveNone) {
   io::save_pipeline(dir / "with.json", pipeline, nullptr, &b);
   io::save_pipeline(dir / "without.json", pipeline);
   const ranging::UncertaintyBudget read = io::load_budget(dir / "with.json");
-  ASSERT_EQ(read.components.size(), 1u);
+  ASSERT_EQ(read.components.size(), 2u);
+  EXPECT_EQ(read.components[1].axis, ranging::BudgetComponent::Axis::temperature_c);
+  EXPECT_EQ(read.components[1].node, b.components[1].node);
   EXPECT_EQ(read.components[0].name, "a");
   EXPECT_TRUE(read.components[0].type_b && read.components[0].default_specification);
   EXPECT_DOUBLE_EQ(read.components[0].variance_m2[0], 9e-6);
@@ -297,16 +319,17 @@ struct HeldOutCase {
 class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 
 // The issue's acceptance, measured (figures in the commit messages and the
-// closing report). The planner's protocol now fits the walk model: the weak
-// echoes' bias (the gray-value hinge's linear interpolation between and below
-// the few weak plates: DISABLED_WeakEchoes) is gone. Without delay wander,
-// indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma coverage
-// 95-98 % per tercile and a systematic residual of 0.9 mm (noise 0.29 mm);
-// in sunlight 6.1-6.2 mm worst and 1.5-1.7 mm systematic (noise 0.78 mm);
-// with 30 ps of delay wander the drift of 0-60 min gives 11-13 mm worst rows
-// and coverage 99-100 % (the budget's drift term, from the stability record,
-// over-covers). Still short of the acceptance, so disabled; run it with
-// --gtest_also_run_disabled_tests (about 2-6 min: the walk model's fit).
+// closing report). The planner's protocol fits the walk model. Without delay
+// wander, indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma
+// coverage 97.0-97.7 % (terciles 95.8-99.2 %) and a systematic residual of
+// 0.93-0.98 mm (noise 0.31 mm); in sunlight 7.3-7.5 mm worst, 95.8-98.0 %,
+// systematic 1.6 mm (noise 0.65 mm); with 30 ps of delay wander the drift of
+// 0-60 min gives 12-13 mm worst rows and 94.4-97.9 % overall, but per time
+// band 84-100 %: each band's drift is one draw of one power-on (the drift
+// term matches the ensemble of power-ons: DriftTermFollowsTheEnsembleOfPowerOns).
+// Still short of the acceptance (worst rows, the systematic residual, the time
+// bands), so disabled; run it with --gtest_also_run_disabled_tests (about 2-6
+// min: the walk model's fit).
 TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
@@ -326,10 +349,16 @@ TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   }
 }
 
+// The paper's protocol: 90.7-96.3 % overall, but the weak tercile 80-89 %:
+// its misses are the field's weakest targets (5.8-7.4 m at reflectance 0.06),
+// three e-folds of amplitude below its weakest plate (out of the domain:
+// errors of 18-32 mm against sigma 5.5 mm), and drift beyond the default
+// drift_ps (15 ps) on the devices with 30 ps of wander.
 TEST_P(HeldOut, DISABLED_PaperProtocolStaysHonest) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
   const Calibrated c = calibrate(device, false, false);
+  std::printf("%s", c.budget.report.c_str());
   const FieldFigures f = field_test(device, c);
   print("paper protocol, chain", f);
   EXPECT_GE(f.within_2sigma, 0.90);
@@ -355,28 +384,45 @@ TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
   EXPECT_TRUE(full.budget.budget.unobserved.empty());
 }
 
+/// The oracles' set-up: the paper device with only one slow cause left
+/// (delay wander or the power-on offset, in ps; the flicker off), plates at
+/// `distances` x reflectance 0.1, 0.3, 0.8, 4 repeats, at 20 C on power-on 1,
+/// fitted with offset + gray value (cross-fitted: the budget's input).
+struct SmallCalibration {
+  SmallCalibration(std::initializer_list<double> distances, double wander_ps, double power_on_ps)
+      : config(configure(wander_ps, power_on_ps)), device(config) {
+    for (const double d : distances)
+      for (const double rho : {0.1, 0.3, 0.8})
+        for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
+    calibration = experiments::run(device, plan, 1);
+    calib::ModelFitOptions options;
+    options.time_to_distance = device::nominal_time_to_distance(config);
+    options.chain = calib::parse_chain_steps("offset,grayvalue");
+    fit = calib::fit_model(calibration, options);
+  }
+  static device::DeviceConfig configure(double wander_ps, double power_on_ps) {
+    device::DeviceConfig config = device::preset("paper");
+    set_key(config, "measurement.flicker_delay_ps", 0.0);
+    set_key(config, "measurement.delay_wander_ps", wander_ps);
+    set_key(config, "measurement.power_on_offset_ps", power_on_ps);
+    return config;
+  }
+  device::DeviceConfig config;
+  device::VirtualRangefinder device;
+  std::vector<experiments::PlannedMeasurement> plan;
+  std::vector<ranging::Record> calibration;
+  calib::ModelFitResult fit;
+};
+
 TEST(UncertaintyBudget, PowerOnTermRecoversTheDevicesPowerOnOffset) {
   // Oracle: the device draws a delay offset per power-on (seed) of
   // measurement.power_on_offset_ps; two power-ons differ by sqrt(2) times it
   // (x c/2). The flicker and wander are switched off, so nothing else moves.
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "measurement.flicker_delay_ps", 0.0);
-  set_key(config, "measurement.delay_wander_ps", 0.0);
-  set_key(config, "measurement.power_on_offset_ps", 20.0);
-  const device::VirtualRangefinder device(config);
-  std::vector<experiments::PlannedMeasurement> plan;
-  for (double d : {1.0, 1.7, 2.4, 3.1, 3.8})
-    for (double rho : {0.1, 0.3, 0.8})
-      for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
-  const auto calibration = experiments::run(device, plan, 1);
-  calib::ModelFitOptions options;
-  options.time_to_distance = device::nominal_time_to_distance(config);
-  options.chain = calib::parse_chain_steps("offset,grayvalue");
-  const calib::ModelFitResult fit = calib::fit_model(calibration, options);
+  const SmallCalibration c({1.0, 1.7, 2.4, 3.1, 3.8}, 0.0, 20.0);
   calib::ProtocolSteps steps;
   for (std::uint64_t seed = 2; seed < 42; ++seed)
-    steps.power_on_runs.push_back(experiments::run(device, plan, seed));
-  const auto budget = calib::fit_model_budget(calibration, fit, steps, {});
+    steps.power_on_runs.push_back(experiments::run(c.device, c.plan, seed));
+  const auto budget = calib::fit_model_budget(c.calibration, c.fit, steps, {});
   double u = 0;
   for (const auto& c : budget.budget.components)
     if (c.name == "power-on reproducibility") u = std::sqrt(c.variance_m2[0]);
@@ -404,20 +450,8 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
   // power-ons (two rows each, 30 min apart), against the drift term each of
   // 8 power-ons' stability record (60 min, every 15 s) gives at 30 min. Only
   // the delay wander moves the rows.
-  device::DeviceConfig config = device::preset("paper");
-  set_key(config, "measurement.flicker_delay_ps", 0.0);
-  set_key(config, "measurement.power_on_offset_ps", 0.0);
-  set_key(config, "measurement.delay_wander_ps", 30.0);
-  const device::VirtualRangefinder device(config);
-  std::vector<experiments::PlannedMeasurement> plan;
-  for (double d : {1.0, 2.0, 3.0, 4.0})
-    for (double rho : {0.1, 0.3, 0.8})
-      for (int k = 0; k < 4; ++k) plan.push_back(experiments::plate(d, rho, 20.0));
-  const auto calibration = experiments::run(device, plan, 1);
-  calib::ModelFitOptions options;
-  options.time_to_distance = device::nominal_time_to_distance(config);
-  options.chain = calib::parse_chain_steps("offset,grayvalue");
-  const calib::ModelFitResult fit = calib::fit_model(calibration, options);
+  const SmallCalibration c({1.0, 2.0, 3.0, 4.0}, 30.0, 0.0);
+  const device::VirtualRangefinder& device = c.device;
   const std::vector<experiments::PlannedMeasurement> one = {experiments::plate(2.0, 0.3, 20.0)};
   constexpr double kLag_s = 1800;
   double ensemble = 0;
@@ -437,9 +471,9 @@ TEST(UncertaintyBudget, DriftTermFollowsTheEnsembleOfPowerOns) {
     calib::ProtocolSteps steps;
     steps.stability = rows;
     steps.stability_every_s = 15;
-    const auto b = calib::fit_model_budget(calibration, fit, steps, {});
-    for (const auto& c : b.budget.components)
-      if (c.name == "drift since calibration") budget += std::pow(c.u_m(kLag_s), 2);
+    const auto b = calib::fit_model_budget(c.calibration, c.fit, steps, {});
+    for (const auto& component : b.budget.components)
+      if (component.name == "drift since calibration") budget += std::pow(component.u_m(kLag_s), 2);
   }
   budget /= kRecords;
   std::printf(
@@ -516,6 +550,74 @@ TEST_F(BudgetCli, SigmaFollowsTheTimeSinceCalibrationAndEvaluateSplitsByFile) {
   EXPECT_EQ(negative.status, 1);
   EXPECT_NE(negative.err.find("--since-calibration"), std::string::npos) << negative.err;
   EXPECT_FALSE(std::filesystem::exists(dir_ / "x.csv"));
+}
+
+}  // namespace
+}  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
+TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
+  // measure --start-s writes time_s (start + k x the output period, or x --every).
+  ASSERT_EQ(run("measure --distance 1.5,3 --reflectance 0.05,0.2,0.8 --count 3 --start-s 100 --out "
+                "a.csv")
+                .status,
+            0);
+  ASSERT_EQ(run("measure --distance 2 --reflectance 0.3 --count 41 --every 15 --start-s 200 --out "
+                "s.csv")
+                .status,
+            0);
+  std::vector<double> time_s;
+  const auto a = io::read_raw_csv(dir_ / "a.csv", &time_s);
+  ASSERT_EQ(time_s.size(), a.size());
+  const double period = experiments::output_period_s(device::preset("paper"));
+  for (std::size_t k = 0; k < time_s.size(); ++k)
+    EXPECT_DOUBLE_EQ(time_s[k], 100 + static_cast<double>(k) * period);
+  (void)io::read_raw_csv(dir_ / "s.csv", &time_s);
+  EXPECT_DOUBLE_EQ(time_s.back(), 200 + 40 * 15.0);
+  // A file without the column (written before it) reads as before: NaN times.
+  io::write_raw_csv(dir_ / "old.csv", a);
+  EXPECT_EQ(read("old.csv").find("time_s"), std::string::npos);
+  const auto old = io::read_raw_csv(dir_ / "old.csv", &time_s);
+  ASSERT_EQ(old.size(), a.size());
+  EXPECT_TRUE(std::isnan(time_s.front()));
+  // The fit keeps the calibration's time (the median row's: 100 s and a few ms).
+  ASSERT_EQ(run("fit --in a.csv --chain offset,grayvalue --budget --stability s.csv "
+                "--stability-every 15 --out model.json")
+                .status,
+            0);
+  const ranging::UncertaintyBudget budget = io::load_budget(dir_ / "model.json");
+  EXPECT_NEAR(budget.calibration_time_s, 100 + 9 * period, 1e-9);
+  // Field rows 10 min after it: correct reads their time_s, as if told
+  // --since-calibration 600 - 9 periods for the whole file.
+  ASSERT_EQ(run("measure --distance 1:4:1 --reflectance 0.1,0.5 --start-s 700 --out f.csv").status,
+            0);
+  ASSERT_EQ(run("correct --model model.json --in f.csv --out timed.csv").status, 0);
+  ASSERT_EQ(
+      run("correct --model model.json --in f.csv --since-calibration 0 --out zero.csv").status, 0);
+  ASSERT_EQ(run("correct --model model.json --in old.csv --out unknown.csv").status, 0);
+  const auto timed = io::read_corrected_csv((dir_ / "timed.csv").string());
+  const auto zero = io::read_corrected_csv((dir_ / "zero.csv").string());
+  ranging::UncertaintyBudget drift_only;
+  for (const auto& c : budget.components)
+    if (c.name == "drift since calibration") drift_only.components.push_back(c);
+  ASSERT_EQ(drift_only.components.size(), 1u);
+  for (std::size_t i = 0; i < timed.size(); ++i) {
+    const double since = 700 + static_cast<double>(i) * period - budget.calibration_time_s;
+    const double drift = drift_only.component_u_m(0, 1.0, since);
+    EXPECT_NEAR(timed[i].range.sigma_m * timed[i].range.sigma_m,
+                zero[i].range.sigma_m * zero[i].range.sigma_m + drift * drift, 1e-12);
+  }
+  // Without time_s: another power-on (the power-on term, type B here).
+  ASSERT_EQ(run("correct --model model.json --in a.csv --since-calibration 0 --out a0.csv").status,
+            0);
+  const auto unknown = io::read_corrected_csv((dir_ / "unknown.csv").string());
+  const auto same = io::read_corrected_csv((dir_ / "a0.csv").string());
+  ASSERT_EQ(unknown.size(), same.size());
+  for (std::size_t i = 0; i < unknown.size(); ++i)
+    if (std::isfinite(same[i].range.sigma_m))
+      EXPECT_GT(unknown[i].range.sigma_m, same[i].range.sigma_m);
 }
 
 }  // namespace
@@ -614,6 +716,122 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_WeakEchoes) {
         "(row sd %.2f) ood %u\n",
         std::get<0>(k), std::get<1>(k), std::get<2>(k), n, a / n, p / n, t / n, v / n, mean * 1e3,
         sd / std::sqrt(n) * 1e3, sd * 1e3, ood);
+  }
+}
+
+}  // namespace
+}  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
+// ------------------------------------------------------------ factory calibration
+
+/// The README's first scan: a plane 3 m ahead, reflectance 0.5, 4 x 4 m.
+scan::Scene plane_at_3m() {
+  scan::Scene scene;
+  scan::Primitive plane;
+  plane.kind = scan::PrimitiveKind::kPlane;
+  plane.center_m = {3.0, 0.0, 0.0};
+  plane.normal = {-1.0, 0.0, 0.0};
+  plane.size_m = {4.0, 4.0};
+  plane.reflectance.value = 0.5;
+  scene.primitives.push_back(plane);
+  return scene;
+}
+
+struct ScanCoverage {
+  double within_2sigma = 0;
+  double rms_error_mm = 0;
+  double median_sigma_mm = 0;
+};
+
+/// Scans of the plane on power-ons `seeds` (a spherical pattern, +-30 deg every
+/// 3 deg, `shots` per beam), corrected by the factory calibration with its
+/// budget as `tofkit scan` does (time since calibration unknown: another
+/// power-on); the pooled share of rows within 2 sigma.
+ScanCoverage factory_scan_coverage(const device::DeviceConfig& config,
+                                   const calib::ModelFitResult& factory,
+                                   std::span<const std::uint64_t> seeds, int shots) {
+  scan::SphericalOptions so;
+  for (double a = -30; a <= 30.01; a += 6) {
+    so.azimuth_deg.push_back(a);
+    so.elevation_deg.push_back(a);
+  }
+  const scan::BeamPattern pattern = scan::spherical_pattern(so);
+  double in = 0, n = 0, e2 = 0;
+  std::vector<double> sigmas;
+  for (const std::uint64_t seed : seeds) {
+    scan::ScanOptions options;
+    options.seed = seed;
+    options.shots = shots;
+    scan::ScanResult result =
+        scan::run_scan(plane_at_3m(), config, device::SimulationMode::kAnalytic, pattern, options);
+    scan::apply_pipeline(factory.pipeline, result);
+    std::vector<ranging::Range> ranges(result.beams.size());
+    for (std::size_t i = 0; i < ranges.size(); ++i) ranges[i] = result.beams[i].range;
+    const double unknown[1] = {ranging::kNaN};
+    ranging::apply_budget(factory.budget, factory.pipeline,
+                          ranging::RawColumns::of(&result.beams[0].raw, result.beams.size(),
+                                                  sizeof(scan::BeamResult)),
+                          unknown, ranges);
+    for (std::size_t i = 0; i < ranges.size(); ++i) {
+      const double e = ranges[i].distance_m - result.beams[i].true_range_m;
+      if (!std::isfinite(e) || !std::isfinite(ranges[i].sigma_m)) continue;
+      in += std::abs(e) <= 2 * ranges[i].sigma_m ? 1 : 0;
+      e2 += e * e;
+      n += 1;
+      sigmas.push_back(ranges[i].sigma_m);
+    }
+  }
+  std::sort(sigmas.begin(), sigmas.end());
+  return {in / n, std::sqrt(e2 / n) * 1e3, sigmas[sigmas.size() / 2] * 1e3};
+}
+
+// Issue 34: `tofkit scan` corrects with the factory calibration by default,
+// and its sigma must hold for a customer's scans (other power-ons). Before
+// the factory calibration had a budget, the confidence model's sigma (1.7 mm)
+// covered 56 % of the default plane scan's errors within 2 sigma over seeds
+// 1-16 (38-85 % per seed for seeds 1-3): it knew nothing of the offset
+// between power-ons and the wander.
+TEST(FactoryCalibration, ScanSigmaCoversItsErrors) {
+  const device::DeviceConfig config = device::preset("paper");
+  const calib::ModelFitResult factory = experiments::factory_calibration(config, 1);
+  std::printf("%s", factory.report.c_str());
+  ASSERT_FALSE(factory.budget.empty());
+  // Every term from the factory's own rows (type A), but the temperature
+  // dependence by echo strength (its run has one plate).
+  for (const auto& c : factory.budget.components)
+    EXPECT_EQ(c.type_b, c.name == "temperature residual by echo strength") << c.name;
+  std::vector<std::uint64_t> seeds;
+  for (std::uint64_t s = 1; s <= 64; ++s) seeds.push_back(s);
+  const ScanCoverage c = factory_scan_coverage(config, factory, seeds, 277);  // the 1-deg scan's
+  std::printf(
+      "default device, plane at 3 m, seeds 1-64: rms error %.2f mm, median sigma %.2f mm, "
+      "2-sigma coverage %.1f %%\n",
+      c.rms_error_mm, c.median_sigma_mm, 100 * c.within_2sigma);
+  // 64 power-ons: the share's own scatter is the offsets' (one draw per
+  // scan), about +-2 %.
+  EXPECT_GE(c.within_2sigma, 0.93);
+  EXPECT_LE(c.within_2sigma, 0.97);
+}
+
+TEST(FactoryCalibration, ScanSigmaHoldsOnHeldOutDevices) {
+  if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "the default device's test covers the code";
+  // Parts drawn away from the preset, indoors and in Table 1 sunlight, the
+  // device's own wander; power-ons 101-164.
+  std::vector<std::uint64_t> seeds;
+  for (std::uint64_t s = 101; s <= 164; ++s) seeds.push_back(s);
+  for (const auto& [draw, sunlight] : {std::pair{4u, false}, std::pair{5u, true}}) {
+    const device::DeviceConfig config = held_out_device(draw, sunlight, 20.0);
+    const calib::ModelFitResult factory = experiments::factory_calibration(config, 1);
+    const ScanCoverage c = factory_scan_coverage(config, factory, seeds, 277);
+    std::printf(
+        "held-out device %u%s: rms error %.2f mm, median sigma %.2f mm, 2-sigma coverage "
+        "%.1f %%\n",
+        draw, sunlight ? " (sunlight)" : "", c.rms_error_mm, c.median_sigma_mm,
+        100 * c.within_2sigma);
+    EXPECT_GE(c.within_2sigma, 0.90);
   }
 }
 

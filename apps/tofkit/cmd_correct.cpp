@@ -3,6 +3,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -28,14 +30,26 @@ struct CorrectOptions {
 void run_correct(const CorrectOptions& o) {
   if (o.out != "-") require_output_directory(o.out, "--out");
   const ranging::Pipeline pipeline = io::load_pipeline(o.model);
-  const std::vector<ranging::Record> records = io::read_raw_csv(o.in);
+  std::vector<double> time_s;  // the rows' time since power-on, where the file has it
+  const std::vector<ranging::Record> records = io::read_raw_csv(o.in, &time_s);
   std::vector<ranging::Range> ranges(records.size());
   pipeline.apply(ranging::RawColumns::of(records), ranges);  // read in place
   // With a budget in the model, sigma_m is its combined standard uncertainty
   // at each row's amplitude and the time since calibration.
   const ranging::UncertaintyBudget budget = io::load_budget(o.model);
   if (!budget.empty()) {
-    const double since[1] = {o.since_calibration_s};
+    // The time since calibration: --since-calibration, else each row's
+    // time_s less the calibration's (rows with a time are on its power-on),
+    // else unknown (another power-on).
+    std::vector<double> since = {o.since_calibration_s};
+    const bool timed =
+        std::isfinite(budget.calibration_time_s) &&
+        std::any_of(time_s.begin(), time_s.end(), [](double t) { return std::isfinite(t); });
+    if (!std::isfinite(o.since_calibration_s) && timed) {
+      since.assign(time_s.size(), ranging::kNaN);
+      for (std::size_t i = 0; i < time_s.size(); ++i)
+        since[i] = time_s[i] - budget.calibration_time_s;
+    }
     ranging::apply_budget(budget, pipeline, ranging::RawColumns::of(records), since, ranges);
   }
   if (o.out == "-") {
@@ -66,8 +80,9 @@ const bool registered = register_command("correct", [](CLI::App& sub, AppContext
       ->required();
   sub.add_option("--since-calibration", o->since_calibration_s,
                  "seconds from the calibration to these rows on the calibration's power-on "
-                 "(a model with an uncertainty budget: its drift term); default: unknown, "
-                 "another power-on (its power-on term)")
+                 "(a model with an uncertainty budget: its drift term); default: each row's "
+                 "time_s (time since power-on, from measure --start-s / --every) less the "
+                 "calibration's, else unknown: another power-on (its power-on term)")
       ->check(CLI::Range(0.0, 1e9));
   sub.callback([o, &ctx] {
     // The model / table carry everything the command uses; --config, --set

@@ -4,6 +4,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -234,9 +235,12 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   }
 
   std::vector<ranging::Record> records;
+  std::vector<double> time_s, part_time_s;  // the rows' time since power-on (time_s column)
   for (const std::string& path : o.inputs) {
-    const std::vector<ranging::Record> part = io::read_raw_csv(path);
+    const std::vector<ranging::Record> part = io::read_raw_csv(path, &part_time_s);
     records.insert(records.end(), part.begin(), part.end());
+    for (const double t : part_time_s)
+      if (std::isfinite(t)) time_s.push_back(t);
   }
   // The budget's inputs, all checked before the fit's work.
   const bool budget = o.budget || !o.stability.empty() || !o.power_on.empty() || !o.spec.empty();
@@ -276,6 +280,11 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
   try {
     fit = calib::fit_model(records, options);
     if (budget) budget_fit = calib::fit_model_budget(records, fit, steps, specification);
+    if (budget && !time_s.empty()) {
+      // When the calibration was taken: its rows' median time since power-on.
+      std::nth_element(time_s.begin(), time_s.begin() + time_s.size() / 2, time_s.end());
+      budget_fit.budget.calibration_time_s = time_s[time_s.size() / 2];
+    }
   } catch (const std::invalid_argument& e) {
     throw std::runtime_error(o.in + ": " + e.what());
   }

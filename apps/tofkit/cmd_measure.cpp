@@ -112,12 +112,22 @@ void run_measure(const MeasureOptions& o, const AppContext& ctx) {
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
+  // A timed run (--start-s, --every) writes each row's time since power-on
+  // (time_s): fit takes the calibration's time from it, correct a row's time
+  // since calibration.
+  std::vector<double> time_s;
+  if (o.timing.start_s > 0 || o.timing.every_s > 0) {
+    const double step =
+        o.timing.every_s > 0 ? o.timing.every_s : experiments::output_period_s(config);
+    for (std::size_t k = 0; k < records.size(); ++k)
+      time_s.push_back(o.timing.start_s + static_cast<double>(k) * step);
+  }
   if (o.out == "-") {
     std::cout.sync_with_stdio(false);
-    io::write_raw_csv(std::cout, records);
+    io::write_raw_csv(std::cout, records, time_s);
     std::cout.flush();
   } else {
-    io::write_raw_csv(o.out, records);
+    io::write_raw_csv(o.out, records, time_s);
   }
   const int shots = o.shots > 0 ? o.shots : config.measurement.shots;
   const auto threads =

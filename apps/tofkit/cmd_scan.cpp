@@ -28,6 +28,7 @@
 #include "tofkit/io/scan_output.hpp"
 #include "tofkit/io/scan_writer.hpp"
 #include "tofkit/io/scene_file.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 #include "tofkit/scan/scanner.hpp"
 
 namespace tofkit::app {
@@ -70,14 +71,14 @@ std::set<std::string> parse_write(const std::string& text) {
 constexpr std::uint64_t kFactorySeed = 1;
 
 struct MadeCalibration {
-  ranging::Pipeline pipeline;
+  io::FactoryCalibration factory;
   std::string note;  // the cache could not keep it (one line), or ""
 };
 
 // The device's factory calibration as the cache holds it: the model (a hit),
 // or the key to store a made one under (a miss), or neither (the cache off).
 struct FactoryModel {
-  std::optional<ranging::Pipeline> cached;
+  std::optional<io::FactoryCalibration> cached;
   std::optional<io::FactoryCalibrationKey> key;
   std::string note;  // an unusable entry, a build without an id (one line), or ""
 };
@@ -109,7 +110,11 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
   scan::Scene loaded_scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
-  if (!o.model.empty()) pipeline = io::load_pipeline(o.model);
+  ranging::UncertaintyBudget budget;  // sigma_m is its combined uncertainty where there is one
+  if (!o.model.empty()) {
+    pipeline = io::load_pipeline(o.model);
+    budget = io::load_budget(o.model);
+  }
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
   // Under mpirun, rank 0 corrects and writes; every rank measures its chunks.
@@ -129,15 +134,16 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     const FactoryModel factory = find_factory_model(config);
     if (!factory.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", factory.note);
     if (factory.cached) {
-      pipeline = *factory.cached;
+      pipeline = factory.cached->pipeline;
+      budget = factory.cached->budget;
     } else {
       calibration = std::async(std::launch::async, [&config, key = factory.key] {
         try {
+          calib::ModelFitResult fit =
+              experiments::factory_calibration(io::calibration_config(config), kFactorySeed);
           MadeCalibration made;
-          made.pipeline =
-              experiments::factory_calibration(io::calibration_config(config), kFactorySeed)
-                  .pipeline;
-          if (key) io::store_factory_calibration(*key, made.pipeline, made.note);
+          made.factory = {std::move(fit.pipeline), std::move(fit.budget)};
+          if (key) io::store_factory_calibration(*key, made.factory, made.note);
           return made;
         } catch (const std::invalid_argument& e) {
           throw std::runtime_error(std::string("the factory calibration of this device failed (") +
@@ -228,15 +234,31 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   constexpr std::size_t kHeldBeams = 4 * kScanBlockBeams;
   std::vector<scan::BeamResult> held;
   std::size_t held_first = 0;
+  // The scan is a run of its own power-on (its seed): with a budget, sigma_m
+  // is the combined uncertainty of a row on another power-on than the
+  // calibration's (ranging::apply_budget, time since calibration unknown).
+  const auto correct = [&](std::span<scan::BeamResult> beams) {
+    scan::apply_pipeline(*pipeline, beams);
+    if (budget.empty() || beams.empty()) return;
+    std::vector<ranging::Range> ranges(beams.size());
+    for (std::size_t i = 0; i < beams.size(); ++i) ranges[i] = beams[i].range;
+    const double unknown[1] = {ranging::kNaN};
+    ranging::apply_budget(
+        budget, *pipeline,
+        ranging::RawColumns::of(&beams[0].raw, beams.size(), sizeof(scan::BeamResult)), unknown,
+        ranges);
+    for (std::size_t i = 0; i < beams.size(); ++i) beams[i].range.sigma_m = ranges[i].sigma_m;
+  };
   const auto calibrated = [&](bool wait) {
     if (!calibration.valid()) return true;
     if (!wait && calibration.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
       return false;
     MadeCalibration made = calibration.get();
-    pipeline = std::move(made.pipeline);
+    pipeline = std::move(made.factory.pipeline);
+    budget = std::move(made.factory.budget);
     if (!made.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", made.note);
     if (!held.empty()) {
-      scan::apply_pipeline(*pipeline, held);
+      correct(held);
       take(held_first, held);
       std::vector<scan::BeamResult>().swap(held);
     }
@@ -251,7 +273,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
       held.insert(held.end(), beams.begin(), beams.end());
       return;
     }
-    if (pipeline) scan::apply_pipeline(*pipeline, beams);
+    if (pipeline) correct(beams);
     take(first, beams);
   };
   if (world.size == 1) {

@@ -25,7 +25,8 @@ struct Target {
   double reflectance = 0;
   double angle_deg = 0;
   double ambient_c = 0;
-  double mean_m = 0;  ///< mean in-sample residual
+  double temperature_c = 0;  ///< mean temperature reading
+  double mean_m = 0;         ///< mean in-sample residual
   std::size_t n = 0;
   double variance_m2 = ranging::kNaN;  ///< sample variance of the in-sample residual
   double mean_oof_m = ranging::kNaN;   ///< mean cross-validated residual
@@ -51,6 +52,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
     for (const std::size_t i : rows) {
       t.log_amplitude += std::log(d.rows[i].raw.amplitude);
       t.tof_ns += d.rows[i].raw.tof_ns;
+      t.temperature_c += d.rows[i].raw.temperature_c;
       sum += d.residual_m[i];
       if (std::isfinite(d.out_of_fold_m[i])) {
         sum_oof += d.out_of_fold_m[i];
@@ -60,6 +62,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
     t.n = rows.size();
     t.log_amplitude /= static_cast<double>(t.n);
     t.tof_ns /= static_cast<double>(t.n);
+    t.temperature_c /= static_cast<double>(t.n);
     const double mean = sum / static_cast<double>(t.n);
     t.mean_m = mean;
     if (t.n >= 2) {
@@ -292,7 +295,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
 
   // Correction residual (cross-validated) per amplitude bin of the reference
   // targets: up to 6 bins of >= 10 targets, so that the weak end (where the
-  // walk curves most) has its own value rather than a tercile's mean.
+  // walk curves most) has its own value rather than a tercile's mean. Within
+  // a bin each surface (reflectance, angle) counts once: a field's echoes of
+  // one strength come from any surface, and a rail's or a sweep's hundreds of
+  // distances on one plate must not outvote the plates' surfaces.
   if (reference.size() < 3)
     throw std::invalid_argument(fmt::sprintf(
         "budget: the correction residual needs >= 3 cross-validated targets at the reference "
@@ -300,19 +306,26 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         reference_c, reference.size()));
   BudgetComponent systematic;
   systematic.name = "correction residual (cross-validated)";
-  systematic.step = fmt::sprintf("%zu targets at %g C, each predicted by a fit without it",
-                                 reference.size(), reference_c);
+  systematic.step = fmt::sprintf(
+      "%zu targets at %g C, each predicted by a fit without it (each surface weighted alike)",
+      reference.size(), reference_c);
   systematic.axis = BudgetComponent::Axis::log_amplitude;
   for (const auto& [b, e] :
        bins(reference.size(),
             std::max<std::size_t>(1, std::min<std::size_t>(6, reference.size() / 10)))) {
-    double sum = 0, x = 0;
+    std::map<std::pair<double, double>, std::pair<std::size_t, double>> surfaces;
+    for (std::size_t k = b; k < e; ++k)
+      ++surfaces[{reference[k]->reflectance, reference[k]->angle_deg}].first;
+    double sum = 0, x = 0, weights = 0;
     for (std::size_t k = b; k < e; ++k) {
-      sum += excess(reference[k]);
-      x += reference[k]->log_amplitude;
+      const double w =
+          1.0 /
+          static_cast<double>(surfaces[{reference[k]->reflectance, reference[k]->angle_deg}].first);
+      sum += w * excess(reference[k]);
+      x += w * reference[k]->log_amplitude;
+      weights += w;
     }
-    add_node(systematic, x / static_cast<double>(e - b),
-             std::max(0.0, sum / static_cast<double>(e - b)));
+    add_node(systematic, x / weights, std::max(0.0, sum / weights));
   }
   budget.components.push_back(systematic);
 
@@ -321,70 +334,88 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   // (what the temperature step left), less their noise, times the optimism of
   // a fit of p parameters on G temperatures, (G + p) / (G - p) (Mallows' C_p,
   // ESL 2nd ed. Eq. 7.24). Leaving whole temperatures out instead measures
-  // the interpolation across twice the run's step, not the field's.
+  // the interpolation across twice the run's step, not the field's. Its
+  // axis is the row's temperature reading: what the temperature step leaves
+  // grows with the distance from the calibration's temperature (and need not
+  // be symmetric: a cold APD's gain, hence the walk, changes faster), and a
+  // row at the calibration's temperature carries none of it.
   std::map<std::tuple<double, double, double>, const Target*> at_reference;
   for (const auto& t : targets)
     if (t.ambient_c == reference_c) at_reference[{t.distance_m, t.reflectance, t.angle_deg}] = &t;
-  // Per plate of the temperature run (its echo strength: the APD's gain and
-  // the walk change with temperature by it): the sum of the excesses and the
-  // number of temperatures besides the reference.
-  std::map<const Target*, std::pair<double, std::size_t>> per_plate;
+  // Per temperature of the run: the excesses of its plates (pooled: the
+  // field's echoes are the plates' mix), their readings, and the plates.
+  struct AtTemperature {
+    double sum = 0, reading = 0;
+    std::size_t n = 0;
+  };
+  std::map<double, AtTemperature> per_temperature;
+  std::map<const Target*, bool> plates;
+  double reference_reading = 0;
   for (const auto& t : targets) {
     if (t.ambient_c == reference_c) continue;
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
     if (ref == at_reference.end()) continue;
     const double dm = t.mean_m - ref->second->mean_m;
-    auto& [sum, n] = per_plate[ref->second];
-    sum += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
-           noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
-    ++n;
+    AtTemperature& at = per_temperature[t.ambient_c];
+    at.sum += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
+              noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    at.reading += t.temperature_c;
+    ++at.n;
+    if (plates.emplace(ref->second, true).second) reference_reading += ref->second->temperature_c;
   }
+  if (!plates.empty()) reference_reading /= static_cast<double>(plates.size());
   const double p_t = std::max(1.0, d.temperature_parameters);
-  BudgetComponent temperature;
-  temperature.name = "temperature model residual";
-  temperature.axis = BudgetComponent::Axis::log_amplitude;
-  std::vector<std::pair<double, double>> nodes;  // (ln amplitude at the reference, u^2)
-  std::size_t temperatures = 0;
-  for (const auto& [ref, value] : per_plate) {
-    const auto [sum, n] = value;
-    const double g = static_cast<double>(n + 1);
-    if (n < 3 || !(g > p_t + 1)) continue;
+  const double g = static_cast<double>(per_temperature.size() + 1);
+  const auto spec_temperature = [&](const char* name, const char* key, double tempco_ps_per_c,
+                                    bool given, double at_c) {
+    // u = tempco x |T - T_ref| over the field's +-half range (held beyond).
+    BudgetComponent c = constant(name,
+                                 spec_step(key, tempco_ps_per_c, "ps/C", given) +
+                                     fmt::sprintf(" over +-%g C", spec.temperature_half_range_c),
+                                 0.0, true, !given);
+    c.axis = BudgetComponent::Axis::temperature_c;
+    c.node.clear();
+    c.variance_m2.clear();
+    for (int k = -4; k <= 4; ++k) {
+      const double dt = spec.temperature_half_range_c * k / 4.0;
+      add_node(c, at_c + dt, std::pow(tempco_ps_per_c * dt * m_per_ps, 2));
+    }
+    return c;
+  };
+  if (per_temperature.size() >= 3 && g > p_t + 1) {
     const double optimism = (g + p_t) / (g - p_t);
-    nodes.emplace_back(ref->log_amplitude, std::max(0.0, optimism * sum / static_cast<double>(n)));
-    temperatures = std::max(temperatures, n);
-  }
-  std::sort(nodes.begin(), nodes.end());
-  for (const auto& [x, v] : nodes) add_node(temperature, x, v);
-  if (!nodes.empty()) {
+    BudgetComponent temperature;
+    temperature.name = "temperature model residual";
+    temperature.axis = BudgetComponent::Axis::temperature_c;
+    std::vector<std::pair<double, double>> nodes = {{reference_reading, 0.0}};
+    for (const auto& [ambient, at] : per_temperature) {
+      const double n = static_cast<double>(at.n);
+      nodes.emplace_back(at.reading / n, std::max(0.0, optimism * at.sum / n));
+    }
+    std::sort(nodes.begin(), nodes.end());
+    for (const auto& [x, v] : nodes) add_node(temperature, x, v);
     temperature.step = fmt::sprintf(
         "temperature run: %zu plate(s) at %zu temperatures besides %g C (optimism for %g "
         "parameters)",
-        nodes.size(), temperatures, reference_c, p_t);
+        plates.size(), per_temperature.size(), reference_c, p_t);
     budget.components.push_back(temperature);
-    if (nodes.size() < 2) {
+    if (plates.size() < 2) {
       // One plate: how the temperature dependence changes with the echo's
       // strength (the APD's gain, hence the walk) was not seen.
-      const double u =
-          spec.walk_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
       budget.components.push_back(
-          constant("temperature residual by echo strength",
-                   spec_step("walk_tempco_ps_per_c", spec.walk_tempco_ps_per_c, "ps/C",
-                             spec.walk_tempco_given) +
-                       fmt::sprintf(" over +-%g C", spec.temperature_half_range_c),
-                   u, true, !spec.walk_tempco_given));
+          spec_temperature("temperature residual by echo strength", "walk_tempco_ps_per_c",
+                           spec.walk_tempco_ps_per_c, spec.walk_tempco_given, reference_reading));
       budget.unobserved.push_back(
           "the temperature dependence's change with echo strength (temperature run on one "
           "plate)");
     }
   } else {
-    const double u =
-        spec.delay_tempco_ps_per_c * spec.temperature_half_range_c / std::sqrt(3.0) * m_per_ps;
+    double reading = 0;
+    for (const Target* t : reference) reading += t->temperature_c;
+    reading /= static_cast<double>(reference.size());
     budget.components.push_back(
-        constant("temperature model residual",
-                 spec_step("delay_tempco_ps_per_c", spec.delay_tempco_ps_per_c, "ps/C",
-                           spec.delay_tempco_given) +
-                     fmt::sprintf(" over +-%g C", spec.temperature_half_range_c),
-                 u, true, !spec.delay_tempco_given));
+        spec_temperature("temperature model residual", "delay_tempco_ps_per_c",
+                         spec.delay_tempco_ps_per_c, spec.delay_tempco_given, reading));
     budget.unobserved.push_back(
         "the delay's temperature dependence (no temperature run with its plate also at the "
         "reference temperature)");
@@ -580,8 +611,25 @@ BudgetFitResult fit_model_budget(std::span<const ranging::Record> calibration,
   data.stability = steps.stability;
   data.stability_residual_m = stability;
   data.stability_every_s = steps.stability_every_s;
+  // A repeat's residual less the calibration's (in-sample) mean residual at the
+  // same target: what the other power-on moved, not what the correction left
+  // at that target (the correction residual's term).
+  std::map<std::tuple<double, double, double, double>, std::pair<double, std::size_t>> at_target;
+  for (std::size_t i = 0; i < calibration.size(); ++i) {
+    if (!std::isfinite(residual[i])) continue;
+    const auto& t = calibration[i].truth;
+    auto& [sum, n] = at_target[{t.distance_m, t.reflectance, t.angle_deg, t.ambient_c}];
+    sum += residual[i];
+    ++n;
+  }
   for (const auto& run : steps.power_on_runs) {
-    data.power_on_residual_m.push_back(residuals_of(fit.pipeline, run));
+    std::vector<double> e = residuals_of(fit.pipeline, run);
+    for (std::size_t i = 0; i < run.size(); ++i) {
+      const auto& t = run[i].truth;
+      const auto it = at_target.find({t.distance_m, t.reflectance, t.angle_deg, t.ambient_c});
+      if (it != at_target.end()) e[i] -= it->second.first / static_cast<double>(it->second.second);
+    }
+    data.power_on_residual_m.push_back(std::move(e));
     std::vector<double> amplitude;
     for (const auto& r : run) amplitude.push_back(r.raw.amplitude);
     data.power_on_amplitude.push_back(std::move(amplitude));
@@ -602,11 +650,21 @@ std::string budget_certificate(const ranging::UncertaintyBudget& budget,
   const auto at = [&](double q) {
     return amplitude[static_cast<std::size_t>(q * static_cast<double>(amplitude.size() - 1))];
   };
+  // The points at the calibration's (median) temperature reading, the last
+  // at its coldest.
+  std::vector<double> reading;
+  for (const auto& r : calibration)
+    if (r.raw.has_echo() && std::isfinite(r.raw.temperature_c))
+      reading.push_back(r.raw.temperature_c);
+  std::sort(reading.begin(), reading.end());
   const double nan = ranging::kNaN;
-  const std::vector<double> a = {at(0.1), at(0.5), at(0.9), at(0.5), at(0.5)};
-  const std::vector<double> t = {0, 0, 0, 3600, nan};
+  const double typical_c = reading.empty() ? nan : reading[reading.size() / 2];
+  const double coldest_c = reading.empty() ? nan : reading.front();
+  const std::vector<double> a = {at(0.1), at(0.5), at(0.9), at(0.5), at(0.5), at(0.5)};
+  const std::vector<double> t = {0, 0, 0, 3600, nan, 0};
+  const std::vector<double> c = {typical_c, typical_c, typical_c, typical_c, typical_c, coldest_c};
   std::string out = "uncertainty budget (GUM; u = standard uncertainty, share = u^2 / u_c^2):\n";
-  out += budget.table(a, t);
+  out += budget.table(a, t, c);
   // Coverage check: the cross-validated calibration rows (right after the
   // calibration) and the repeats on other power-ons, against u_c.
   std::vector<double> err, sig;
@@ -629,14 +687,28 @@ std::string budget_certificate(const ranging::UncertaintyBudget& budget,
       "coverage check: %zu cross-validated calibration rows: %.1f %% within 1 u_c, %.1f %% "
       "within 2 u_c\n",
       cv.rows, 100 * cv.within_1sigma, 100 * cv.within_2sigma);
-  for (std::size_t f = 0; f < steps.power_on_runs.size(); ++f) {
+  // The repeats on other power-ons: each (its own offset is one draw), or,
+  // when there are many, pooled.
+  const std::size_t runs = steps.power_on_runs.size();
+  std::vector<double> pooled_err, pooled_sig;
+  for (std::size_t f = 0; f < runs; ++f) {
     const auto& run = steps.power_on_runs[f];
     const std::vector<double> e = residuals_of(fit.pipeline, run);
     const BudgetCoverage c = check(run, e, nan);
+    pooled_err.insert(pooled_err.end(), err.begin(), err.end());
+    pooled_sig.insert(pooled_sig.end(), sig.begin(), sig.end());
+    if (runs > 3) continue;
     out += fmt::sprintf(
         "coverage check: power-on repeat %zu (%zu rows, another power-on): %.1f %% within 1 u_c, "
         "%.1f %% within 2 u_c (its own offset is one draw: all rows move together)\n",
         f + 1, c.rows, 100 * c.within_1sigma, 100 * c.within_2sigma);
+  }
+  if (runs > 3) {
+    const BudgetCoverage c = budget_coverage(pooled_err, pooled_sig);
+    out += fmt::sprintf(
+        "coverage check: repeats on %zu other power-ons (%zu rows): %.1f %% within 1 u_c, %.1f %% "
+        "within 2 u_c\n",
+        runs, c.rows, 100 * c.within_1sigma, 100 * c.within_2sigma);
   }
   return out;
 }

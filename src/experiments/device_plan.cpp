@@ -5,9 +5,17 @@
 #include <stdexcept>
 #include <string>
 
+#include "tofkit/calib/uncertainty_budget.hpp"
 #include "tofkit/physics/link_budget.hpp"
 
 namespace tofkit::experiments {
+namespace {
+
+double rounded4(double v) {
+  return std::round(v * 1e4) / 1e4;
+}
+
+}  // namespace
 
 double clip_power_w(const device::VirtualRangefinder& device) {
   const physics::LinkConfig& link = device.config().link;
@@ -58,16 +66,52 @@ calib::ModelFitResult factory_calibration(const device::DeviceConfig& config, st
   calib::ModelFitOptions options;
   options.time_to_distance = device::nominal_time_to_distance(config);
   options.chain = calib::parse_chain_steps(kFactoryChain);
-  if (config.tdc.laser_sync && !config.oscillator.enabled)
-    options.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
-  return calib::fit_model(records, options);
+  const double tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
+  if (config.tdc.laser_sync && !config.oscillator.enabled) options.tdc_period_ns = tdc_period_ns;
+  calib::ModelFitResult fit = calib::fit_model(records, options);
+
+  // The budget, every term from the factory's own rows (type A): the
+  // repeats (repeatability), the sweep (the periodic residual: it spans the
+  // TDC's period whether or not the laser fires on its clock), the plates
+  // cross-validated (the correction's residual), the temperature run, a
+  // stability record of the temperature run's plate after the calibration
+  // (drift since calibration, same power-on) and the plan's plates once on
+  // kFactoryPowerOns other power-ons (what a row on another power-on, a
+  // customer's scan, carries: the offset between power-ons and the wander at
+  // its time against the calibration's).
+  const ProtocolOptions protocol;
+  const double period_s = output_period_s(config);
+  std::vector<PlannedMeasurement> stability(
+      static_cast<std::size_t>(
+          std::lround(protocol.stability_minutes * 60 / protocol.stability_every_s)) +
+          1,
+      plate(rounded4(plan.temperature_plate.distance_m),
+            rounded4(plan.temperature_plate.reflectance), ambient_c));
+  const RunTiming after{std::ceil(static_cast<double>(records.size()) * period_s),
+                        protocol.stability_every_s};
+  const std::vector<ranging::Record> stability_rows = run(device, stability, seed, after);
+  calib::ProtocolSteps steps;
+  steps.stability = stability_rows;
+  steps.stability_every_s = protocol.stability_every_s;
+  steps.tdc_period_ns = tdc_period_ns;
+  const std::vector<PlannedMeasurement> plates = plan_measurements(plan, 1);
+  const std::vector<PlannedMeasurement> at_ambient(
+      plates.begin(), plates.begin() + static_cast<std::ptrdiff_t>(plan.plates.size()));
+  for (int k = 0; k < kFactoryPowerOns; ++k) {
+    // Power-ons of their own (a SplitMix64 step of the seed): a customer's
+    // run on seed s is not one of them.
+    std::uint64_t z = seed + 0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(k + 1);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    steps.power_on_runs.push_back(run(device, at_ambient, z ^ (z >> 31)));
+  }
+  calib::BudgetFitResult budget = calib::fit_model_budget(records, fit, steps, {});
+  fit.budget = std::move(budget.budget);
+  fit.report += budget.report;
+  return fit;
 }
 
 namespace {
-
-double rounded4(double v) {
-  return std::round(v * 1e4) / 1e4;
-}
 
 /// One grid per distance of a plate list (plates sharing a distance together).
 std::vector<PlateGrid> grids_of(const std::vector<calib::PlannedPlate>& plates, int count) {
@@ -86,6 +130,15 @@ std::vector<PlateGrid> grids_of(const std::vector<calib::PlannedPlate>& plates, 
     it->reflectances.push_back(rounded4(p.reflectance));
   }
   return grids;
+}
+
+/// The grid at the plan's distance: the one with the most plates (the
+/// field's middle powers; the others are plates moved for the extremes).
+PlateGrid main_grid(const std::vector<calib::PlannedPlate>& plates, int count) {
+  const std::vector<PlateGrid> grids = grids_of(plates, count);
+  return *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
+    return a.reflectances.size() < b.reflectances.size();
+  });
 }
 
 }  // namespace
@@ -185,11 +238,7 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
     if (o.complete) {
       // A weak, the middle and a strong plate of the plan's distance: the
       // APD's gain and the walk change with temperature by echo strength.
-      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
-      const PlateGrid& at =
-          *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
-            return a.reflectances.size() < b.reflectances.size();
-          });
+      const PlateGrid at = main_grid(plan.plates, o.count);
       s.grid.distances_m = at.distances_m;
       s.grid.reflectances = {at.reflectances.front(), at.reflectances[at.reflectances.size() / 2],
                              at.reflectances.back()};
@@ -209,11 +258,7 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
       s.file = "poweron" + std::to_string(k + 2) + ".csv";
       s.observes = "the offset between power-ons";
       s.role = StepRole::power_on;
-      // The plates at the plan's distance (the most plates: the field's middle powers).
-      const std::vector<PlateGrid> grids = grids_of(plan.plates, o.count);
-      s.grid = *std::max_element(grids.begin(), grids.end(), [](const auto& a, const auto& b) {
-        return a.reflectances.size() < b.reflectances.size();
-      });
+      s.grid = main_grid(plan.plates, o.count);
       s.seed = static_cast<std::uint64_t>(k + 2);
       s.timing.start_s = protocol.calibration_start_s;
       s.bench_minutes = o.stability_minutes + 2.0 * static_cast<double>(s.grid.reflectances.size());

@@ -23,7 +23,7 @@ namespace tofkit::io {
 namespace {
 
 constexpr const char* kEntryKind = "tofkit.factory_calibration";
-constexpr int kEntryVersion = 1;
+constexpr int kEntryVersion = 2;  // 2: the budget beside the model
 
 std::string environment(const char* name) {
   const char* value = std::getenv(name);
@@ -173,8 +173,8 @@ std::optional<FactoryCalibrationKey> factory_calibration_key(const std::filesyst
   return key;
 }
 
-std::optional<ranging::Pipeline> load_factory_calibration(const FactoryCalibrationKey& key,
-                                                          std::string& note) {
+std::optional<FactoryCalibration> load_factory_calibration(const FactoryCalibrationKey& key,
+                                                           std::string& note) {
   const std::filesystem::path entry = key.entry();
   std::ifstream in(entry, std::ios::binary);
   if (!in) {
@@ -193,26 +193,38 @@ std::optional<ranging::Pipeline> load_factory_calibration(const FactoryCalibrati
                                std::to_string(kEntryVersion));
     if (j.at("key").get<std::string>() != key_text(key))
       throw std::runtime_error("it holds another key");
-    return pipeline_from_json(j.at("model"), entry.string());
+    FactoryCalibration found{pipeline_from_json(j.at("model"), entry.string()), {}};
+    if (j.contains("budget")) found.budget = budget_from_json(j.at("budget"), entry.string());
+    return found;
   } catch (const std::exception& e) {
     note = "cache entry " + entry.string() + " unusable (" + e.what() + "): made again";
     return std::nullopt;
   }
 }
 
-bool store_factory_calibration(const FactoryCalibrationKey& key, const ranging::Pipeline& pipeline,
-                               std::string& note) {
+bool store_factory_calibration(const FactoryCalibrationKey& key,
+                               const FactoryCalibration& calibration, std::string& note) {
   try {
-    const nlohmann::json model = pipeline_to_json(pipeline);
-    // The entry must give back this model exactly: its JSON read and written
-    // again is the same JSON (numbers are written in shortest round-trip form).
-    if (pipeline_to_json(pipeline_from_json(nlohmann::json::parse(model.dump()), "cache")).dump() !=
-        model.dump()) {
-      note = "the model's JSON does not read back to itself: not cached";
+    const nlohmann::json model = pipeline_to_json(calibration.pipeline);
+    const nlohmann::json budget =
+        calibration.budget.empty() ? nlohmann::json(nullptr) : budget_to_json(calibration.budget);
+    // The entry must give back this model and budget exactly: their JSON read
+    // and written again is the same JSON (numbers in shortest round-trip form).
+    const bool model_back =
+        pipeline_to_json(pipeline_from_json(nlohmann::json::parse(model.dump()), "cache")).dump() ==
+        model.dump();
+    const bool budget_back =
+        budget.is_null() ||
+        budget_to_json(budget_from_json(nlohmann::json::parse(budget.dump()), "cache")).dump() ==
+            budget.dump();
+    if (!model_back || !budget_back) {
+      note = std::string("the ") + (model_back ? "budget" : "model") +
+             "'s JSON does not read back to itself: not cached";
       return false;
     }
-    const nlohmann::json entry = {
+    nlohmann::json entry = {
         {"kind", kEntryKind}, {"version", kEntryVersion}, {"key", key_text(key)}, {"model", model}};
+    if (!budget.is_null()) entry["budget"] = budget;
     std::error_code ec;
     std::filesystem::create_directories(key.directory, ec);
     if (ec) {

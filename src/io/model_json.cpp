@@ -360,6 +360,8 @@ const char* axis_name(ranging::BudgetComponent::Axis a) {
       return "log_amplitude";
     case ranging::BudgetComponent::Axis::time_since_calibration_s:
       return "time_since_calibration_s";
+    case ranging::BudgetComponent::Axis::temperature_c:
+      return "temperature_c";
     case ranging::BudgetComponent::Axis::none:
       break;
   }
@@ -392,7 +394,9 @@ json budget_to_json(const ranging::UncertaintyBudget& budget) {
                           {"node", c.node},
                           {"variance_m2", c.variance_m2}});
   }
-  return {{"components", components}, {"unobserved", budget.unobserved}};
+  json j = {{"components", components}, {"unobserved", budget.unobserved}};
+  if (std::isfinite(budget.calibration_time_s)) j["calibration_time_s"] = budget.calibration_time_s;
+  return j;
 }
 
 ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& context) {
@@ -427,8 +431,11 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
       c.axis = ranging::BudgetComponent::Axis::log_amplitude;
     } else if (axis == "time_since_calibration_s") {
       c.axis = ranging::BudgetComponent::Axis::time_since_calibration_s;
+    } else if (axis == "temperature_c") {
+      c.axis = ranging::BudgetComponent::Axis::temperature_c;
     } else {
-      fail(where + ".axis", "expected none, log_amplitude or time_since_calibration_s");
+      fail(where + ".axis",
+           "expected none, log_amplitude, time_since_calibration_s or temperature_c");
     }
     c.node = numbers(cj, "node", where);
     c.variance_m2 = numbers(cj, "variance_m2", where);
@@ -442,6 +449,11 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
         fail(context + ".unobserved[" + std::to_string(k) + "]", "expected a string");
       budget.unobserved.push_back(u[k].get<std::string>());
     }
+  }
+  if (j.contains("calibration_time_s")) {
+    budget.calibration_time_s = number(j["calibration_time_s"], context + ".calibration_time_s");
+    if (!(budget.calibration_time_s >= 0))
+      fail(context + ".calibration_time_s", "expected a time since power-on >= 0 s");
   }
   try {
     budget.validate();

@@ -34,8 +34,10 @@ enum CorrectedColumn : std::size_t {
   kDistance = kRawColumnCount,
   kSigma,
   kCorrectionFlags,
+  kTime,  // optional time_s (s since power-on), after the raw or corrected columns
   kColumnCount
 };
+constexpr std::size_t kCorrectedColumnCount = kTime;
 
 constexpr std::array<std::string_view, kColumnCount> kColumnNames = [] {
   std::array<std::string_view, kColumnCount> names{};
@@ -43,6 +45,7 @@ constexpr std::array<std::string_view, kColumnCount> kColumnNames = [] {
   names[kDistance] = "distance_m";
   names[kSigma] = "sigma_m";
   names[kCorrectionFlags] = "correction_flags";
+  names[kTime] = "time_s";
   return names;
 }();
 
@@ -73,10 +76,14 @@ void append_record(fmt::memory_buffer& out, const Record& r) {
   }
 }
 
-void append_header(fmt::memory_buffer& out, std::size_t columns) {
+void append_header(fmt::memory_buffer& out, std::size_t columns, bool time = false) {
   for (std::size_t c = 0; c < columns; ++c) {
     if (c > 0) out.push_back(',');
     out.append(kColumnNames[c]);
+  }
+  if (time) {
+    out.push_back(',');
+    out.append(kColumnNames[kTime]);
   }
   out.push_back('\n');
 }
@@ -255,6 +262,7 @@ class TableReader {
     row.range.distance_m = p.number[kDistance];
     row.range.sigma_m = p.number[kSigma];
     row.range.correction_flags = index_[kCorrectionFlags] ? p.integer[kCorrectionFlags] : 0u;
+    row.time_s = p.number[kTime];
     return row;
   }
 
@@ -274,14 +282,23 @@ std::span<const std::string_view> raw_csv_columns() {
 
 std::span<const std::string_view> corrected_csv_columns() {
   return std::span<const std::string_view>(kColumnNames.data() + kRawColumnCount,
-                                           kColumnCount - kRawColumnCount);
+                                           kCorrectedColumnCount - kRawColumnCount);
 }
 
-void write_raw_csv(std::ostream& os, std::span<const Record> records) {
+void write_raw_csv(std::ostream& os, std::span<const Record> records,
+                   std::span<const double> time_s) {
+  if (!time_s.empty() && time_s.size() != records.size()) {
+    throw std::invalid_argument(
+        fmt::format("write_raw_csv: {} records but {} times", records.size(), time_s.size()));
+  }
   fmt::memory_buffer buffer;
-  append_header(buffer, kRawColumnCount);
-  for (const auto& r : records) {
-    append_record(buffer, r);
+  append_header(buffer, kRawColumnCount, !time_s.empty());
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    append_record(buffer, records[i]);
+    if (!time_s.empty()) {
+      buffer.push_back(',');
+      append_number(buffer, time_s[i]);
+    }
     buffer.push_back('\n');
     if (buffer.size() > (1u << 20)) {  // flush in ~1 MB chunks
       write_buffer(os, buffer);
@@ -291,15 +308,20 @@ void write_raw_csv(std::ostream& os, std::span<const Record> records) {
   write_buffer(os, buffer);
 }
 
-void write_raw_csv(const fs::path& path, std::span<const Record> records) {
-  write_file_atomically(path, [&](std::ostream& os) { write_raw_csv(os, records); });
+void write_raw_csv(const fs::path& path, std::span<const Record> records,
+                   std::span<const double> time_s) {
+  write_file_atomically(path, [&](std::ostream& os) { write_raw_csv(os, records, time_s); });
 }
 
-std::vector<Record> read_raw_csv(const fs::path& path) {
+std::vector<Record> read_raw_csv(const fs::path& path, std::vector<double>* time_s) {
   std::vector<CorrectedRow> rows = TableReader(path, false).read();
   std::vector<Record> records;
   records.reserve(rows.size());
-  for (const auto& row : rows) records.push_back(row.record);
+  if (time_s) time_s->clear();
+  for (const auto& row : rows) {
+    records.push_back(row.record);
+    if (time_s) time_s->push_back(row.time_s);
+  }
   return records;
 }
 
@@ -310,7 +332,7 @@ void write_corrected_csv(std::ostream& os, std::span<const Record> records,
                                             records.size(), ranges.size()));
   }
   fmt::memory_buffer buffer;
-  append_header(buffer, kColumnCount);
+  append_header(buffer, kCorrectedColumnCount);
   for (std::size_t i = 0; i < records.size(); ++i) {
     append_record(buffer, records[i]);
     buffer.push_back(',');

@@ -39,7 +39,8 @@ void UncertaintyBudget::validate() const {
   }
 }
 
-double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s) const {
+double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s,
+                                        double temperature_c) const {
   const BudgetComponent& c = components[k];
   const bool same = std::isfinite(since_s);
   if ((c.scope == BudgetScope::same_power_on && !same) ||
@@ -50,6 +51,9 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
       return std::isfinite(amplitude) && amplitude > 0 ? c.u_m(std::log(amplitude)) : kNaN;
     case BudgetComponent::Axis::time_since_calibration_s:
       return c.u_m(std::abs(since_s));
+    case BudgetComponent::Axis::temperature_c:
+      if (std::isfinite(temperature_c)) return c.u_m(temperature_c);
+      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
     case BudgetComponent::Axis::none:
       break;
   }
@@ -57,16 +61,20 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
 }
 
 void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<const double> since_s,
-                                 std::span<double> u_m) const {
-  if (u_m.size() != amplitude.size() || (since_s.size() != 1 && since_s.size() != amplitude.size()))
+                                 std::span<double> u_m,
+                                 std::span<const double> temperature_c) const {
+  if (u_m.size() != amplitude.size() ||
+      (since_s.size() != 1 && since_s.size() != amplitude.size()) ||
+      (!temperature_c.empty() && temperature_c.size() != amplitude.size()))
     throw std::invalid_argument(
-        "UncertaintyBudget::combined: amplitude, since_s (one or one per row) and u_m differ in "
-        "length");
+        "UncertaintyBudget::combined: amplitude, since_s (one or one per row), temperature_c (none "
+        "or one per row) and u_m differ in length");
   for (std::size_t i = 0; i < amplitude.size(); ++i) {
     const double since = since_s.size() == 1 ? since_s[0] : since_s[i];
+    const double t = temperature_c.empty() ? kNaN : temperature_c[i];
     double v = 0;
     for (std::size_t k = 0; k < components.size(); ++k) {
-      const double u = component_u_m(k, amplitude[i], since);
+      const double u = component_u_m(k, amplitude[i], since, t);
       v += u * u;
     }
     u_m[i] = std::sqrt(v);
@@ -74,8 +82,12 @@ void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<co
 }
 
 std::string UncertaintyBudget::table(std::span<const double> amplitude,
-                                     std::span<const double> since_s) const {
+                                     std::span<const double> since_s,
+                                     std::span<const double> temperature_c) const {
   const std::size_t points = std::min(amplitude.size(), since_s.size());
+  const auto temperature = [&](std::size_t p) {
+    return p < temperature_c.size() ? temperature_c[p] : kNaN;
+  };
   std::string out = fmt::sprintf("%-40s %-4s ", "component (u mm, share at each point)", "type");
   for (std::size_t p = 0; p < points; ++p)
     out += fmt::sprintf(" %13s", fmt::sprintf("P%zu", p + 1).c_str());
@@ -83,7 +95,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
   std::vector<double> total(points, 0.0);
   for (std::size_t k = 0; k < components.size(); ++k) {
     for (std::size_t p = 0; p < points; ++p) {
-      const double u = component_u_m(k, amplitude[p], since_s[p]);
+      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p));
       total[p] += u * u;
     }
   }
@@ -92,7 +104,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
     out += fmt::sprintf("%-40s %-4s ", c.name.c_str(),
                         c.type_b ? (c.default_specification ? "B*" : "B") : "A");
     for (std::size_t p = 0; p < points; ++p) {
-      const double u = component_u_m(k, amplitude[p], since_s[p]);
+      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p));
       out +=
           fmt::sprintf(" %6.3f (%3.0f%%)", u * 1e3, total[p] > 0 ? 100.0 * u * u / total[p] : 0.0);
     }
@@ -104,10 +116,13 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
   out += "\n";
   for (std::size_t p = 0; p < points; ++p) {
     out += fmt::sprintf(
-        "  P%zu: amplitude %.4g, %s\n", p + 1, amplitude[p],
+        "  P%zu: amplitude %.4g, %s%s\n", p + 1, amplitude[p],
         std::isfinite(since_s[p])
             ? fmt::sprintf("%g min after calibration (same power-on)", since_s[p] / 60.0).c_str()
-            : "another power-on");
+            : "another power-on",
+        std::isfinite(temperature(p))
+            ? fmt::sprintf(", temperature reading %.1f C", temperature(p)).c_str()
+            : "");
   }
   if (std::any_of(components.begin(), components.end(),
                   [](const BudgetComponent& c) { return c.default_specification; }))
@@ -120,15 +135,16 @@ void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, con
   if (in.size != out.size() || (since_s.size() != 1 && since_s.size() != out.size()))
     throw std::invalid_argument("apply_budget: rows, since_s (one or one per row) and out differ");
   const std::size_t n = out.size();
-  std::vector<double> amplitude(n), intensity(n), distance(n), u(n), inside(n);
+  std::vector<double> amplitude(n), temperature(n), intensity(n), distance(n), u(n), inside(n);
   const auto& confidence = pipeline.confidence();
   const bool by_width = confidence && confidence->intensity_input() == IntensityInput::pulse_width;
   for (std::size_t i = 0; i < n; ++i) {
     amplitude[i] = in.amplitude[i];
+    temperature[i] = in.temperature_c[i];
     intensity[i] = by_width ? in.pulse_width_ns[i] : amplitude[i];
     distance[i] = out[i].distance_m;
   }
-  budget.combined(amplitude, since_s, u);
+  budget.combined(amplitude, since_s, u, temperature);
   if (confidence) {
     confidence->sigma(distance, intensity, inside);
   } else {

@@ -18,6 +18,7 @@
 #include "tofkit/calib/surface_fit.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace tofkit::calib {
 
@@ -172,6 +173,9 @@ struct ModelFitResult {
   /// without its fold; NaN where the fold's correction extrapolates or no
   /// echo); empty without cross-fitting. The uncertainty budget's input.
   std::vector<double> out_of_fold_m;
+  /// The uncertainty budget (calib::fit_model_budget), where the caller fitted
+  /// one (experiments::factory_calibration does); empty from fit_model.
+  ranging::UncertaintyBudget budget;
 };
 
 /// Fits the model. Throws std::invalid_argument naming the problem (too few

@@ -13,11 +13,13 @@
 ///   span a period; else type B from tdc_inl_ps;
 /// - correction residual (type A): the targets' cross-validated mean
 ///   residual at the reference temperature, less the periodic part and the
-///   noise of a mean, per amplitude tercile;
+///   noise of a mean, per amplitude bin, each surface (reflectance, angle)
+///   weighted alike;
 /// - temperature model residual (type A): the temperature run's in-sample
 ///   mean residuals against the same target at the reference temperature, times
-///   the optimism of the temperature step's fit; else type B from
-///   delay_tempco_ps_per_c;
+///   the optimism of the temperature step's fit, as a function of the row's
+///   temperature reading (none at the calibration's); else type B from
+///   delay_tempco_ps_per_c (u = tempco x |T - T_ref|);
 /// - drift since calibration (type A): the structure function of a stability
 ///   record (a static target over time), D(tau) = E[(y(t + tau) - y(t))^2]
 ///   less twice its rows' noise: the variance a row tau after the
@@ -76,7 +78,9 @@ struct BudgetFitData {
   std::span<const ranging::Record> stability;
   std::span<const double> stability_residual_m;
   double stability_every_s = 0;
-  /// Repeats on other power-ons: the final pipeline's residuals of each run.
+  /// Repeats on other power-ons: the final pipeline's residuals of each run
+  /// (fit_model_budget: less the calibration's mean residual at the same
+  /// target, so that only what the power-on moved remains).
   std::vector<std::vector<double>> power_on_residual_m;
   std::vector<std::vector<double>> power_on_amplitude;
 };

@@ -43,12 +43,20 @@ inline constexpr const char* kFactoryChain = "offset,grayvalue,temperature";
 /// Spacing of the factory calibration's distance sweep, m.
 inline constexpr double kFactorySweepStep_m = 0.003;
 
+/// Other power-ons the factory calibration measures the plan's plates on, once
+/// each: its budget's power-on term (a customer's row on another power-on) is
+/// their mean residuals' rms.
+inline constexpr int kFactoryPowerOns = 100;
+
 /// A factory calibration of the device, measured at `seed`: the default plan
 /// (`tofkit plan` without options: plates at 20 C and the temperature run),
 /// plus the temperature run's plate swept over the field's ranges (0.5-8 m)
 /// every kFactorySweepStep_m; fitted: the chain kFactoryChain, behind a
 /// periodic step in the time of flight when the laser fires on the TDC's
-/// clock (`fit --tdc-periodic`), with its calibrated confidence. What `tofkit scan` corrects with
+/// clock (`fit --tdc-periodic`), with its calibrated confidence and an
+/// uncertainty budget (ModelFitResult::budget) fitted from the same rows, a
+/// stability record after them and the plates on kFactoryPowerOns other
+/// power-ons (every term type A). What `tofkit scan` corrects with
 /// when no --model is given, so a scan's ranges are calibrated, as a lidar's are.
 [[nodiscard]] calib::ModelFitResult factory_calibration(const device::DeviceConfig& config,
                                                         std::uint64_t seed = 1);

@@ -4,7 +4,8 @@
 /// device's factory calibration (experiments::factory_calibration, about a
 /// second of CPU), made once per device, seed and build and then read back.
 ///
-/// An entry is the model JSON (io::pipeline_to_json) of one key:
+/// An entry is the model JSON (io::pipeline_to_json) and its uncertainty
+/// budget (io::budget_to_json) of one key:
 /// - the device config in its canonical form (io::dump_device_config) with
 ///   what the calibration never reads (the [scan] section) at its defaults;
 ///   the calibration is made with that same config (calibration_config), so
@@ -31,6 +32,7 @@
 
 #include "tofkit/device/device_config.hpp"
 #include "tofkit/ranging/pipeline.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 
 namespace tofkit::io {
 
@@ -66,16 +68,23 @@ struct FactoryCalibrationKey {
     const std::filesystem::path& directory, const device::DeviceConfig& config, std::uint64_t seed,
     std::string& note);
 
-/// The entry's model, or nullopt: absent (note stays ""), or unusable (not
+/// A factory calibration as an entry holds it: the model and its uncertainty
+/// budget (a scan's sigma_m is the budget's combined uncertainty).
+struct FactoryCalibration {
+  ranging::Pipeline pipeline;
+  ranging::UncertaintyBudget budget;
+};
+
+/// The entry's model and budget, or nullopt: absent (note stays ""), or unusable (not
 /// JSON, truncated, another key, a bad model: `note` says which and why).
 /// Never throws.
-[[nodiscard]] std::optional<ranging::Pipeline> load_factory_calibration(
+[[nodiscard]] std::optional<FactoryCalibration> load_factory_calibration(
     const FactoryCalibrationKey& key, std::string& note);
 
 /// Writes the entry atomically (the directory made if missing). False, with
-/// `note`, when it cannot (a read-only or full cache; a model whose JSON does
-/// not read back to the same JSON). Never throws.
-bool store_factory_calibration(const FactoryCalibrationKey& key, const ranging::Pipeline& pipeline,
-                               std::string& note);
+/// `note`, when it cannot (a read-only or full cache; a model or budget whose
+/// JSON does not read back to the same JSON). Never throws.
+bool store_factory_calibration(const FactoryCalibrationKey& key,
+                               const FactoryCalibration& calibration, std::string& note);
 
 }  // namespace tofkit::io

@@ -13,6 +13,8 @@
 /// distance_raw_m must be present (the other then reads as NaN). A missing
 /// shots_valid reads as 1 when the row has a distance and 0 otherwise; a
 /// missing flags column as kRawNoEcho for rows without a distance, else 0.
+/// An optional last column `time_s` gives each row's time since power-on, s
+/// (`measure --start-s` / `--every` write it; empty or absent: unknown).
 /// Errors (std::runtime_error) name the file, line and column.
 
 #include <filesystem>
@@ -31,17 +33,24 @@ namespace tofkit::io {
 /// The three columns the corrected table adds after the raw ones.
 [[nodiscard]] std::span<const std::string_view> corrected_csv_columns();
 
-/// The raw CSV (header and a row per record) into a stream (`measure --out -`: stdout).
-void write_raw_csv(std::ostream& os, std::span<const ranging::Record> records);
+/// The raw CSV (header and a row per record) into a stream (`measure --out -`:
+/// stdout); with `time_s` (one per record) a last column time_s.
+void write_raw_csv(std::ostream& os, std::span<const ranging::Record> records,
+                   std::span<const double> time_s = {});
 /// Write records atomically (temporary file + rename).
-void write_raw_csv(const std::filesystem::path& path, std::span<const ranging::Record> records);
+void write_raw_csv(const std::filesystem::path& path, std::span<const ranging::Record> records,
+                   std::span<const double> time_s = {});
 
-[[nodiscard]] std::vector<ranging::Record> read_raw_csv(const std::filesystem::path& path);
+/// The records; with `time_s`, each row's time since power-on too (NaN where
+/// the file has none).
+[[nodiscard]] std::vector<ranging::Record> read_raw_csv(const std::filesystem::path& path,
+                                                        std::vector<double>* time_s = nullptr);
 
 /// One row of the corrected table.
 struct CorrectedRow {
   ranging::Record record;
   ranging::Range range;
+  double time_s = ranging::kNaN;  ///< time since power-on (the optional time_s column)
 };
 
 /// The corrected CSV into a stream (`tofkit correct --out -`: stdout).

@@ -27,9 +27,10 @@ enum class BudgetScope {
 /// One cause's standard uncertainty. Its value is a piecewise-linear curve of
 /// u^2 over one axis (constant beyond the first and last node; one node: a
 /// constant): ln(amplitude) for causes that follow the echo's strength, the
-/// time since calibration (s) for drift, none for the rest.
+/// time since calibration (s) for drift, the row's temperature reading
+/// (temperature_c, C) for the temperature model's residual, none for the rest.
 struct BudgetComponent {
-  enum class Axis { none, log_amplitude, time_since_calibration_s };
+  enum class Axis { none, log_amplitude, time_since_calibration_s, temperature_c };
   std::string name;  ///< "repeatability", "correction residual", ...
   std::string step;  ///< the calibration step that gave it, or the specification key (type B)
   bool type_b = false;
@@ -47,21 +48,30 @@ struct UncertaintyBudget {
   std::vector<BudgetComponent> components;
   /// Causes the calibration rows did not observe (their type B terms stand in).
   std::vector<std::string> unobserved;
+  /// When the calibration rows were taken, s after power-on (the median of
+  /// their raw CSV's time_s; NaN: unknown): a row's time_s less it is its time
+  /// since calibration, on the calibration's power-on.
+  double calibration_time_s = kNaN;
 
   /// Throws std::invalid_argument naming the bad component and field.
   void validate() const;
   [[nodiscard]] bool empty() const { return components.empty(); }
   /// u of component k for a row (amplitude in the row's units; since_s NaN: the
-  /// time since calibration is unknown, i.e. another power-on).
-  [[nodiscard]] double component_u_m(std::size_t k, double amplitude, double since_s) const;
+  /// time since calibration is unknown, i.e. another power-on; temperature_c
+  /// NaN: unknown, the temperature components' largest value).
+  [[nodiscard]] double component_u_m(std::size_t k, double amplitude, double since_s,
+                                     double temperature_c = kNaN) const;
   /// Combined standard uncertainty of each row (GUM Eq. 10): since_s either
-  /// one value for every row or one per row; NaN: unknown.
+  /// one value for every row or one per row; NaN: unknown; temperature_c
+  /// (the rows' temperature readings) empty or one per row.
   void combined(std::span<const double> amplitude, std::span<const double> since_s,
-                std::span<double> u_m) const;
+                std::span<double> u_m, std::span<const double> temperature_c = {}) const;
   /// The budget as a table: component, value at each point, step, type, share
-  /// of the combined variance at each point (amplitude, since_s) given.
+  /// of the combined variance at each point (amplitude, since_s, temperature_c;
+  /// temperature_c empty: unknown) given.
   [[nodiscard]] std::string table(std::span<const double> amplitude,
-                                  std::span<const double> since_s) const;
+                                  std::span<const double> since_s,
+                                  std::span<const double> temperature_c = {}) const;
 };
 
 /// Replaces each corrected range's sigma_m by the budget's combined standard
