@@ -455,17 +455,20 @@ TEST_F(Hostile, ImpossibleOrDegenerateTruthIsRefusedBeforeFitting) {
       {"neg_amplitude.csv", "--chain offset,walk", {"amplitude = -0.5 in data row 4"}},
       {"cold.csv", "--chain offset,temperature", {"temperature_c = -300 in data row 4"}},
   };
+  // A guard against the 120-143 s fits above, not a speed figure: the fits
+  // take 3-6 s, and 11 s was seen on a loaded 2-core machine.
+  constexpr double kBounded_s = 60.0;
   for (const Case& c : cases) {
     const double seconds = seconds_of(
         [&] { expect_refused("fit --in " + c.file + " " + c.model + " --out m.json", c.needles); });
-    EXPECT_LT(seconds, 10.0) << c.file << " " << c.model;
+    EXPECT_LT(seconds, kBounded_s) << c.file << " " << c.model;
   }
   const double flat_seconds = seconds_of([&] {
     EXPECT_EQ(
         run("fit --in flat_amplitude.csv --chain offset,walk,temperature --out flat.json").status,
         0);
   });
-  EXPECT_LT(flat_seconds, 10.0);
+  EXPECT_LT(flat_seconds, kBounded_s);
   // evaluate reads the truth too.
   ASSERT_EQ(run("fit --in cal.csv --chain offset --out m.json").status, 0);
   ASSERT_EQ(run("correct --model m.json --in cal.csv --out cor.csv").status, 0);
