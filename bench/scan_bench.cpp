@@ -47,6 +47,19 @@ using namespace tofkit::scan;
 
 namespace {
 
+/// One bare Embree ray (single precision, every mask bit, no hit yet).
+RTCRayHit embree_ray(const Vec3& o, const Vec3& d) {
+  RTCRayHit rh{};
+  rh.ray.org_x = static_cast<float>(o[0]), rh.ray.org_y = static_cast<float>(o[1]);
+  rh.ray.org_z = static_cast<float>(o[2]);
+  rh.ray.dir_x = static_cast<float>(d[0]), rh.ray.dir_y = static_cast<float>(d[1]);
+  rh.ray.dir_z = static_cast<float>(d[2]);
+  rh.ray.tfar = std::numeric_limits<float>::infinity();
+  rh.ray.mask = 0xFFFFFFFFu;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  return rh;
+}
+
 constexpr int kSide = 1024;  // 1024 x 1024 = 1 M beams
 
 Scene mesh_scene() {
@@ -138,14 +151,7 @@ void BM_EmbreeBare(benchmark::State& state) {
                                  ? axis
                                  : normalized(axis + std::tan(fp.half_divergence_rad() * s.x) * e1 +
                                               std::tan(fp.half_divergence_rad() * s.y) * e2);
-              RTCRayHit rh{};
-              rh.ray.org_x = static_cast<float>(o[0]), rh.ray.org_y = static_cast<float>(o[1]),
-              rh.ray.org_z = static_cast<float>(o[2]);
-              rh.ray.dir_x = static_cast<float>(d[0]), rh.ray.dir_y = static_cast<float>(d[1]),
-              rh.ray.dir_z = static_cast<float>(d[2]);
-              rh.ray.tfar = std::numeric_limits<float>::infinity();
-              rh.ray.mask = 0xFFFFFFFFu;
-              rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+              RTCRayHit rh = embree_ray(o, d);
               rtcIntersect1(scene, &context, &rh);
               sum += rh.ray.tfar;
             }
@@ -245,16 +251,7 @@ void BM_EmbreePacket(benchmark::State& state) {
       for (int k = 0; k < 16; ++k) sum += rh.ray.tfar[k];
     }
     for (; first < origins.size(); ++first) {
-      RTCRayHit rh{};
-      const auto& o = origins[first];
-      const auto& d = directions[first];
-      rh.ray.org_x = static_cast<float>(o[0]), rh.ray.org_y = static_cast<float>(o[1]);
-      rh.ray.org_z = static_cast<float>(o[2]);
-      rh.ray.dir_x = static_cast<float>(d[0]), rh.ray.dir_y = static_cast<float>(d[1]);
-      rh.ray.dir_z = static_cast<float>(d[2]);
-      rh.ray.tfar = std::numeric_limits<float>::infinity();
-      rh.ray.mask = 0xFFFFFFFFu;
-      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+      RTCRayHit rh = embree_ray(origins[first], directions[first]);
       rtcIntersect1(scene, &context, &rh);
       sum += rh.ray.tfar;
     }

@@ -34,6 +34,20 @@ double true_sigma(double r, double a) {
   return 0.001 + 0.2 / a * (1.0 + r / 20.0);
 }
 
+/// Residuals of exactly +-sqrt(e2(a)), alternating in sign, at 400 intensities
+/// over 10..390 (range 5 m): least squares on E^2 recovers e2.
+template <class E2>
+Residuals alternating_residuals(const E2& e2) {
+  Residuals data;
+  for (int k = 0; k < 400; ++k) {
+    const double a = 10.0 + 380.0 * k / 399.0;
+    data.range_m.push_back(5.0);
+    data.amplitude.push_back(a);
+    data.residual_m.push_back((k % 2 ? 1.0 : -1.0) * std::sqrt(e2(a)));
+  }
+  return data;
+}
+
 enum class Tail { gaussian, student5 };
 
 /// Range uniform in [1, 30] m, amplitude log-uniform in [10, 5000].
@@ -185,13 +199,7 @@ TEST(ThesisConfidence, RecoversAPolynomialSquaredErrorAndAppliesTheFloor) {
   const auto f = [](double a) {
     return 1e-4 * (1.0 - a / 150.0) * (1.0 - a / 150.0) * (1.0 - a / 400.0) + 2e-6;
   };
-  Residuals data;
-  for (int k = 0; k < 400; ++k) {
-    const double a = 10.0 + 380.0 * k / 399.0;
-    data.range_m.push_back(5.0);
-    data.amplitude.push_back(a);
-    data.residual_m.push_back((k % 2 ? 1.0 : -1.0) * std::sqrt(f(a)));
-  }
+  const Residuals data = alternating_residuals(f);
   ThesisConfidenceOptions options;
   options.floor_m2 = 5e-6;
   const auto model = fit_thesis_confidence(data.data(), options);
@@ -224,13 +232,7 @@ TEST(ThesisConfidence, UsesTheFloorAloneAboveTheStatedIntensity) {
   // rising with intensity above the threshold (where the thesis's cubic would be
   // large) must still give sqrt(floor) there, and the polynomial below it.
   const auto f = [](double a) { return 1e-5 * (1.0 + (a - 100.0) * (a - 100.0) / 2500.0); };
-  Residuals data;
-  for (int k = 0; k < 400; ++k) {
-    const double a = 10.0 + 380.0 * k / 399.0;
-    data.range_m.push_back(5.0);
-    data.amplitude.push_back(a);
-    data.residual_m.push_back((k % 2 ? 1.0 : -1.0) * std::sqrt(f(a)));
-  }
+  const Residuals data = alternating_residuals(f);
   ThesisConfidenceOptions options;
   options.floor_m2 = 0.005 * 0.0254 * 0.0254;
   options.floor_above_amplitude = 72.0;
