@@ -135,6 +135,66 @@ TEST(UncertaintyBudget, MeasureTimingIsTheRunsTimeAxis) {
   EXPECT_THROW(experiments::RunTiming({0, period / 2}).validate(config), std::invalid_argument);
 }
 
+TEST(UncertaintyBudget, ExtrapolationTermCoversAWalkSteepeningBelowTheWeakestPlate) {
+  // Synthetic one-distance calibration: 12 plates over ln amplitude 0-3, 5
+  // repeats each, raw = truth + W exp(-x) (a comparator's walk ~ 1 / peak)
+  // plus 0.3 mm of noise; the correction fits the plates exactly (residual:
+  // the noise). Below the weakest plate a correction continued from the edge
+  // in value and slope (the best a model fitted there can do without the
+  // physics) is off by W e^-x0 (e^delta - 1 - delta), delta = e-folds below.
+  constexpr double kWalk = 4e-3;  // W e^-x0: 4 mm of walk at the weakest plate
+  constexpr double kTruth = 3.0;
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> noise(0.0, 0.3e-3);
+  std::vector<ranging::Record> rows;
+  std::vector<double> residual;
+  const double metres_per_ns = calib::BudgetFitData{}.metres_per_ns;
+  for (int p = 0; p < 12; ++p) {
+    const double x = 3.0 * p / 11.0;
+    for (int k = 0; k < 5; ++k) {
+      ranging::Record r;
+      r.truth = {kTruth, 0.05 + 0.07 * p, 0.0, 20.0};
+      const double e = noise(rng);
+      r.raw.amplitude = std::exp(x);
+      r.raw.tof_ns = (kTruth + kWalk * std::exp(-x) + e) / metres_per_ns;
+      r.raw.temperature_c = 25.0;
+      r.raw.shots_valid = 100;
+      rows.push_back(r);
+      residual.push_back(-e);
+    }
+  }
+  calib::BudgetFitData data;
+  data.rows = rows;
+  data.residual_m = residual;
+  data.out_of_fold_m = residual;
+  const calib::BudgetFitResult fit = calib::fit_uncertainty_budget(data, {});
+  const auto& components = fit.budget.components;
+  const auto it = std::find_if(components.begin(), components.end(), [](const auto& c) {
+    return c.name == "extrapolation below the calibrated amplitudes";
+  });
+  ASSERT_NE(it, components.end()) << fit.report;
+  const std::size_t k = static_cast<std::size_t>(it - components.begin());
+  EXPECT_FALSE(it->type_b);
+  // None inside the calibrated amplitudes (and above them).
+  for (const double a : {1.0, 1.5, 5.0, 20.0, 100.0})
+    EXPECT_EQ(fit.budget.component_u_m(k, a, 0.0), 0.0) << a;
+  // Below: covers the edge continuation's error within 2 u, and is not
+  // wildly above it (it is estimated from the plates' curvature, not assumed).
+  for (const double delta : {0.5, 1.0, 2.0, 3.0, 4.0}) {
+    const double error = kWalk * (std::exp(delta) - 1 - delta);
+    const double u = fit.budget.component_u_m(k, std::exp(-delta), 0.0);
+    EXPECT_LE(error, 2 * u) << delta << "\n" << fit.report;
+    EXPECT_LE(u, 3 * error) << delta << "\n" << fit.report;
+  }
+  // It shows in the certificate table and travels in the model file.
+  const std::vector<double> amplitude = {std::exp(-3.0)}, since = {0.0};
+  EXPECT_NE(fit.budget.table(amplitude, since).find("extrapolation below"), std::string::npos);
+  const ranging::UncertaintyBudget read =
+      io::budget_from_json(nlohmann::json::parse(io::budget_to_json(fit.budget).dump()), "m");
+  EXPECT_DOUBLE_EQ(read.component_u_m(k, std::exp(-3.0), 0.0),
+                   fit.budget.component_u_m(k, std::exp(-3.0), 0.0));
+}
+
 // ------------------------------------------------------------ held out
 
 /// A device drawn away from both presets: receiver bandwidth, pulse width,
@@ -349,12 +409,15 @@ TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   }
 }
 
-// The paper's protocol: 90.7-96.3 % overall, but the weak tercile 80-89 %:
-// its misses are the field's weakest targets (5.8-7.4 m at reflectance 0.06),
-// three e-folds of amplitude below its weakest plate (out of the domain:
-// errors of 18-32 mm against sigma 5.5 mm), and drift beyond the default
-// drift_ps (15 ps) on the devices with 30 ps of wander.
-TEST_P(HeldOut, DISABLED_PaperProtocolStaysHonest) {
+// The paper's protocol: its field's weakest targets (5.8-7.4 m at reflectance
+// 0.06) lie two to three e-folds of amplitude below its weakest plate, where
+// the gray-value correction extrapolates (errors of 18-37 mm). Without a term
+// for that, 2-sigma coverage was 90.7-96.3 % overall but 80.3-88.9 % in the
+// weak tercile; with the budget's "extrapolation below the calibrated
+// amplitudes" 96.6-100 % overall and 96.7-100 % in the weak tercile. That
+// term is conservative there (u 59-199 mm at 3 e-folds below: the plates'
+// curvature grown as walk ~ 1 / peak), so no upper bound is asserted here.
+TEST_P(HeldOut, PaperProtocolStaysHonest) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
   const Calibrated c = calibrate(device, false, false);

@@ -150,11 +150,21 @@ void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, con
   } else {
     std::fill(inside.begin(), inside.end(), pipeline.residual_rms_m());
   }
+  // The budget's extrapolation term and the pipeline's out-of-domain growth
+  // describe one cause (a correction extrapolated past its data): a row gets
+  // the larger of the two, not their sum.
+  std::size_t extrapolation = budget.components.size();
+  for (std::size_t k = 0; k < budget.components.size(); ++k)
+    if (budget.components[k].name == kExtrapolationComponent) extrapolation = k;
   for (std::size_t i = 0; i < n; ++i) {
     if (!std::isfinite(out[i].sigma_m)) continue;
     double extra = 0;
     if ((out[i].correction_flags & kCorrOutOfDomain) != 0 && std::isfinite(inside[i]))
       extra = std::max(0.0, out[i].sigma_m * out[i].sigma_m - inside[i] * inside[i]);
+    if (extrapolation < budget.components.size()) {
+      const double ue = budget.component_u_m(extrapolation, amplitude[i], kNaN);
+      if (std::isfinite(ue)) extra = std::max(0.0, extra - ue * ue);
+    }
     out[i].sigma_m = std::isfinite(u[i]) ? std::sqrt(u[i] * u[i] + extra) : out[i].sigma_m;
   }
 }

@@ -15,6 +15,13 @@
 ///   residual at the reference temperature, less the periodic part and the
 ///   noise of a mean, per amplitude bin, each surface (reflectance, angle)
 ///   weighted alike;
+/// - extrapolation below the calibrated amplitudes (type A size, type B
+///   form): 0 at and above the weakest reference target's amplitude; below
+///   it, the curvature of the weakest targets' raw error (a quadratic in ln
+///   amplitude over the lowest 1.5 e-folds) grown as a walk ~ 1 / peak
+///   departs from its tangent, y'' (e^delta - 1 - delta), delta e-folds
+///   below (apply_budget counts it and the pipeline's out-of-domain growth
+///   as one cause);
 /// - temperature model residual (type A): the temperature run's in-sample
 ///   mean residuals against the same target at the reference temperature, times
 ///   the optimism of the temperature step's fit, as a function of the row's

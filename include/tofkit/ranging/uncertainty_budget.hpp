@@ -74,11 +74,18 @@ struct UncertaintyBudget {
                                   std::span<const double> temperature_c = {}) const;
 };
 
+/// Name of the component for rows below the calibrated amplitudes (the
+/// correction extrapolated there); apply_budget counts it and the pipeline's
+/// out-of-domain growth as one cause.
+inline constexpr const char* kExtrapolationComponent =
+    "extrapolation below the calibrated amplitudes";
+
 /// Replaces each corrected range's sigma_m by the budget's combined standard
 /// uncertainty at the row's amplitude and time since calibration (since_s: one
 /// value for every row or one per row; NaN: unknown, another power-on), plus
 /// the variance the pipeline adds where a row lies outside a step's domain
-/// (its sigma^2 there less its in-domain sigma^2). Rows without an echo keep NaN.
+/// (its sigma^2 there less its in-domain sigma^2; where the budget has an
+/// extrapolation term, only what exceeds that term's u^2). Rows without an echo keep NaN.
 void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, const RawColumns& in,
                   std::span<const double> since_s, std::span<Range> out);
 
