@@ -830,21 +830,14 @@ ScanCoverage factory_scan_coverage(const device::DeviceConfig& config,
     options.shots = shots;
     scan::ScanResult result =
         scan::run_scan(plane_at_3m(), config, device::SimulationMode::kAnalytic, pattern, options);
-    scan::apply_pipeline(factory.pipeline, result);
-    std::vector<ranging::Range> ranges(result.beams.size());
-    for (std::size_t i = 0; i < ranges.size(); ++i) ranges[i] = result.beams[i].range;
-    const double unknown[1] = {ranging::kNaN};
-    ranging::apply_budget(factory.budget, factory.pipeline,
-                          ranging::RawColumns::of(&result.beams[0].raw, result.beams.size(),
-                                                  sizeof(scan::BeamResult)),
-                          unknown, ranges);
-    for (std::size_t i = 0; i < ranges.size(); ++i) {
-      const double e = ranges[i].distance_m - result.beams[i].true_range_m;
-      if (!std::isfinite(e) || !std::isfinite(ranges[i].sigma_m)) continue;
-      in += std::abs(e) <= 2 * ranges[i].sigma_m ? 1 : 0;
+    scan::apply_pipeline(factory.pipeline, result.beams, &factory.budget);
+    for (const auto& b : result.beams) {
+      const double e = b.range.distance_m - b.true_range_m;
+      if (!std::isfinite(e) || !std::isfinite(b.range.sigma_m)) continue;
+      in += std::abs(e) <= 2 * b.range.sigma_m ? 1 : 0;
       e2 += e * e;
       n += 1;
-      sigmas.push_back(ranges[i].sigma_m);
+      sigmas.push_back(b.range.sigma_m);
     }
   }
   std::sort(sigmas.begin(), sigmas.end());

@@ -234,20 +234,9 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   constexpr std::size_t kHeldBeams = 4 * kScanBlockBeams;
   std::vector<scan::BeamResult> held;
   std::size_t held_first = 0;
-  // The scan is a run of its own power-on (its seed): with a budget, sigma_m
-  // is the combined uncertainty of a row on another power-on than the
-  // calibration's (ranging::apply_budget, time since calibration unknown).
+  // With a budget, sigma_m is its combined uncertainty (scan::apply_pipeline).
   const auto correct = [&](std::span<scan::BeamResult> beams) {
-    scan::apply_pipeline(*pipeline, beams);
-    if (budget.empty() || beams.empty()) return;
-    std::vector<ranging::Range> ranges(beams.size());
-    for (std::size_t i = 0; i < beams.size(); ++i) ranges[i] = beams[i].range;
-    const double unknown[1] = {ranging::kNaN};
-    ranging::apply_budget(
-        budget, *pipeline,
-        ranging::RawColumns::of(&beams[0].raw, beams.size(), sizeof(scan::BeamResult)), unknown,
-        ranges);
-    for (std::size_t i = 0; i < beams.size(); ++i) beams[i].range.sigma_m = ranges[i].sigma_m;
+    scan::apply_pipeline(*pipeline, beams, &budget);
   };
   const auto calibrated = [&](bool wait) {
     if (!calibration.valid()) return true;

@@ -265,12 +265,17 @@ ScanResult run_scan(const Scene& scene, const device::DeviceConfig& config,
   return run_scan(caster, Footprint(config), rangefinder, pattern, options);
 }
 
-void apply_pipeline(const ranging::Pipeline& pipeline, std::span<BeamResult> beams) {
+void apply_pipeline(const ranging::Pipeline& pipeline, std::span<BeamResult> beams,
+                    const ranging::UncertaintyBudget* budget) {
   // The raw measurements read in place from the beams (one batch, no copy).
   std::vector<ranging::Range> ranges(beams.size());
   if (!ranges.empty()) {
-    pipeline.apply(ranging::RawColumns::of(&beams[0].raw, beams.size(), sizeof(BeamResult)),
-                   ranges);
+    const auto raw = ranging::RawColumns::of(&beams[0].raw, beams.size(), sizeof(BeamResult));
+    pipeline.apply(raw, ranges);
+    if (budget && !budget->empty()) {
+      const double unknown[1] = {ranging::kNaN};
+      ranging::apply_budget(*budget, pipeline, raw, unknown, ranges);
+    }
   }
   for (std::size_t i = 0; i < ranges.size(); ++i) beams[i].range = ranges[i];
 }

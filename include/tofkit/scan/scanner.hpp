@@ -12,6 +12,7 @@
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/ranging/pipeline.hpp"
 #include "tofkit/ranging/raw_measurement.hpp"
+#include "tofkit/ranging/uncertainty_budget.hpp"
 #include "tofkit/scan/footprint.hpp"
 #include "tofkit/scan/pattern.hpp"
 
@@ -100,8 +101,13 @@ void run_scan_blocks(const RayCaster& caster, const Footprint& footprint,
 /// (what a streaming scan's writers need before the first block).
 [[nodiscard]] ScanResult describe_scan(const BeamPattern& pattern, const Scene& scene);
 
-/// Corrects the raw measurements of `beams` with `pipeline` into their `range` (one batch).
-void apply_pipeline(const ranging::Pipeline& pipeline, std::span<BeamResult> beams);
+/// Corrects the raw measurements of `beams` with `pipeline` into their `range`
+/// (one batch). With a non-empty `budget`, sigma_m is its combined standard
+/// uncertainty for a row on another power-on than the calibration's
+/// (ranging::apply_budget, time since calibration unknown): a scan is a run of
+/// its own power-on (its seed).
+void apply_pipeline(const ranging::Pipeline& pipeline, std::span<BeamResult> beams,
+                    const ranging::UncertaintyBudget* budget = nullptr);
 
 /// Corrects every beam's raw measurement with `pipeline` (one batch) into its
 /// `range` and sets has_model: the images and points then report corrected
