@@ -681,6 +681,16 @@ TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
   for (std::size_t i = 0; i < unknown.size(); ++i)
     if (std::isfinite(same[i].range.sigma_m))
       EXPECT_GT(unknown[i].range.sigma_m, same[i].range.sigma_m);
+  // A time before power-on is refused, naming the file, line and column; no output.
+  std::string negative = read("f.csv");
+  const std::size_t row2 = negative.find('\n', negative.find('\n') + 1);
+  negative.replace(negative.rfind(',', row2) + 1, row2 - negative.rfind(',', row2) - 1, "-5");
+  write("negative.csv", negative);
+  const auto refused = run("correct --model model.json --in negative.csv --out neg_out.csv");
+  EXPECT_EQ(refused.status, 1);
+  EXPECT_NE(refused.err.find("negative.csv:2:"), std::string::npos) << refused.err;  // row 1
+  EXPECT_NE(refused.err.find("(time_s): '-5' is negative"), std::string::npos) << refused.err;
+  EXPECT_FALSE(std::filesystem::exists(dir_ / "neg_out.csv"));
 }
 
 }  // namespace

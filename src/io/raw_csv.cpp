@@ -263,6 +263,12 @@ class TableReader {
     row.range.sigma_m = p.number[kSigma];
     row.range.correction_flags = index_[kCorrectionFlags] ? p.integer[kCorrectionFlags] : 0u;
     row.time_s = p.number[kTime];
+    // Seconds since power-on: a negative one would give the drift term a
+    // time before the device ran.
+    if (row.time_s < 0) {
+      const std::size_t i = *index_[kTime];
+      fail_field(fields[i], line, i, "is negative (time_s is seconds since power-on)");
+    }
     return row;
   }
 
