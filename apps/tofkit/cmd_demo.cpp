@@ -198,6 +198,7 @@ std::string budget_section_html(const experiments::PaperStudyResult& result,
     calib::ModelFitOptions options;
     options.time_to_distance = device::nominal_time_to_distance(config);
     options.chain = calib::parse_chain_steps("offset,grayvalue,temperature");
+    options.extrapolation_refit = true;  // the budget's extrapolation term
     const calib::ModelFitResult fit = calib::fit_model(result.calibration, options);
     calib::ProtocolSteps steps;
     steps.tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;

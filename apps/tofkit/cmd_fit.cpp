@@ -254,6 +254,8 @@ void run_fit(const FitOptions& o, const AppContext& ctx) {
       throw std::invalid_argument(
           "--budget takes each row's cross-validated residual: --confidence calibrated or thesis "
           "without --confidence-fraction");
+    // The extrapolation term is sized by refits without the weakest targets.
+    options.extrapolation_refit = true;
     for (const std::string& assignment : o.spec) {
       try {
         specification.set(assignment);

@@ -12,6 +12,7 @@
 #include <numbers>
 #include <numeric>
 #include <optional>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -91,6 +92,56 @@ std::string format(const char* fmt, auto... args) {
   char buffer[512];
   std::snprintf(buffer, sizeof buffer, fmt, args...);
   return buffer;
+}
+
+/// The extrapolation refits' groups: the weakest 1, 2, ... K groups with an
+/// echo, of those whose mean ln amplitude lies within kExtrapolationSpan
+/// e-folds of the weakest group's (K <= kExtrapolationRefits).
+struct EdgeGroups {
+  std::vector<double> mean_log_amplitude;  ///< per group (NaN: no echo)
+  std::vector<double> below;               ///< refit k leaves out the groups below below[k]
+  std::string why;                         ///< below empty: why there is no refit
+};
+
+EdgeGroups weakest_groups(std::span<const ranging::Record> records,
+                          std::span<const std::size_t> group, std::size_t groups) {
+  std::vector<double> sum(groups, 0.0);
+  std::vector<std::size_t> count(groups, 0);
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const double a = records[i].raw.amplitude;
+    if (!records[i].raw.has_echo() || !(a > 0) || !std::isfinite(a)) continue;
+    sum[group[i]] += std::log(a);
+    ++count[group[i]];
+  }
+  EdgeGroups out;
+  out.mean_log_amplitude.assign(groups, ranging::kNaN);
+  std::vector<double> mean;
+  for (std::size_t g = 0; g < groups; ++g) {
+    if (count[g] == 0) continue;
+    out.mean_log_amplitude[g] = sum[g] / static_cast<double>(count[g]);
+    mean.push_back(out.mean_log_amplitude[g]);
+  }
+  std::sort(mean.begin(), mean.end());
+  // Refit k leaves out the groups below x0 + span k / K (x0 the weakest's
+  // mean), each keeping at least half of the groups and 3: it measures the
+  // correction's extrapolation, not a fit on a remnant. Thresholds by
+  // amplitude, not by count: a sweep's many weak positions a few mm apart
+  // would otherwise be left out one by one and extrapolate nowhere.
+  for (std::size_t k = 1; k <= kExtrapolationRefits && !mean.empty(); ++k) {
+    const double below =
+        mean.front() + kExtrapolationSpan * static_cast<double>(k) / kExtrapolationRefits;
+    const auto first_kept =
+        static_cast<std::size_t>(std::lower_bound(mean.begin(), mean.end(), below) - mean.begin());
+    const std::size_t kept = mean.size() - first_kept;
+    if (2 * kept < mean.size() || kept < 3) break;
+    // The same groups as the previous refit's: nothing new to learn.
+    if (!out.below.empty() && mean[first_kept] == out.below.back()) continue;
+    out.below.push_back(mean[first_kept]);  // the refit's weakest kept group
+  }
+  if (out.below.empty())
+    out.why = mean.size() < 4 ? "fewer than 4 truth groups with an echo"
+                              : "the weakest group is alone within the span, or most groups are";
+  return out;
 }
 
 /// A surface over range needs calibration plates at two or more true distances.
@@ -1068,17 +1119,66 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
       // fold order (the first failing fold's error, as one after another).
       std::vector<std::optional<ranging::Pipeline>> fold_fits(folds);
       std::vector<std::exception_ptr> fold_errors(folds);
-      tbb::parallel_for(std::size_t{0}, folds, [&](std::size_t k) {
+      // The extrapolation refits (tasks beside the folds').
+      const EdgeGroups edge =
+          o.extrapolation_refit ? weakest_groups(records, group, groups) : EdgeGroups{};
+      const std::size_t refits = edge.below.size();
+      std::vector<std::optional<ranging::Pipeline>> edge_fits(refits);
+      std::vector<std::string> edge_errors(refits);
+      const auto left_out = [&](std::size_t r, std::size_t g) {
+        return edge.mean_log_amplitude[g] < edge.below[r];  // (NaN: kept)
+      };
+      tbb::parallel_for(std::size_t{0}, folds + refits, [&](std::size_t k) {
         std::vector<ranging::Record> train;
         for (std::size_t i = 0; i < records.size(); ++i) {
-          if (fold_of_group[group[i]] != k) train.push_back(records[i]);
+          if (k < folds ? fold_of_group[group[i]] != k : !left_out(k - folds, group[i]))
+            train.push_back(records[i]);
         }
         try {
-          fold_fits[k] = fit_correction(train, fold_options, nullptr, nullptr);
+          (k < folds ? fold_fits[k] : edge_fits[k - folds]) =
+              fit_correction(train, fold_options, nullptr, nullptr);
+        } catch (const std::exception& e) {
+          if (k < folds) fold_errors[k] = std::current_exception();
+          if (k >= folds) edge_errors[k - folds] = e.what();
         } catch (...) {
-          fold_errors[k] = std::current_exception();
+          if (k < folds) fold_errors[k] = std::current_exception();
+          if (k >= folds) edge_errors[k - folds] = "an unknown error";
         }
       });
+      if (o.extrapolation_refit) {
+        std::string made;
+        for (std::size_t r = 0; r < refits; ++r) {
+          if (!edge_fits[r]) {
+            report += "extrapolation refit without the weakest " + std::to_string(r + 1) +
+                      " group(s) failed: " + edge_errors[r] + "\n";
+            continue;
+          }
+          ModelFitResult::ExtrapolationRefit refit;
+          refit.residual_m.assign(records.size(), ranging::kNaN);
+          refit.edge_log_amplitude = edge.below[r];
+          std::vector<ranging::Record> test;
+          std::vector<std::size_t> test_index;
+          for (std::size_t i = 0; i < records.size(); ++i) {
+            if (!left_out(r, group[i])) continue;
+            test_index.push_back(i);
+            test.push_back(records[i]);
+          }
+          std::set<std::size_t> out_groups;
+          const std::vector<ranging::Range> corrected = corrected_ranges(*edge_fits[r], test);
+          for (std::size_t j = 0; j < test.size(); ++j) {
+            refit.residual_m[test_index[j]] = test[j].truth.distance_m - corrected[j].distance_m;
+            out_groups.insert(group[test_index[j]]);
+          }
+          refit.groups_left_out = out_groups.size();
+          made += format(" %zu", refit.groups_left_out);
+          result.extrapolation.push_back(std::move(refit));
+        }
+        report += refits == 0 ? "extrapolation refit: none (" + edge.why + ")\n"
+                              : format(
+                                    "extrapolation refits: without the weakest%s of %zu truth "
+                                    "groups (within %.1f e-folds of amplitude of the weakest)\n",
+                                    made.c_str(), groups, kExtrapolationSpan);
+      }
       for (std::size_t k = 0; k < folds; ++k) {
         if (fold_errors[k]) std::rethrow_exception(fold_errors[k]);
         std::vector<ranging::Record> test;

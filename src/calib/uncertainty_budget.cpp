@@ -31,6 +31,7 @@ struct Target {
   double variance_m2 = ranging::kNaN;  ///< sample variance of the in-sample residual
   double mean_oof_m = ranging::kNaN;   ///< mean cross-validated residual
   std::size_t n_oof = 0;
+  std::vector<std::size_t> rows;  ///< its rows
 };
 
 std::vector<Target> targets_of(const BudgetFitData& d) {
@@ -48,6 +49,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
     t.reflectance = std::get<1>(key);
     t.angle_deg = std::get<2>(key);
     t.ambient_c = std::get<3>(key);
+    t.rows = rows;
     double sum = 0, sum_oof = 0;
     for (const std::size_t i : rows) {
       t.log_amplitude += std::log(d.rows[i].raw.amplitude);
@@ -165,7 +167,9 @@ void BudgetSpecification::set(const std::string& assignment) {
 
 BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpecification& spec) {
   spec.validate();
-  if (d.out_of_fold_m.size() != d.rows.size() || d.residual_m.size() != d.rows.size())
+  if (d.out_of_fold_m.size() != d.rows.size() || d.residual_m.size() != d.rows.size() ||
+      std::any_of(d.extrapolation.begin(), d.extrapolation.end(),
+                  [&](const auto& r) { return r.residual_m.size() != d.rows.size(); }))
     throw std::invalid_argument("budget: residuals and rows differ in length");
   BudgetFitResult result;
   auto& budget = result.budget;
@@ -331,23 +335,78 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
 
   // Extrapolation below the calibrated amplitudes: a fixed-threshold
   // comparator's walk is rise time x threshold / peak (DESIGN.md
-  // "Discriminator"), A exp(-(x - x0)) in x = ln amplitude, whose departure
-  // from its tangent at the weakest target x0 is y''(x0) (e^delta - 1 -
-  // delta), delta = x0 - x: what a correction matched at the edge in value
-  // and slope (whatever its form) misses below it. Type B assumption: that
-  // growth (walk ~ 1 / peak); type A: its size, the curvature y'' of the
-  // reference targets' raw error (truth less c tof / 2) in the lowest 1.5
-  // e-folds of the domain (a quadratic in x). Cross-validation cannot see
-  // this (the weakest target sits at the edge). 0 at and above x0; held
+  // "Discriminator"), C exp(-(x - x0)) in x = ln amplitude, whose departure
+  // from its tangent at the weakest target x0 is C (e^delta - 1 - delta),
+  // delta = x0 - x: what a correction matched at the edge in value and slope
+  // misses below it. Type B assumption: that growth (walk ~ 1 / peak). Its
+  // size C, type A: preferably measured, from refits of the correction
+  // without the weakest 1, 2, ... targets (ModelFitResult::extrapolation):
+  // their errors on the targets they left out are this correction's own
+  // extrapolation errors, delta' e-folds below each refit's edge x1, where the
+  // same walk departs from the refit's tangent by
+  // C (e^(x0 - x) - e^(x0 - x1) (1 + x1 - x)); C from their mean squares less
+  // their noise, pooled over refits and targets (one refit's error is one draw
+  // of where its fit put the knots near its edge: case by case 3-4 times
+  // apart, pooled within 1.6 times of the field's). Without refits: the
+  // curvature y''(x0) = C of the weakest targets' raw error (truth less
+  // c tof / 2; a quadratic in x over the lowest 1.5 e-folds), which bounds a
+  // correction extrapolated linearly and so is looser. Cross-validation cannot
+  // see this (the weakest target sits at the edge). 0 at and above x0; held
   // constant beyond 5 e-folds.
   {
     constexpr double kSpan = 1.5;      // e-folds of the domain the curvature is taken from
     constexpr double kMaxFolds = 5.0;  // the curve is held constant beyond this
-    const double x0 = reference.front()->log_amplitude;
+    const double x0 = targets.front().log_amplitude;
+    double size = ranging::kNaN;  // C, m
+    std::string step, how;
+    // Measured: the refits' errors on the targets they left out, pooled.
+    double excess2 = 0, basis2 = 0;
+    std::size_t errors_seen = 0;
+    std::string errors;
+    double x1_max = x0;
+    for (const auto& refit : d.extrapolation) {
+      const double x1 = refit.edge_log_amplitude;
+      if (!std::isfinite(x1)) continue;
+      x1_max = std::max(x1_max, x1);
+      for (const Target& t : targets) {
+        if (!(t.log_amplitude < x1)) continue;
+        double sum = 0;
+        std::size_t n = 0;
+        for (const std::size_t i : t.rows) {
+          if (!std::isfinite(refit.residual_m[i])) continue;
+          sum += refit.residual_m[i];
+          ++n;
+        }
+        if (n == 0) continue;
+        const double x = t.log_amplitude, mean = sum / static_cast<double>(n);
+        const double g = std::exp(x0 - x) - std::exp(x0 - x1) * (1 + x1 - x);
+        // C^2 = sum excess^2 / sum g^2 (pooled: each refit's knots near its
+        // edge are one draw; least squares would let the farthest one rule).
+        excess2 += mean * mean - noise2(x) / static_cast<double>(n);
+        basis2 += g * g;
+        ++errors_seen;
+        // The report names each refit's farthest extrapolation.
+        if (x == targets.front().log_amplitude || errors_seen == 1)
+          errors += fmt::sprintf(" %.1f mm at %.2f;", mean * 1e3, x1 - x);
+      }
+    }
+    if (errors_seen > 0 && basis2 > 0) {
+      size = std::sqrt(std::max(0.0, excess2 / basis2));
+      step = fmt::sprintf(
+          "%zu refits without the weakest targets (ln amplitude %.2f-%.2f), their errors on "
+          "them extrapolated as walk ~ 1 / peak (type B form)",
+          d.extrapolation.size(), x0, x1_max);
+      how = fmt::sprintf(
+          "%zu refits without the weakest targets err on the %zu targets they left out (on the "
+          "weakest: mm at e-folds below each refit's edge:%s) walk departure C %.3f mm",
+          d.extrapolation.size(), errors_seen, errors.c_str(), size * 1e3);
+    }
+    // Bounded: the weakest targets' raw curvature.
     std::vector<const Target*> edge;
-    for (const Target* t : reference)
-      if (t->log_amplitude <= x0 + kSpan) edge.push_back(t);
-    if (edge.size() >= 4 && edge.back()->log_amplitude - x0 > 0.5 && d.metres_per_ns > 0) {
+    for (const Target& t : targets)
+      if (t.ambient_c == reference_c && t.log_amplitude <= x0 + kSpan) edge.push_back(&t);
+    if (!std::isfinite(size) && edge.size() >= 4 && edge.back()->log_amplitude - x0 > 0.5 &&
+        d.metres_per_ns > 0) {
       const auto g = static_cast<Eigen::Index>(edge.size());
       Eigen::MatrixXd a(g, 3);
       Eigen::VectorXd y(g);
@@ -358,14 +417,21 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         y(k) = t.distance_m - t.tof_ns * d.metres_per_ns;
       }
       const Eigen::VectorXd q = a.colPivHouseholderQr().solve(y);
-      const double curvature = std::abs(2 * q(2));
-      const auto departure = [&](double delta) { return curvature * (std::expm1(delta) - delta); };
-      BudgetComponent extrapolation;
-      extrapolation.name = ranging::kExtrapolationComponent;
-      extrapolation.step = fmt::sprintf(
+      size = std::abs(2 * q(2));
+      step = fmt::sprintf(
           "walk curvature of the %zu weakest targets (ln amplitude %.2f-%.2f), "
           "extrapolated as walk ~ 1 / peak (type B form)",
           edge.size(), x0, edge.back()->log_amplitude);
+      how = fmt::sprintf(
+          "walk curvature %.3f mm per e-fold^2 (slope %.3f mm per e-fold) from %zu "
+          "targets (no extrapolation refit)",
+          size * 1e3, q(1) * 1e3, edge.size());
+    }
+    if (std::isfinite(size)) {
+      const auto departure = [&](double delta) { return size * (std::expm1(delta) - delta); };
+      BudgetComponent extrapolation;
+      extrapolation.name = ranging::kExtrapolationComponent;
+      extrapolation.step = step;
       extrapolation.axis = BudgetComponent::Axis::log_amplitude;
       for (double delta = kMaxFolds; delta > 0; delta -= 0.25) {
         const double u = departure(delta);
@@ -374,11 +440,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
       add_node(extrapolation, x0, 0.0);
       budget.components.push_back(extrapolation);
       report += fmt::sprintf(
-          "budget: extrapolation below the weakest target (amplitude %.4g): walk curvature %.3f "
-          "mm per e-fold^2 (slope %.3f mm per e-fold) from %zu targets; u %.2f / %.2f / %.2f mm "
-          "at 1 / 2 / 3 e-folds below\n",
-          std::exp(x0), curvature * 1e3, q(1) * 1e3, edge.size(), departure(1.0) * 1e3,
-          departure(2.0) * 1e3, departure(3.0) * 1e3);
+          "budget: extrapolation below the weakest target (amplitude %.4g): %s; u %.2f / %.2f / "
+          "%.2f mm at 1 / 2 / 3 e-folds below\n",
+          std::exp(x0), how.c_str(), departure(1.0) * 1e3, departure(2.0) * 1e3,
+          departure(3.0) * 1e3);
     }
   }
 
@@ -652,6 +717,7 @@ BudgetFitResult fit_model_budget(std::span<const ranging::Record> calibration,
   data.rows = calibration;
   data.out_of_fold_m = fit.out_of_fold_m;
   data.residual_m = residual;
+  data.extrapolation = fit.extrapolation;
   data.tdc_period_ns = steps.tdc_period_ns;
   data.temperature_parameters = 0;
   for (const auto& step : fit.pipeline.steps()) {
@@ -715,9 +781,10 @@ std::string budget_certificate(const ranging::UncertaintyBudget& budget,
   const double coldest_c = reading.empty() ? nan : reading.front();
   const std::vector<double> a = {at(0.1), at(0.5), at(0.9), at(0.5), at(0.5), at(0.5)};
   const std::vector<double> t = {0, 0, 0, 3600, nan, 0};
-  const std::vector<double> c = {typical_c, typical_c, typical_c, typical_c, typical_c, coldest_c};
+  const std::vector<double> at_c = {typical_c, typical_c, typical_c,
+                                    typical_c, typical_c, coldest_c};
   std::string out = "uncertainty budget (GUM; u = standard uncertainty, share = u^2 / u_c^2):\n";
-  out += budget.table(a, t, c);
+  out += budget.table(a, t, at_c);
   // Coverage check: the cross-validated calibration rows (right after the
   // calibration) and the repeats on other power-ons, against u_c.
   std::vector<double> err, sig;

@@ -68,6 +68,7 @@ calib::ModelFitResult factory_calibration(const device::DeviceConfig& config, st
   options.chain = calib::parse_chain_steps(kFactoryChain);
   const double tdc_period_ns = 1e3 / config.tdc.coarse_clock_mhz;
   if (config.tdc.laser_sync && !config.oscillator.enabled) options.tdc_period_ns = tdc_period_ns;
+  options.extrapolation_refit = true;  // the budget's extrapolation term
   calib::ModelFitResult fit = calib::fit_model(records, options);
 
   // The budget, every term from the factory's own rows (type A): the

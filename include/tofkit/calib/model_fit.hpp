@@ -62,6 +62,12 @@ enum class SurfaceIntensity { choose, amplitude, pulse_width };
   return b;
 }
 
+/// The extrapolation refits: refit k = 1..kExtrapolationRefits leaves out
+/// the truth groups whose mean ln amplitude lies below the weakest group's
+/// plus kExtrapolationSpan k / kExtrapolationRefits e-folds.
+inline constexpr double kExtrapolationSpan = 1.0;
+inline constexpr std::size_t kExtrapolationRefits = 4;
+
 struct ModelFitOptions {
   ranging::TimeToDistance time_to_distance;
   /// The chain's steps; nullopt: no chain.
@@ -105,6 +111,12 @@ struct ModelFitOptions {
   /// > 0: instead of cross-fitting, every round(1 / fraction)-th truth group
   /// is held out of the correction fit and used for the confidence fit.
   double confidence_hold_out_fraction = 0;
+  /// With cross-fitting: refits without the weakest truth groups
+  /// (kExtrapolationSpan, kExtrapolationRefits), whose errors on them are how
+  /// this correction errs where it extrapolates below its data
+  /// (ModelFitResult::extrapolation; the uncertainty budget's extrapolation
+  /// term is sized from them). They run beside the folds.
+  bool extrapolation_refit = false;
 
   /// Throws std::invalid_argument naming the bad field.
   void validate() const;
@@ -173,6 +185,18 @@ struct ModelFitResult {
   /// without its fold; NaN where the fold's correction extrapolates or no
   /// echo); empty without cross-fitting. The uncertainty budget's input.
   std::vector<double> out_of_fold_m;
+  /// ModelFitOptions::extrapolation_refit: the refits without the weakest
+  /// truth groups (kExtrapolationSpan, kExtrapolationRefits); empty when not
+  /// asked for or impossible (the report says why).
+  struct ExtrapolationRefit {
+    /// Per record: true - corrected by the refit, for the rows of the groups
+    /// it left out (NaN elsewhere and without an echo).
+    std::vector<double> residual_m;
+    /// The refit's weakest group's mean ln amplitude: the edge it extrapolated from.
+    double edge_log_amplitude = ranging::kNaN;
+    std::size_t groups_left_out = 0;
+  };
+  std::vector<ExtrapolationRefit> extrapolation;
   /// The uncertainty budget (calib::fit_model_budget), where the caller fitted
   /// one (experiments::factory_calibration does); empty from fit_model.
   ranging::UncertaintyBudget budget;

@@ -16,12 +16,12 @@
 ///   noise of a mean, per amplitude bin, each surface (reflectance, angle)
 ///   weighted alike;
 /// - extrapolation below the calibrated amplitudes (type A size, type B
-///   form): 0 at and above the weakest reference target's amplitude; below
-///   it, the curvature of the weakest targets' raw error (a quadratic in ln
-///   amplitude over the lowest 1.5 e-folds) grown as a walk ~ 1 / peak
-///   departs from its tangent, y'' (e^delta - 1 - delta), delta e-folds
-///   below (apply_budget counts it and the pipeline's out-of-domain growth
-///   as one cause);
+///   form): 0 at and above the weakest target's amplitude; below it a walk
+///   ~ 1 / peak departing from its tangent, C (e^delta - 1 - delta), delta
+///   e-folds below, C measured by refits without the weakest targets (their
+///   errors on them), or else the weakest targets' raw curvature (looser;
+///   apply_budget counts it and the pipeline's out-of-domain growth as one
+///   cause);
 /// - temperature model residual (type A): the temperature run's in-sample
 ///   mean residuals against the same target at the reference temperature, times
 ///   the optimism of the temperature step's fit, as a function of the row's
@@ -75,6 +75,10 @@ struct BudgetFitData {
   /// (NaN: none), and the in-sample residual of the final correction.
   std::span<const double> out_of_fold_m;
   std::span<const double> residual_m;
+  /// Refits without the weakest targets (ModelFitResult::extrapolation: per
+  /// row its residual, NaN for the targets it kept; its edge). Empty: the
+  /// extrapolation term is sized from the weakest targets' raw curvature.
+  std::span<const ModelFitResult::ExtrapolationRefit> extrapolation;
   double tdc_period_ns = 0;  ///< coarse clock period; 0: unknown (periodic term type B)
   /// Parameters of the correction's temperature dependence (a hinge: its
   /// slopes), for the temperature residual's optimism.
