@@ -1003,3 +1003,85 @@ TEST(FactoryCalibration, ScanSigmaHoldsOnHeldOutDevices) {
 
 }  // namespace
 }  // namespace tofkit
+
+namespace tofkit {
+namespace {
+
+// Issue 34's acceptance asks every row 0-60 min after the calibration within
+// +-3 mm. The twin's slow delay wander (measurement.delay_wander_ps: a 1/f
+// process of 12 levels from 1 ms to 70 min) alone moves a row away from the
+// calibration's mean: a static strong plate (2 m, reflectance 0.3), the
+// calibration 400 back-to-back rows (0.4 s) an hour after power-on as the
+// planner's protocol takes them, one row 0.1 s / 60 min after them, over
+// power-ons 1000-1399 (flicker off; the other slow causes and a row's noise
+// stay in; sd = RMS of the drift):
+//   wander   0 ps:  0 min sd 0.52 mm, 95 % within 1.07 mm;  60 min 0.92 / 1.89 mm,  0 % beyond 3 mm
+//   wander  20 ps:  0 min sd 2.39 mm, 95 % within 4.94 mm (22 % beyond 3 mm); 60 min 4.35 / 8.14 mm
+//   (52 %) wander  30 ps:  0 min sd 3.50 mm, 95 % within 7.20 mm (35 % beyond 3 mm); 60 min 6.41
+//   / 11.99 mm (64 %)
+// (20 min: 4.15 / 8.37 mm at 20 ps, 6.12 / 12.12 mm at 30 ps.) Even right
+// after the calibration a row differs from it by the wander's fast levels,
+// which the calibration's rows average and a field row does not. So with the
+// wander the paper preset needs for Fig. 7's scatter (20 ps; 30 ps before
+// 694c81e, the planner test's wander cases), +-3 mm for every row is out of
+// reach of any calibration: half the rows an hour later drift further than
+// that by themselves. The test checks this on 150 power-ons.
+struct WanderDrift {
+  double sd_mm = 0, q95_mm = 0, beyond_3mm = 0;
+};
+
+WanderDrift wander_drift(double wander_ps, double minutes, std::uint64_t power_ons) {
+  device::DeviceConfig config = device::preset("paper");
+  set_key(config, "measurement.flicker_delay_ps", 0.0);
+  set_key(config, "measurement.delay_wander_ps", wander_ps);
+  const device::VirtualRangefinder device(config);
+  const std::vector<experiments::PlannedMeasurement> calibration(
+      400, experiments::plate(2.0, 0.3, 20.0));
+  const std::vector<experiments::PlannedMeasurement> one = {calibration[0]};
+  constexpr double kStart_s = 3615;
+  std::vector<double> drift;
+  for (std::uint64_t seed = 1000; seed < 1000 + power_ons; ++seed) {
+    const auto cal = experiments::run(device, calibration, seed, {kStart_s, 0});
+    double mean = 0;
+    for (const auto& r : cal) mean += r.raw.tof_ns;
+    mean /= static_cast<double>(cal.size());
+    const auto later = experiments::run(device, one, seed, {kStart_s + 0.5 + minutes * 60, 0});
+    drift.push_back(device.tof_to_distance_m(later[0].raw.tof_ns - mean) * 1e3);
+  }
+  WanderDrift w;
+  double s2 = 0;
+  for (double d : drift) s2 += d * d;
+  w.sd_mm = std::sqrt(s2 / static_cast<double>(drift.size()));
+  std::vector<double> a;
+  for (double d : drift) a.push_back(std::abs(d));
+  std::sort(a.begin(), a.end());
+  w.q95_mm = a[a.size() * 95 / 100];
+  w.beyond_3mm =
+      static_cast<double>(std::count_if(a.begin(), a.end(), [](double x) { return x > 3.0; })) /
+      static_cast<double>(a.size());
+  return w;
+}
+
+TEST(UncertaintyBudget, DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres) {
+  if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "a measurement of the device, 300k rows";
+  const auto measured = [](double wander_ps, double minutes) {
+    const WanderDrift w = wander_drift(wander_ps, minutes, 150);
+    std::printf(
+        "delay wander %g ps, %g min after: sd %.2f mm, 95 %% of |drift| within %.2f mm, %.1f %% "
+        "beyond 3 mm\n",
+        wander_ps, minutes, w.sd_mm, w.q95_mm, 100 * w.beyond_3mm);
+    return w;
+  };
+  // Without the wander the rows an hour later stay within +-3 mm ...
+  EXPECT_LT(measured(0, 60).q95_mm, 3.0);
+  // ... with it, a large share of them does not, even right after the calibration.
+  for (const double wander_ps : {20.0, 30.0}) {
+    EXPECT_GT(measured(wander_ps, 0).beyond_3mm, 0.1) << wander_ps;
+    const WanderDrift hour = measured(wander_ps, 60);
+    EXPECT_GT(hour.q95_mm, 6.0) << wander_ps;
+    EXPECT_GT(hour.beyond_3mm, 0.3) << wander_ps;
+  }
+}
+
+}  // namespace
+}  // namespace tofkit
