@@ -470,18 +470,49 @@ struct HeldOutCase {
 
 class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 
-// The acceptance, measured (figures in the commit messages and the
-// closing report). The planner's protocol fits the walk model. Without delay
-// wander, indoors, chain and chain + B-spline hold +-3.4 mm with 2-sigma
-// coverage 97.0-97.7 % (terciles 95.8-99.2 %) and a systematic residual of
-// 0.93-0.98 mm (noise 0.31 mm); in sunlight 7.3-7.5 mm worst, 95.8-98.0 %,
-// systematic 1.6 mm (noise 0.65 mm); with 30 ps of delay wander the drift of
-// 0-60 min gives 12-13 mm worst rows and 94.4-97.9 % overall, but per time
-// band 84-100 %: each band's drift is one draw of one power-on (the drift
-// term matches the ensemble of power-ons: DriftTermFollowsTheEnsembleOfPowerOns).
-// Still short of the acceptance (worst rows, the systematic residual, the time
-// bands), so disabled; run it with --gtest_also_run_disabled_tests (about 2-6
-// min: the walk model's fit).
+// The acceptance, measured (TOFKIT_BUDGET_DEBUG=1 prints the rows
+// outside 2 sigma, the targets with the largest mean error, and per time band
+// (0 / 20 / 40 / 60 min) the mean error and the systematic residual). The
+// planner's protocol fits the walk model.
+// - Case 0 (indoors, no delay wander): worst valid row 3.44 mm (chain), 3.38
+//   (+ B-spline); 2-sigma 97.7 / 97.0 %, terciles 95.2-99.2 %, time bands
+//   92.7-100 %; systematic 0.93 / 0.98 mm against 0.31 mm of noise. Per band
+//   mean error / systematic: -0.11 / 0.54, +1.24 / 1.37, +0.26 / 0.61,
+//   +0.78 / 0.94 mm: right after the calibration the correction leaves
+//   0.54 mm (the budget's cross-validated correction residual says 0.55 mm;
+//   weak targets at 37 C -0.3..-0.6 mm, 0.7 m -0.5 mm, nothing larger), and
+//   the 20-min band sits +1.24 mm off as a whole: the device's slow drift
+//   without delay wander (flicker and comparator level wander; a row 60 min
+//   after a calibration moves 0.93 mm sd, 95 % within 1.9 mm:
+//   DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres at 0 ps), one draw,
+//   which the budget's drift term covers (u 1.07 mm at 36 min) and no
+//   correction fitted before it can remove. The worst rows are that band's
+//   (targets +2.5-2.8 mm). Systematic <= noise of one row (0.31 mm) would
+//   need the correction within 0.3 mm and no drift.
+// - Case 1 (Table 1 sunlight, no wander): worst valid 7.54 / 7.25 mm; 95.8 /
+//   98.0 %; systematic 1.64 / 1.55 mm against 0.65 mm. The error is in the
+//   bright targets (rho 0.85) at 8 C: +1.9..+6.3 mm at every distance right
+//   after the calibration (+3.3 mm at 0.7 m and +3.2 mm at 1.3 m with 92-94 %
+//   valid shots), against -0.5..+1.5 mm at 17 C and about 0 at 27-37 C; the
+//   same rows lose shots (6-48 % at 8 C, 1-10 % at 17 C, none warmer): noise
+//   stops from the bright target's sunlight background, more at cold where
+//   the APD's gain rises, pull the mean early. The temperature run sees it
+//   (its residual is 2.9 mm at the coldest reading, in the budget), but the
+//   chain's temperature step is one function of the reading for every echo,
+//   and a B-spline on the residual with a temperature axis does not follow
+//   it either (7.31 mm worst, 99.1 %): the correction lacks an axis for the
+//   false alarms (the valid-shot fraction, or the background). Weak targets
+//   sit -1.3 mm (rho 0.06) at every temperature.
+// - Cases 2-4 (30 ps of delay wander, run seed 1 for every case: the bands'
+//   drifts are the same draw, -2.0 / +0.2 / -5.8 / -0.9 mm): worst valid rows
+//   12.0-13.0 mm, 94.4-97.9 % overall, time bands 83.8-100 %, systematic
+//   3.9-4.4 mm against 1.5 mm of noise. Not reachable: the wander alone moves
+//   a row 60 min after the calibration 6.4 mm sd (95 % within 12 mm, 64 %
+//   beyond 3 mm) and even a row right after it 3.5 mm sd (35 % beyond 3 mm);
+//   at the paper preset's 20 ps 4.4 mm (52 %) and 2.4 mm (22 %)
+//   (DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres). +-3 mm for every
+//   row and "systematic <= noise" conflict with the wander Fig. 7 needs.
+// So disabled; run it with --gtest_also_run_disabled_tests (about 3 min).
 TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
