@@ -94,9 +94,9 @@ std::string format(const char* fmt, auto... args) {
   return buffer;
 }
 
-/// The extrapolation refits' groups: the weakest 1, 2, ... K groups with an
-/// echo, of those whose mean ln amplitude lies within kExtrapolationSpan
-/// e-folds of the weakest group's (K <= kExtrapolationRefits).
+/// The extrapolation refits' groups: refit k leaves out the groups with an
+/// echo whose mean ln amplitude lies below the weakest group's plus
+/// kExtrapolationSpan k / kExtrapolationRefits (distinct sets only).
 struct EdgeGroups {
   std::vector<double> mean_log_amplitude;  ///< per group (NaN: no echo)
   std::vector<double> below;               ///< refit k leaves out the groups below below[k]
@@ -1149,8 +1149,8 @@ ModelFitResult fit_model(std::span<const ranging::Record> records, const ModelFi
         std::string made;
         for (std::size_t r = 0; r < refits; ++r) {
           if (!edge_fits[r]) {
-            report += "extrapolation refit without the weakest " + std::to_string(r + 1) +
-                      " group(s) failed: " + edge_errors[r] + "\n";
+            report += format("extrapolation refit from ln amplitude %.2f failed: %s\n",
+                             edge.below[r], edge_errors[r].c_str());
             continue;
           }
           ModelFitResult::ExtrapolationRefit refit;
