@@ -1,5 +1,8 @@
 #include "tofkit/io/scan_writer.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -220,6 +223,18 @@ ScanWriter::Summary ScanWriter::finish() {
             static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
         m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
         m.text.clear();
+        if (kind == "las") {
+          // Fixed-size records, encoded on every thread: the scan's last
+          // serial step (a 1.44 M-beam scan's 0.5 M points: some 10 ms alone).
+          m.text.resize(count * kLasPointBytes);
+          tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 2048),
+                            [&](const tbb::blocked_range<std::size_t>& r) {
+                              for (std::size_t k = r.begin(); k < r.end(); ++k)
+                                put_las_point(m.text.data() + k * kLasPointBytes, chunk[k], offset);
+                            });
+          out.append(m.text);
+          continue;
+        }
         for (std::size_t k = 0; k < count; ++k) {
           if (kind == "ply")
             append_ply_point(m.text, chunk[k]);
