@@ -20,14 +20,26 @@ namespace {
 constexpr std::size_t kPointsPerChunk = 1 << 14;
 
 constexpr std::size_t kBandBytes = 16 << 20;
+constexpr std::uint64_t kBlockColumns = 16;  // (16 floats: a cache line)
 
 struct Plane {
+  Plane(const char* name_, const char* quantity_, const char* units_)
+      : name(name_), quantity(quantity_), units(units_) {}
   const char* name;
   const char* quantity;
   const char* units;
-  std::unique_ptr<ScratchFile> rows;  // the finished rows, float32, row-major
+  std::unique_ptr<ScratchFile> rows;  // the finished rows, float32, row-major (for the PNGs)
   FiniteRange finite;
   std::unique_ptr<ScratchFile> by_beam;  // spherical: the pixels in beam order
+  std::optional<StreamingOutput> npy;    // its header, then the rows as they are finished
+  std::uint64_t row_bytes = 0;           // of the finished rows
+
+  // Finished rows (float32, row-major) to the .npy and the rows kept for the PNGs.
+  void append_rows(std::string_view bytes) {
+    if (rows) rows->append(bytes);
+    if (npy) npy->append(bytes);
+    row_bytes += bytes.size();
+  }
 };
 
 // A pixel's value from its one beam, as ImageBuilder computes it (a weight-1
@@ -75,13 +87,18 @@ ScanWriter::ScanWriter(const scan::ScanResult& description, std::vector<std::siz
     m.csv->append(scan_csv_header(m.settings.has_model));
   }
   if (m.want_images) {
-    m.planes.push_back({"range", "range", "m", nullptr, {}, nullptr});
-    m.planes.push_back({"intensity", "echo amplitude", "V", nullptr, {}, nullptr});
-    if (m.settings.has_model)
-      m.planes.push_back({"sigma", "expected range error (1 sigma)", "m", nullptr, {}, nullptr});
+    m.planes.emplace_back("range", "range", "m");
+    m.planes.emplace_back("intensity", "echo amplitude", "V");
+    if (m.settings.has_model) m.planes.emplace_back("sigma", "expected range error (1 sigma)", "m");
     m.column_major = m.description.name == "spherical";
     for (auto& p : m.planes) {
-      p.rows = std::make_unique<ScratchFile>(m.at(p.name));
+      // The rows are read back only for the PNGs; the .npy (its header known
+      // now) takes them as they come, not copied from a working file at the end.
+      if (m.wants("png") || m.wants("view")) p.rows = std::make_unique<ScratchFile>(m.at(p.name));
+      if (m.wants("npy")) {
+        p.npy.emplace(m.at(std::string(p.name) + ".npy"));
+        p.npy->append(npy_header(m.description.rows, m.description.columns));
+      }
       if (m.column_major) p.by_beam = std::make_unique<ScratchFile>(m.at(p.name));
     }
   }
@@ -130,8 +147,8 @@ void ScanWriter::add(std::size_t first_beam, std::span<const scan::BeamResult> b
       const std::span<const float> values[] = {row.range, row.intensity, row.sigma};
       for (std::size_t k = 0; k < m.planes.size(); ++k) {
         m.planes[k].finite.add(values[k]);
-        m.planes[k].rows->append(std::string_view(reinterpret_cast<const char*>(values[k].data()),
-                                                  values[k].size_bytes()));
+        m.planes[k].append_rows(std::string_view(reinterpret_cast<const char*>(values[k].data()),
+                                                 values[k].size_bytes()));
       }
     });
   }
@@ -155,14 +172,22 @@ ScanWriter::Summary ScanWriter::finish() {
       for (std::uint64_t r0 = 0; r0 < e; r0 += band) {
         const std::uint64_t n = std::min(band, e - r0);
         values.resize(n * a);
-        run.resize(n);
-        for (std::uint64_t j = 0; j < a; ++j) {
-          const std::uint64_t first = (a - 1 - j) * e + (e - r0 - n);
-          p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data());
-          for (std::uint64_t t = 0; t < n; ++t) values[t * a + j] = run[n - 1 - t];
+        run.resize(n * kBlockColumns);
+        // kBlockColumns columns' runs at a time, stored a cache line of a
+        // row at a time (one column at a time, every value went to a line
+        // of its own: 1.3 x the time at 10^8 beams).
+        for (std::uint64_t j0 = 0; j0 < a; j0 += kBlockColumns) {
+          const std::uint64_t w = std::min<std::uint64_t>(kBlockColumns, a - j0);
+          for (std::uint64_t dj = 0; dj < w; ++dj) {
+            const std::uint64_t first = (a - 1 - (j0 + dj)) * e + (e - r0 - n);
+            p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data() + dj * n);
+          }
+          for (std::uint64_t t = 0; t < n; ++t)
+            for (std::uint64_t dj = 0; dj < w; ++dj)
+              values[t * a + j0 + dj] = run[dj * n + n - 1 - t];
         }
         p.finite.add(values);
-        p.rows->append(
+        p.append_rows(
             {reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float)});
       }
       p.by_beam.reset();
@@ -175,10 +200,10 @@ ScanWriter::Summary ScanWriter::finish() {
                                    std::numeric_limits<float>::quiet_NaN());
       for (int r = 0; r < rows; ++r)
         for (auto& p : m.planes)
-          p.rows->append({reinterpret_cast<const char*>(nan.data()), row_bytes});
+          p.append_rows({reinterpret_cast<const char*>(nan.data()), row_bytes});
     }
     for (auto& p : m.planes) {
-      if (p.rows->size() != static_cast<std::uint64_t>(rows) * row_bytes)
+      if (p.row_bytes != static_cast<std::uint64_t>(rows) * row_bytes)
         throw std::logic_error("ScanWriter: the scan ended before every image row was finished");
       if (m.wants("png")) {
         const std::string name = std::string(p.name) + ".png";
@@ -195,12 +220,7 @@ ScanWriter::Summary ScanWriter::finish() {
         json.append(m.settings.sidecar(name, p.quantity, p.units, s.scale, s.offset));
         json.commit();
       }
-      if (m.wants("npy")) {
-        StreamingOutput npy(m.at(std::string(p.name) + ".npy"));
-        npy.append(npy_header(rows, columns));
-        npy.append_from(p.rows->fd(), 0, p.rows->size());
-        npy.commit();
-      }
+      if (p.npy) p.npy->commit();
     }
   }
   if (m.want_cloud) {
