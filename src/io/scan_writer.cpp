@@ -2,6 +2,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_group.h>
 
 #include <algorithm>
 #include <cmath>
@@ -159,115 +160,135 @@ ScanWriter::Summary ScanWriter::finish() {
   if (m.csv) m.csv->commit();
   const int rows = m.description.rows, columns = m.description.columns;
   const std::size_t row_bytes = static_cast<std::size_t>(columns) * sizeof(float);
-  if (m.want_images && m.column_major) {
-    // Pixel (i, j) is beam (columns - 1 - j) rows + (rows - 1 - i): for a band
-    // of rows, each column's values are one contiguous run (rows reversed).
-    const auto e = static_cast<std::uint64_t>(rows), a = static_cast<std::uint64_t>(columns);
-    const std::uint64_t band =
-        std::max<std::uint64_t>(1, kBandBytes / std::max<std::uint64_t>(1, a * sizeof(float)));
-    std::vector<float> values, run;
-    for (auto& p : m.planes) {
-      if (p.by_beam->size() != e * a * sizeof(float))
-        throw std::logic_error("ScanWriter: a spherical scan ended before its last beam");
-      for (std::uint64_t r0 = 0; r0 < e; r0 += band) {
-        const std::uint64_t n = std::min(band, e - r0);
-        values.resize(n * a);
-        run.resize(n * kBlockColumns);
-        // kBlockColumns columns' runs at a time, stored a cache line of a
-        // row at a time (one column at a time, every value went to a line
-        // of its own: 1.3 x the time at 10^8 beams).
-        for (std::uint64_t j0 = 0; j0 < a; j0 += kBlockColumns) {
-          const std::uint64_t w = std::min<std::uint64_t>(kBlockColumns, a - j0);
-          for (std::uint64_t dj = 0; dj < w; ++dj) {
-            const std::uint64_t first = (a - 1 - (j0 + dj)) * e + (e - r0 - n);
-            p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data() + dj * n);
+  // The images and the point clouds are independent files, finished side by
+  // side (the writer's end runs after the last beam, alone: at 10^8 beams,
+  // seconds).
+  const auto finish_images = [&] {
+    if (m.want_images && m.column_major) {
+      // Pixel (i, j) is beam (columns - 1 - j) rows + (rows - 1 - i): for a band
+      // of rows, each column's values are one contiguous run (rows reversed).
+      const auto e = static_cast<std::uint64_t>(rows), a = static_cast<std::uint64_t>(columns);
+      const std::uint64_t band =
+          std::max<std::uint64_t>(1, kBandBytes / std::max<std::uint64_t>(1, a * sizeof(float)));
+      std::vector<float> values, run;
+      for (auto& p : m.planes) {
+        if (p.by_beam->size() != e * a * sizeof(float))
+          throw std::logic_error("ScanWriter: a spherical scan ended before its last beam");
+        for (std::uint64_t r0 = 0; r0 < e; r0 += band) {
+          const std::uint64_t n = std::min(band, e - r0);
+          values.resize(n * a);
+          run.resize(n * kBlockColumns);
+          // kBlockColumns columns' runs at a time, stored a cache line of a
+          // row at a time (one column at a time, every value went to a line
+          // of its own: 1.3 x the time at 10^8 beams).
+          for (std::uint64_t j0 = 0; j0 < a; j0 += kBlockColumns) {
+            const std::uint64_t w = std::min<std::uint64_t>(kBlockColumns, a - j0);
+            for (std::uint64_t dj = 0; dj < w; ++dj) {
+              const std::uint64_t first = (a - 1 - (j0 + dj)) * e + (e - r0 - n);
+              p.by_beam->read(first * sizeof(float), n * sizeof(float), run.data() + dj * n);
+            }
+            for (std::uint64_t t = 0; t < n; ++t)
+              for (std::uint64_t dj = 0; dj < w; ++dj)
+                values[t * a + j0 + dj] = run[dj * n + n - 1 - t];
           }
-          for (std::uint64_t t = 0; t < n; ++t)
-            for (std::uint64_t dj = 0; dj < w; ++dj)
-              values[t * a + j0 + dj] = run[dj * n + n - 1 - t];
+          p.finite.add(values);
+          p.append_rows(
+              {reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float)});
         }
-        p.finite.add(values);
-        p.append_rows(
-            {reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float)});
+        p.by_beam.reset();
       }
-      p.by_beam.reset();
     }
-  }
-  if (m.want_images) {
-    if (!m.column_major && m.images.next_beam() == 0) {
-      // No beam: every pixel invalid (make_images' empty frame).
-      const std::vector<float> nan(static_cast<std::size_t>(columns),
-                                   std::numeric_limits<float>::quiet_NaN());
-      for (int r = 0; r < rows; ++r)
-        for (auto& p : m.planes)
-          p.append_rows({reinterpret_cast<const char*>(nan.data()), row_bytes});
-    }
-    for (auto& p : m.planes) {
-      if (p.row_bytes != static_cast<std::uint64_t>(rows) * row_bytes)
-        throw std::logic_error("ScanWriter: the scan ended before every image row was finished");
-      if (m.wants("png")) {
-        const std::string name = std::string(p.name) + ".png";
-        StreamingOutput png(m.at(name));
-        const Png16Scale s = png16_scale(p.finite);
-        encode_png16_rows(
-            rows, columns, s,
-            [&](int r, std::span<float> values) {
-              p.rows->read(static_cast<std::uint64_t>(r) * row_bytes, row_bytes, values.data());
-            },
-            [&](std::string_view bytes) { png.append(bytes); });
-        png.commit();
-        StreamingOutput json(m.at(std::string(p.name) + ".json"));
-        json.append(m.settings.sidecar(name, p.quantity, p.units, s.scale, s.offset));
-        json.commit();
+    if (m.want_images) {
+      if (!m.column_major && m.images.next_beam() == 0) {
+        // No beam: every pixel invalid (make_images' empty frame).
+        const std::vector<float> nan(static_cast<std::size_t>(columns),
+                                     std::numeric_limits<float>::quiet_NaN());
+        for (int r = 0; r < rows; ++r)
+          for (auto& p : m.planes)
+            p.append_rows({reinterpret_cast<const char*>(nan.data()), row_bytes});
       }
-      if (p.npy) p.npy->commit();
+      for (auto& p : m.planes) {
+        if (p.row_bytes != static_cast<std::uint64_t>(rows) * row_bytes)
+          throw std::logic_error("ScanWriter: the scan ended before every image row was finished");
+        if (m.wants("png")) {
+          const std::string name = std::string(p.name) + ".png";
+          StreamingOutput png(m.at(name));
+          const Png16Scale s = png16_scale(p.finite);
+          encode_png16_rows(
+              rows, columns, s,
+              [&](int r, std::span<float> values) {
+                p.rows->read(static_cast<std::uint64_t>(r) * row_bytes, row_bytes, values.data());
+              },
+              [&](std::string_view bytes) { png.append(bytes); });
+          png.commit();
+          StreamingOutput json(m.at(std::string(p.name) + ".json"));
+          json.append(m.settings.sidecar(name, p.quantity, p.units, s.scale, s.offset));
+          json.commit();
+        }
+        if (p.npy) p.npy->commit();
+      }
     }
-  }
-  if (m.want_cloud) {
-    const std::uint64_t n = m.summary.points;
-    const LasBounds::Offset offset = m.bounds.offset();
-    const struct {
-      const char* output;
-      const char* file;
-    } clouds[] = {{"ply", "points.ply"}, {"pcd", "points.pcd"}, {"las", "points.las"}};
-    std::vector<CloudPoint> chunk(kPointsPerChunk);
-    for (const auto& c : clouds) {
-      if (!m.wants(c.output)) continue;
-      StreamingOutput out(m.at(c.file));
-      const std::string_view kind = c.output;
-      out.append(kind == "ply"   ? ply_header(n)
-                 : kind == "pcd" ? pcd_header(n)
-                                 : las_header(m.bounds));
-      for (std::uint64_t i = 0; i < n; i += kPointsPerChunk) {
-        const std::size_t count =
-            static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
-        m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
-        m.text.clear();
-        if (kind == "las") {
-          // Fixed-size records, encoded on every thread: the scan's last
-          // serial step (a 1.44 M-beam scan's 0.5 M points: some 10 ms alone).
-          m.text.resize(count * kLasPointBytes);
-          tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 2048),
-                            [&](const tbb::blocked_range<std::size_t>& r) {
-                              for (std::size_t k = r.begin(); k < r.end(); ++k)
-                                put_las_point(m.text.data() + k * kLasPointBytes, chunk[k], offset);
-                            });
+  };
+  const auto finish_clouds = [&] {
+    if (m.want_cloud) {
+      const std::uint64_t n = m.summary.points;
+      const LasBounds::Offset offset = m.bounds.offset();
+      const struct {
+        const char* output;
+        const char* file;
+      } clouds[] = {{"ply", "points.ply"}, {"pcd", "points.pcd"}, {"las", "points.las"}};
+      std::vector<CloudPoint> chunk(kPointsPerChunk);
+      for (const auto& c : clouds) {
+        if (!m.wants(c.output)) continue;
+        StreamingOutput out(m.at(c.file));
+        const std::string_view kind = c.output;
+        out.append(kind == "ply"   ? ply_header(n)
+                   : kind == "pcd" ? pcd_header(n)
+                                   : las_header(m.bounds));
+        for (std::uint64_t i = 0; i < n; i += kPointsPerChunk) {
+          const std::size_t count =
+              static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
+          m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
+          m.text.clear();
+          if (kind == "las") {
+            // Fixed-size records, encoded on every thread: the scan's last
+            // serial step (a 1.44 M-beam scan's 0.5 M points: some 10 ms alone).
+            m.text.resize(count * kLasPointBytes);
+            tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 2048),
+                              [&](const tbb::blocked_range<std::size_t>& r) {
+                                for (std::size_t k = r.begin(); k < r.end(); ++k)
+                                  put_las_point(m.text.data() + k * kLasPointBytes, chunk[k],
+                                                offset);
+                              });
+            out.append(m.text);
+            continue;
+          }
+          for (std::size_t k = 0; k < count; ++k) {
+            if (kind == "ply")
+              append_ply_point(m.text, chunk[k]);
+            else if (kind == "pcd")
+              append_pcd_point(m.text, chunk[k]);
+            else
+              append_las_point(m.text, chunk[k], offset);
+          }
           out.append(m.text);
-          continue;
         }
-        for (std::size_t k = 0; k < count; ++k) {
-          if (kind == "ply")
-            append_ply_point(m.text, chunk[k]);
-          else if (kind == "pcd")
-            append_pcd_point(m.text, chunk[k]);
-          else
-            append_las_point(m.text, chunk[k], offset);
-        }
-        out.append(m.text);
+        out.commit();
       }
-      out.commit();
     }
+  };
+  tbb::task_group images;
+  images.run(finish_images);
+  try {
+    finish_clouds();
+  } catch (...) {
+    try {
+      images.wait();
+    } catch (...) {  // (the first failure is the one reported)
+    }
+    throw;
   }
+  images.wait();
   if (m.wants("view")) {
     // The picture's colour limits are order statistics of the whole image,
     // selected in two passes over the finished images read back; its rows
