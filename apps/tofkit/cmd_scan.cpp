@@ -135,14 +135,15 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   scan::Scene loaded_scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   ranging::UncertaintyBudget budget;  // sigma_m is its combined uncertainty where there is one
-  if (!o.model.empty()) {
+  // Under mpirun every rank measures and corrects its chunks; rank 0 reads
+  // the model (sent to the others below) and writes.
+  const MpiWorld world = mpi_world();
+  if (!o.model.empty() && world.rank == 0) {
     pipeline = io::load_pipeline(o.model);
     budget = io::load_budget(o.model);
   }
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
-  // Under mpirun every rank measures and corrects its chunks; rank 0 writes.
-  const MpiWorld world = mpi_world();
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
   // In one process the calibration runs on its own thread beside the scan
