@@ -43,6 +43,26 @@ struct Plane {
   }
 };
 
+// What a LAS record holds of a point (x, y, z, time, intensity), packed.
+constexpr std::size_t kLasFieldBytes = 4 * sizeof(double) + sizeof(float);
+void append_las_fields(std::string& out, const CloudPoint& p) {
+  char bytes[kLasFieldBytes];
+  std::memcpy(bytes, &p.x, sizeof(double));
+  std::memcpy(bytes + 8, &p.y, sizeof(double));
+  std::memcpy(bytes + 16, &p.z, sizeof(double));
+  std::memcpy(bytes + 24, &p.time_s, sizeof(double));
+  std::memcpy(bytes + 32, &p.intensity, sizeof(float));
+  out.append(bytes, sizeof bytes);
+}
+void read_las_fields(const char* bytes, CloudPoint& p) {
+  p = CloudPoint{};
+  std::memcpy(&p.x, bytes, sizeof(double));
+  std::memcpy(&p.y, bytes + 8, sizeof(double));
+  std::memcpy(&p.z, bytes + 16, sizeof(double));
+  std::memcpy(&p.time_s, bytes + 24, sizeof(double));
+  std::memcpy(&p.intensity, bytes + 32, sizeof(float));
+}
+
 // A pixel's value from its one beam, as ImageBuilder computes it (a weight-1
 // sum divided by its weight: the same float bits).
 float single(double value) {
@@ -56,6 +76,10 @@ struct ScanWriter::Impl {
   scan::BeamPattern description;
   scan::ImageBuilder images;
   bool want_images = false, want_cloud = false;
+  // Only a LAS asked for: the working file keeps the fields LAS records
+  // hold (36 of a CloudPoint's 56 bytes; at 10^8 beams, 0.65 GB less
+  // written and read back).
+  bool las_only = false;
   // `spherical` goes down columns, so no image row is finished before the
   // last column: its pixels (one beam each) are kept on disk in beam order
   // and turned into rows at the end, a band of rows at a time.
@@ -104,6 +128,7 @@ ScanWriter::ScanWriter(const scan::ScanResult& description, std::vector<std::siz
     }
   }
   if (m.want_cloud) m.points = std::make_unique<ScratchFile>(m.at("points"));
+  m.las_only = m.wants("las") && !m.wants("ply") && !m.wants("pcd");
 }
 
 ScanWriter::~ScanWriter() = default;
@@ -124,7 +149,10 @@ void ScanWriter::add(std::size_t first_beam, std::span<const scan::BeamResult> b
     ++m.summary.points;
     if (!m.want_cloud) continue;
     m.bounds.add(point);
-    m.text.append(reinterpret_cast<const char*>(&point), sizeof point);
+    if (m.las_only)
+      append_las_fields(m.text, point);
+    else
+      m.text.append(reinterpret_cast<const char*>(&point), sizeof point);
   }
   if (m.want_cloud) m.points->append(m.text);
   if (m.want_images && m.column_major) {
@@ -238,6 +266,7 @@ ScanWriter::Summary ScanWriter::finish() {
         const char* file;
       } clouds[] = {{"ply", "points.ply"}, {"pcd", "points.pcd"}, {"las", "points.las"}};
       std::vector<CloudPoint> chunk(kPointsPerChunk);
+      std::string fields;  // (las_only: the working file's records)
       for (const auto& c : clouds) {
         if (!m.wants(c.output)) continue;
         StreamingOutput out(m.at(c.file));
@@ -248,7 +277,14 @@ ScanWriter::Summary ScanWriter::finish() {
         for (std::uint64_t i = 0; i < n; i += kPointsPerChunk) {
           const std::size_t count =
               static_cast<std::size_t>(std::min<std::uint64_t>(kPointsPerChunk, n - i));
-          m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
+          if (m.las_only) {
+            fields.resize(count * kLasFieldBytes);
+            m.points->read(i * kLasFieldBytes, fields.size(), fields.data());
+            for (std::size_t k = 0; k < count; ++k)
+              read_las_fields(fields.data() + k * kLasFieldBytes, chunk[k]);
+          } else {
+            m.points->read(i * sizeof(CloudPoint), count * sizeof(CloudPoint), chunk.data());
+          }
           m.text.clear();
           if (kind == "las") {
             // Fixed-size records, encoded on every thread: the scan's last
