@@ -7,7 +7,7 @@
 #   3. mpirun -np 2 (1 thread each) against 1 process of 2 threads;
 #   4. throughput and peak RSS against beam count (LAS + npy, 2 threads);
 #   5. (BIG=1) the same on a 10^6-triangle ground at 10^6, 10^7 and 10^8 beams
-#      (the last writes some 4 GB and takes minutes).
+#      (the last writes 2 GB and takes about 30 s quiet).
 # SECTIONS="1 3" runs only those sections.
 # The factory calibration is read from a cache warmed before the timed runs
 # (a unit keeps its calibration; io/calibration_cache.hpp), in a temporary
