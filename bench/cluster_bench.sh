@@ -7,7 +7,8 @@
 #   3. mpirun -np 2 (1 thread each) against 1 process of 2 threads;
 #   4. throughput and peak RSS against beam count (LAS + npy, 2 threads);
 #   5. (BIG=1) the same on a 10^6-triangle ground at 10^6, 10^7 and 10^8 beams
-#      (the last writes ~1.8 GB and takes minutes).
+#      (the last writes 2 GB and takes about 30 s quiet).
+# SECTIONS="1 3" runs only those sections.
 # The factory calibration is read from a cache warmed before the timed runs
 # (a unit keeps its calibration; io/calibration_cache.hpp), in a temporary
 # directory: CACHE=cold makes every run calibrate (TOFKIT_CACHE_DIR=off).
@@ -18,7 +19,7 @@
 # (default 3). BASE=path/to/tofkit runs another build interleaved with this
 # one (A B A B ...) and prints it beside: on a shared machine only ratios
 # measured in the same run mean much.
-# Usage: [BASE=...] [REPEAT=3] [BIG=1] bench/cluster_bench.sh [BUILD_DIR]
+# Usage: [BASE=...] [REPEAT=3] [BIG=1] [SECTIONS="..."] bench/cluster_bench.sh [BUILD_DIR]
 set -euo pipefail
 build=${1:-build}
 tofkit=$(realpath "$build/tofkit")
@@ -90,11 +91,22 @@ scan_args() {  # threads power rays [extra...]
   echo "--threads $threads --max-rows 1000000000 --set laser.peak_power_w=$power --set scan.rays_per_beam=$rays scan --scene $scene --pattern spherical --shots 1 $*"
 }
 
+# The beams of a spherical pattern over azimuth and elevation ranges (start:stop:step).
+beams_of() {
+  awk -v a="$1" -v e="$2" 'BEGIN{split(a, x, ":"); split(e, y, ":");
+    printf "%d", (int((x[2]-x[1])/x[3]+1e-9)+1)*(int((y[2]-y[1])/y[3]+1e-9)+1)}'
+}
+
+# Sections to run: SECTIONS (default "1 2 3 4", and 5 with BIG=1).
+sections=${SECTIONS:-"1 2 3 4${BIG:+ 5}"}
+want() { [[ " $sections " == *" $1 "* ]]; }
+
 rate() { awk -v p="$1" -v t="$2" 'BEGIN{printf "%.2f", p/t/1e6}'; }
 
 pulses=1442401
-echo "# 1. HELIOS-like scene, 1.44 M pulses, 10 kW, 1 shot, LAS, 2 threads"
+want 1 && echo "# 1. HELIOS-like scene, 1.44 M pulses, 10 kW, 1 shot, LAS, 2 threads"
 for rays in 1 19; do
+  want 1 || break
   mapfile -t rows < <(measure "" $(scan_args 2 10000 "$rays" --azimuth=$az --elevation=$el --write las))
   for k in "${!binaries[@]}"; do
     read -r t s u m <<<"${rows[$k]}"
@@ -102,6 +114,7 @@ for rays in 1 19; do
   done
 done
 
+if want 2; then
 echo "# 2. saturated (10 kW) vs weak (1 W) echoes, 1 ray, 1 thread, LAS (scan alone)"
 mapfile -t strong < <(measure "" $(scan_args 1 10000 1 --azimuth=$az --elevation=$el --write las))
 mapfile -t weak < <(measure "" $(scan_args 1 1 1 --azimuth=$az --elevation=$el --write las))
@@ -110,18 +123,24 @@ for k in "${!binaries[@]}"; do
   read -r _ tw _ _ <<<"${weak[$k]}"
   echo "$(name "${binaries[$k]}"): 10 kW $ts s, 1 W $tw s: ratio $(awk -v a="$ts" -v b="$tw" 'BEGIN{printf "%.2f", a/b}')"
 done
+fi
 
-if command -v mpirun >/dev/null; then
-  echo "# 3. mpirun -np 2 x 1 thread vs 1 process x 2 threads (same scan, LAS)"
+if ! want 3; then
+  :
+elif command -v mpirun >/dev/null; then
+  echo "# 3. mpirun -np 2 x 1 thread vs 1 process x 2 threads (same scan, LAS; 1.44 M and 12.8 M beams)"
   # (--bind-to none: on a shared machine a rank pinned to a busy core waits)
   mpi="mpirun --oversubscribe --bind-to none -np 2"
   [[ $(id -u) == 0 ]] && mpi="mpirun --allow-run-as-root --oversubscribe --bind-to none -np 2"
-  mapfile -t one < <(measure "" $(scan_args 2 10000 1 --azimuth=$az --elevation=$el --write las))
-  mapfile -t two < <(measure "$mpi" $(scan_args 1 10000 1 --azimuth=$az --elevation=$el --write las))
-  for k in "${!binaries[@]}"; do
-    read -r t1 s1 _ _ <<<"${one[$k]}"
-    read -r t2 s2 _ _ <<<"${two[$k]}"
-    echo "$(name "${binaries[$k]}"): 1 x 2 threads scan $s1 s (wall $t1 s), 2 ranks x 1 thread scan $s2 s (wall $t2 s): ranks reach $(awk -v a="$s1" -v b="$s2" 'BEGIN{printf "%.0f", 100*a/b}') % of the threads' scan throughput ($(awk -v a="$t1" -v b="$t2" 'BEGIN{printf "%.0f", 100*a/b}') % end to end)"
+  for grid in "$az $el" "-40:60:0.03 -25:90:0.03"; do
+    read -r a e <<<"$grid"
+    mapfile -t one < <(measure "" $(scan_args 2 10000 1 --azimuth=$a --elevation=$e --write las))
+    mapfile -t two < <(measure "$mpi" $(scan_args 1 10000 1 --azimuth=$a --elevation=$e --write las))
+    for k in "${!binaries[@]}"; do
+      read -r t1 s1 _ _ <<<"${one[$k]}"
+      read -r t2 s2 _ _ <<<"${two[$k]}"
+      echo "$(beams_of "$a" "$e") beams, $(name "${binaries[$k]}"): 1 x 2 threads scan $s1 s (wall $t1 s), 2 ranks x 1 thread scan $s2 s (wall $t2 s): ranks reach $(awk -v a="$s1" -v b="$s2" 'BEGIN{printf "%.0f", 100*a/b}') % of the threads' scan throughput ($(awk -v a="$t1" -v b="$t2" 'BEGIN{printf "%.0f", 100*a/b}') % end to end)"
+    done
   done
 else
   echo "# 3. skipped: mpirun is missing"
@@ -141,10 +160,12 @@ per_beam() {  # scene label steps...
   done
 }
 
-echo "# 4. beams vs time and peak RSS (LAS + npy, 1 ray, 10 kW, 2 threads)"
-per_beam "$scene" "blocks" 0.3 0.1 0.05 0.03
+if want 4; then
+  echo "# 4. beams vs time and peak RSS (LAS + npy, 1 ray, 10 kW, 2 threads)"
+  per_beam "$scene" "blocks" 0.3 0.1 0.05 0.03
+fi
 
-if [[ -n "${BIG:-}" ]]; then
+if want 5; then
   echo "# 5. a 10^6-triangle ground: 10^6, 10^7, 10^8 beams (LAS + npy, 2 threads)"
   python3 "$here/scenes/make_ground_blocks.py" 707 "$work/ground_1m.obj"
   sed 's/ground_blocks.obj/ground_1m.obj/' "$scene" >"$work/ground_1m.toml"

@@ -350,6 +350,26 @@ TEST_F(Cluster, MpirunGivesTheOneProcessBytesAndAFailedRankLeavesNothing) {
                               " --threads 1 " + scan + " --out two >/dev/null 2>mpi.txt";
   ASSERT_EQ(std::system(command.c_str()), 0) << read("mpi.txt");
   expect_same_files("one", "two", 14u);
+  {
+    // The factory calibration (no --model), made (not cached): one process
+    // corrects with it as it comes from the fit, beside its scan; under
+    // mpirun rank 0 makes it first and sends it as JSON, and each rank
+    // corrects the beams it measures (5 chunks): the same bytes, sigma too.
+    const tofkit::test::ScopedEnv no_cache("TOFKIT_CACHE_DIR", "off");
+    const std::string factory = "scan --scene " + (kScenes / "blocks.toml").string() +
+                                " --pattern spherical --azimuth=-40:40:0.3 --elevation=-15:25:0.3 "
+                                "--shots 1 --write csv,npy,las";
+    fs::create_directories(dir_ / "fone");
+    fs::create_directories(dir_ / "ftwo");
+    ASSERT_EQ(run("--threads 2 " + factory + " --out fone").status, 0) << read("stderr.txt");
+    const std::string f2 = "cd '" + dir_.string() + "' && " + mpirun + TOFKIT_BINARY +
+                           " --threads 1 " + factory + " --out ftwo >/dev/null 2>mpi.txt";
+    ASSERT_EQ(std::system(f2.c_str()), 0) << read("mpi.txt");
+    EXPECT_NE(read("fone/scan.csv").find("sigma_m"), std::string::npos);
+    // (Compared as a whole: a diff of the long files would flood the log.)
+    for (const char* f : {"scan.csv", "points.las", "range.npy", "intensity.npy", "sigma.npy"})
+      EXPECT_TRUE(read(std::string("fone/") + f) == read(std::string("ftwo/") + f)) << f;
+  }
   write("sweep.toml", kIssuePlan);
   ASSERT_EQ(run("sweep --plan sweep.toml --out sw1").status, 0);
   const std::string sweep = "cd '" + dir_.string() + "' && " + mpirun + TOFKIT_BINARY +

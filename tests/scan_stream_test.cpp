@@ -3,6 +3,8 @@
 // whatever the block size; the streaming writer's files appear only on
 // commit; an interrupted scan leaves nothing.
 
+#include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -13,6 +15,7 @@
 #include <functional>
 #include <limits>
 #include <random>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -142,6 +145,61 @@ TEST(ScanStream, BlocksGiveTheWholeFrameBytesForEveryOutput) {
 // whole-frame picture's bytes (whose limits come from sorting the values), on
 // images with NaN, infinities, negatives, ties, a constant image and an empty
 // one, whatever the pieces' size.
+TEST(ScanStream, FewerOutputsGiveTheWholeFrameBytes) {
+  // A LAS alone keeps only its fields in the working file; the .npy files
+  // take their rows as they come whether or not the PNGs keep them.
+  const scan::Scene blocks = io::load_scene(kScenes / "blocks.toml");
+  scan::PatternSettings s;
+  s.rate_hz = 1;
+  auto lists = [](scan::PatternListName l) -> std::vector<double> {
+    using enum scan::PatternListName;
+    if (l == azimuth) return {-20, -12, -5, -1, 0, 3, 9, 15, 17, 19, 21, 23, 25, 27, 29, 31, 33};
+    if (l == elevation) return {-10, -4, 0, 2, 6, 11, 30};
+    return {0.0, 0.05};
+  };
+  const auto pattern = scan::make_pattern("spherical", s, lists, 5e-6, 1'000'000, true);
+  const device::DeviceConfig config;
+  const device::VirtualRangefinder device(config, device::SimulationMode::kAnalytic);
+  const scan::RayCaster caster(blocks);
+  const scan::Footprint footprint(config);
+  scan::ScanOptions options;
+  options.seed = 5;
+  const scan::ScanResult frame = scan::run_scan(caster, footprint, device, pattern, options);
+  const scan::ScanImages images = scan::make_images(frame);
+  const auto points = io::cloud_points(frame);
+  ASSERT_GT(points.size(), 20u);
+  for (const std::set<std::string>& outputs :
+       std::vector<std::set<std::string>>{{"las"}, {"las", "npy"}, {"npy"}, {"ply", "las"}}) {
+    const fs::path dir = fresh_dir("few");
+    io::ScanWriterSettings settings;
+    settings.directory = dir;
+    settings.outputs = outputs;
+    io::ScanWriter writer(scan::describe_scan(pattern, blocks), scan::row_last_beams(pattern),
+                          settings);
+    scan::run_scan_blocks(
+        caster, footprint, device, pattern, options, 0, pattern.size(), 7,
+        [&](std::size_t first, std::span<scan::BeamResult> beams) { writer.add(first, beams); });
+    writer.finish();
+    std::size_t files = 0;
+    const std::string label = fmt::format("{}", fmt::join(outputs, ","));
+    if (outputs.count("las")) {
+      ++files;
+      EXPECT_EQ(slurp(dir / "points.las"), io::encode_las(points)) << label;
+    }
+    if (outputs.count("ply")) {
+      ++files;
+      EXPECT_EQ(slurp(dir / "points.ply"), io::encode_ply(points)) << label;
+    }
+    if (outputs.count("npy")) {
+      files += 2;
+      EXPECT_EQ(slurp(dir / "range.npy"), io::encode_npy(images.range)) << label;
+      EXPECT_EQ(slurp(dir / "intensity.npy"), io::encode_npy(images.intensity)) << label;
+    }
+    EXPECT_EQ(entries(dir), files) << "no working file left: " << label;
+    fs::remove_all(dir);
+  }
+}
+
 TEST(ScanStream, RangeViewByRowsGivesTheWholeFrameBytes) {
   std::mt19937 random(33);
   std::uniform_real_distribution<float> spread(-3.0f, 40.0f);

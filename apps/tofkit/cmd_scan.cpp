@@ -92,6 +92,25 @@ FactoryModel find_factory_model(const device::DeviceConfig& config) {
   return found;
 }
 
+// Rank 0's model and budget (none: raw ranges) on every rank, rank 0's
+// too, as their JSON read back.
+void share_model(const MpiWorld& world, std::optional<ranging::Pipeline>& pipeline,
+                 ranging::UncertaintyBudget& budget) {
+  std::string text;
+  if (world.rank == 0 && pipeline) {
+    nlohmann::json j = {{"model", io::pipeline_to_json(*pipeline)}};
+    if (!budget.empty()) j["budget"] = io::budget_to_json(budget);
+    text = j.dump();
+  }
+  mpi_broadcast(text);
+  pipeline.reset();
+  budget = {};
+  if (text.empty()) return;
+  const nlohmann::json j = nlohmann::json::parse(text);
+  pipeline = io::pipeline_from_json(j.at("model"), "rank 0's model");
+  if (j.contains("budget")) budget = io::budget_from_json(j.at("budget"), "rank 0's budget");
+}
+
 // A one-line progress indicator on a terminal; silent when stderr is a file.
 struct Progress {
   bool tty = ::isatty(STDERR_FILENO) != 0;
@@ -108,48 +127,55 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
   const auto outputs = parse_write(o.write);
   const device::DeviceConfig config = ctx.load_config();
   const auto mode = simulation_mode(o.mode, ctx, config);  // refused for the loop
+  // The device's tables (5-9 ms for the default device) are made on another
+  // thread while the scene, the model or the calibration cache are read.
+  auto made_rangefinder = std::async(std::launch::async, [&config, mode] {
+    return std::make_unique<const device::VirtualRangefinder>(config, mode);
+  });
   scan::Scene loaded_scene = io::load_scene(o.scan.scene);
   std::optional<ranging::Pipeline> pipeline;
   ranging::UncertaintyBudget budget;  // sigma_m is its combined uncertainty where there is one
-  if (!o.model.empty()) {
+  // Under mpirun every rank measures and corrects its chunks; rank 0 reads
+  // the model (sent to the others below) and writes.
+  const MpiWorld world = mpi_world();
+  if (!o.model.empty() && world.rank == 0) {
     pipeline = io::load_pipeline(o.model);
     budget = io::load_budget(o.model);
   }
   io::create_output_directories(o.out);  // removed again if the scan fails
   const int shots = fitting_shots(o.scan, config, o.shots);
-  // Under mpirun, rank 0 corrects and writes; every rank measures its chunks.
-  const MpiWorld world = mpi_world();
   // Calibrated ranges by default, as a lidar's own output is: the device's
   // factory calibration (the default plan measured at seed 1, chain fitted).
-  // (Only where the ranges are corrected: the other ranks send raw ones.)
-  // The calibration runs on its own thread beside the scan (the beams are
-  // measured raw; ranges are corrected as blocks are written), so rank 0's
-  // scan and the other ranks' chunks do not wait for it.
+  // In one process the calibration runs on its own thread beside the scan
+  // (the beams are measured raw; ranges are corrected as blocks are
+  // written), so the scan does not wait for it. Under mpirun rank 0 makes it
+  // before the scan and sends it to the others (below).
   // A made calibration is kept in the cache (io/calibration_cache.hpp): the
   // next scan of this device by this build reads it back instead.
   std::future<MadeCalibration> calibration;
-  if (world.rank != 0) {
-    pipeline.reset();
-  } else if (!pipeline && !o.raw) {
+  if (world.rank == 0 && !pipeline && !o.raw) {
     const FactoryModel factory = find_factory_model(config);
     if (!factory.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", factory.note);
     if (factory.cached) {
       pipeline = factory.cached->pipeline;
       budget = factory.cached->budget;
     } else {
-      calibration = std::async(std::launch::async, [&config, key = factory.key] {
-        try {
-          calib::ModelFitResult fit =
-              experiments::factory_calibration(io::calibration_config(config), kFactorySeed);
-          MadeCalibration made;
-          made.factory = {std::move(fit.pipeline), std::move(fit.budget)};
-          if (key) io::store_factory_calibration(*key, made.factory, made.note);
-          return made;
-        } catch (const std::invalid_argument& e) {
-          throw std::runtime_error(std::string("the factory calibration of this device failed (") +
-                                   e.what() + "): give --model FILE or --raw");
-        }
-      });
+      calibration =
+          std::async(world.size == 1 ? std::launch::async : std::launch::deferred,
+                     [&config, key = factory.key] {
+                       try {
+                         calib::ModelFitResult fit = experiments::factory_calibration(
+                             io::calibration_config(config), kFactorySeed);
+                         MadeCalibration made;
+                         made.factory = {std::move(fit.pipeline), std::move(fit.budget)};
+                         if (key) io::store_factory_calibration(*key, made.factory, made.note);
+                         return made;
+                       } catch (const std::invalid_argument& e) {
+                         throw std::runtime_error(
+                             std::string("the factory calibration of this device failed (") +
+                             e.what() + "): give --model FILE or --raw");
+                       }
+                     });
     }
     fmt::print(stderr,
                "tofkit scan: ranges corrected by this device's factory calibration (plan's plates "
@@ -158,15 +184,30 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
                factory.cached ? "from the cache"
                : factory.key  ? "made now and cached"
                               : "made now; cache off");
-  } else if (o.raw) {
+  } else if (world.rank == 0 && o.raw) {
     fmt::print(stderr, "tofkit scan: raw ranges (--raw: fixed delays and walk included)\n");
+  }
+  if (world.size > 1) {
+    // Every rank corrects the beams it measures (the correction with its
+    // budget is about a third of a beam's work: rank 0 alone, correcting
+    // every rank's beams, held the others up), with rank 0's model and
+    // budget, sent to all as their JSON (which reads back to the same model:
+    // numbers in shortest round-trip form, as the cache's entries).
+    if (calibration.valid()) {
+      MadeCalibration made = calibration.get();
+      pipeline = std::move(made.factory.pipeline);
+      budget = std::move(made.factory.budget);
+      if (!made.note.empty()) fmt::print(stderr, "tofkit scan: {}\n", made.note);
+    }
+    share_model(world, pipeline, budget);
   }
   const scan::BeamPattern pattern = make_scan_pattern(o.scan, config, shots, /*on_demand=*/true);
   // The set-up (scene file, the scene's BVH, the device's tables, MPI's
   // start) is timed apart from the scan: it does not grow with the beams, and
   // the summary gives both. (The scan's time includes any wait for the
   // factory calibration.)
-  const device::VirtualRangefinder rangefinder(config, mode);
+  const std::unique_ptr<const device::VirtualRangefinder> made_device = made_rangefinder.get();
+  const device::VirtualRangefinder& rangefinder = *made_device;
   // (The scene moves into the caster: a 10^6-triangle mesh is held once.)
   const scan::RayCaster caster(std::move(loaded_scene));
   const scan::Scene& scene = caster.scene();
@@ -215,7 +256,7 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
     shard_writer.emplace(o.out, header);
   }
   io::ScanWriter::Summary summary;
-  auto take = [&](std::size_t first, std::span<scan::BeamResult> beams) {
+  auto take = [&](std::size_t first, std::span<const scan::BeamResult> beams) {
     if (writer) {
       writer->add(first - header.first_beam, beams);
     } else {
@@ -285,15 +326,25 @@ void run_scan_command(const ScanCliOptions& o, const AppContext& ctx) {
           bytes.reserve(bytes.size() + (end - begin) * sizeof(scan::BeamResult));
           scan::run_scan_blocks(caster, footprint, rangefinder, pattern, options, begin, end,
                                 kChunkBeams / 16, [&](std::size_t, std::span<scan::BeamResult> b) {
+                                  if (pipeline) correct(b);
                                   bytes.append(reinterpret_cast<const char*>(b.data()),
                                                b.size_bytes());
                                   mpi_progress();
                                 });
         },
         [&](std::size_t c, std::string_view bytes) {
-          received.resize(bytes.size() / sizeof(scan::BeamResult));
+          // The chunk's records where they arrived (corrected where made),
+          // without a copy when aligned, as the buffers are (they start
+          // after an 8-byte index in memory from operator new).
+          const std::size_t first = header.first_beam + c * kChunkBeams;
+          const std::size_t n = bytes.size() / sizeof(scan::BeamResult);
+          if (reinterpret_cast<std::uintptr_t>(bytes.data()) % alignof(scan::BeamResult) == 0) {
+            take(first, {reinterpret_cast<const scan::BeamResult*>(bytes.data()), n});
+            return;
+          }
+          received.resize(n);
           std::memcpy(static_cast<void*>(received.data()), bytes.data(), bytes.size());
-          correct_and_take(header.first_beam + c * kChunkBeams, received);
+          take(first, received);
         });
   }
   calibrated(/*wait=*/true);

@@ -419,20 +419,30 @@ std::string las_header(const LasBounds& bounds) {
   return out;
 }
 
-void append_las_point(std::string& out, const CloudPoint& p, const LasBounds::Offset& offset) {
+void put_las_point(char* out, const CloudPoint& p, const LasBounds::Offset& offset) {
   constexpr double kScale = kLasScale;
+  const auto put_at = [&out](auto value) {
+    std::memcpy(out, &value, sizeof value);  // little-endian host (x86-64, aarch64)
+    out += sizeof value;
+  };
   const double c[3] = {p.x, p.y, p.z};
   for (int k = 0; k < 3; ++k)
-    put(out, static_cast<std::int32_t>(std::lround((c[k] - offset.xyz[k]) / kScale)));
+    put_at(static_cast<std::int32_t>(std::lround((c[k] - offset.xyz[k]) / kScale)));
   const double mv =
       std::isfinite(p.intensity) ? std::clamp(1e3 * p.intensity, 0.0f * 1.0, 65535.0) : 0.0;
-  put(out, static_cast<std::uint16_t>(std::lround(mv)));
-  out.push_back(static_cast<char>(1 | (1 << 3)));  // return 1 of 1
-  out.push_back(0);                                // classification: never classified
-  out.push_back(0);                                // scan angle rank
-  out.push_back(0);                                // user data
-  put(out, std::uint16_t{0});                      // point source ID
-  put(out, p.time_s);                              // GPS time
+  put_at(static_cast<std::uint16_t>(std::lround(mv)));
+  put_at(static_cast<std::uint8_t>(1 | (1 << 3)));  // return 1 of 1
+  put_at(std::uint8_t{0});                          // classification: never classified
+  put_at(std::uint8_t{0});                          // scan angle rank
+  put_at(std::uint8_t{0});                          // user data
+  put_at(std::uint16_t{0});                         // point source ID
+  put_at(p.time_s);                                 // GPS time
+}
+
+void append_las_point(std::string& out, const CloudPoint& p, const LasBounds::Offset& offset) {
+  char record[kLasPointBytes];
+  put_las_point(record, p, offset);
+  out.append(record, sizeof record);
 }
 
 std::string encode_las(const std::vector<CloudPoint>& points) {

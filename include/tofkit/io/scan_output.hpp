@@ -93,6 +93,10 @@ struct LasBounds {
 };
 [[nodiscard]] std::string las_header(const LasBounds& bounds);
 void append_las_point(std::string& out, const CloudPoint& p, const LasBounds::Offset& offset);
+/// A LAS point record's size (point data format 1).
+inline constexpr std::size_t kLasPointBytes = 28;
+/// `p`'s LAS record into out[0 .. kLasPointBytes) (append_las_point's bytes).
+void put_las_point(char* out, const CloudPoint& p, const LasBounds::Offset& offset);
 [[nodiscard]] std::string scan_csv_header(bool has_model);
 void append_scan_csv_rows(std::string& out, std::span<const scan::BeamResult> beams,
                           double ambient_c, bool has_model);
