@@ -140,11 +140,6 @@ TEST(ScanStream, BlocksGiveTheWholeFrameBytesForEveryOutput) {
     expect_stream_matches_frame(stripes, line, block, "line");
 }
 
-// The picture of an image too large to hold: its colour limits selected in
-// passes over pieces of the values and its rows drawn one at a time give the
-// whole-frame picture's bytes (whose limits come from sorting the values), on
-// images with NaN, infinities, negatives, ties, a constant image and an empty
-// one, whatever the pieces' size.
 TEST(ScanStream, FewerOutputsGiveTheWholeFrameBytes) {
   // A LAS alone keeps only its fields in the working file; the .npy files
   // take their rows as they come whether or not the PNGs keep them.
@@ -200,6 +195,11 @@ TEST(ScanStream, FewerOutputsGiveTheWholeFrameBytes) {
   }
 }
 
+// The picture of an image too large to hold: its colour limits selected in
+// passes over pieces of the values and its rows drawn one at a time give the
+// whole-frame picture's bytes (whose limits come from sorting the values), on
+// images with NaN, infinities, negatives, ties, a constant image and an empty
+// one, whatever the pieces' size.
 TEST(ScanStream, RangeViewByRowsGivesTheWholeFrameBytes) {
   std::mt19937 random(33);
   std::uniform_real_distribution<float> spread(-3.0f, 40.0f);
