@@ -1,12 +1,14 @@
 // Configuration files, overrides and dumps; raw and corrected CSV tables;
 // all-or-nothing output files; command-line value lists.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <csignal>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -569,6 +571,52 @@ TEST(AtomicFile, AFailingWriterLeavesNothingBehind) {
 
   io::write_file_atomically(path, "new\n");
   EXPECT_EQ(read_text(path), "new\n");
+}
+
+// A file that outlives its command (a calibration cache entry) is replaced at
+// once, transaction or not, and a signal while it is written leaves the old
+// file whole and no temporary (the handler removes it, as for outputs).
+TEST(AtomicFile, AFileReplacedNowLeavesNoTemporaryWhenSignalled) {
+  TempDir dir;
+  const fs::path path = dir / "entry.json";
+  io::replace_file_now(path, "one\n");
+  EXPECT_EQ(read_text(path), "one\n");
+  {
+    io::OutputTransaction transaction;  // never committed
+    io::replace_file_now(path, "two\n");
+    EXPECT_EQ(read_text(path), "two\n");
+  }
+  EXPECT_EQ(read_text(path), "two\n");
+  EXPECT_THROW(io::replace_file_now(dir / "nodir" / "x.json", "x"), std::runtime_error);
+
+  constexpr std::size_t kBig = std::size_t{64} << 20;
+  for (const int delay_us : {0, 1000, 5000, 20000}) {
+    int ready[2];
+    ASSERT_EQ(::pipe(ready), 0);
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+      const std::string big(kBig, 'x');
+      const char go = 1;
+      if (::write(ready[1], &go, 1) != 1) ::_exit(2);
+      io::replace_file_now(path, big);
+      ::_exit(0);
+    }
+    char go = 0;
+    ASSERT_EQ(::read(ready[0], &go, 1), 1);
+    ::close(ready[0]);
+    ::close(ready[1]);
+    ::usleep(static_cast<useconds_t>(delay_us));
+    ::kill(pid, SIGTERM);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    for (const auto& e : fs::directory_iterator(dir.path()))
+      EXPECT_EQ(e.path().filename().string().find(".tmp."), std::string::npos)
+          << "left after SIGTERM at " << delay_us << " us: " << e.path();
+    const auto size = fs::file_size(path);
+    EXPECT_TRUE(size == 4 || size == kBig) << size;  // the old file or the whole new one
+    if (size == kBig) io::replace_file_now(path, "two\n");
+  }
 }
 
 TEST(AtomicFile, MissingDirectoryIsAnErrorNamingIt) {

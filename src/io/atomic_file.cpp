@@ -237,25 +237,41 @@ void stage_or_rename(Temporary temporary, const fs::path& target) {
 
 }  // namespace
 
+namespace {
+
+// The content written to a new temporary beside `path` (removed again if
+// anything fails, and by the signal handler meanwhile).
+Temporary write_temporary(const fs::path& path, const std::function<void(std::ostream&)>& write) {
+  Temporary temporary(temporary_path_for(path));
+  std::ofstream out(temporary.path(), std::ios::binary | std::ios::trunc);
+  if (!out) refuse(path, std::strerror(errno));
+  write(out);
+  out.flush();
+  if (!out) refuse(path, "write failed (disk full?)");
+  out.close();
+  if (out.fail()) refuse(path, "close failed");
+  return temporary;
+}
+
+std::function<void(std::ostream&)> writer_of(std::string_view contents) {
+  return [contents](std::ostream& out) {
+    out.write(contents.data(), static_cast<std::streamsize>(contents.size()));
+  };
+}
+
+}  // namespace
+
 void write_file_atomically(const fs::path& path, const std::function<void(std::ostream&)>& write) {
   check_target(path);
-  Temporary temporary(temporary_path_for(path));
-  {
-    std::ofstream out(temporary.path(), std::ios::binary | std::ios::trunc);
-    if (!out) refuse(path, std::strerror(errno));
-    write(out);
-    out.flush();
-    if (!out) refuse(path, "write failed (disk full?)");
-    out.close();
-    if (out.fail()) refuse(path, "close failed");
-  }
-  stage_or_rename(std::move(temporary), path);
+  stage_or_rename(write_temporary(path, write), path);
+}
+
+void replace_file_now(const fs::path& path, std::string_view contents) {
+  write_temporary(path, writer_of(contents)).rename_to(path);
 }
 
 void write_file_atomically(const fs::path& path, std::string_view contents) {
-  write_file_atomically(path, [contents](std::ostream& out) {
-    out.write(contents.data(), static_cast<std::streamsize>(contents.size()));
-  });
+  write_file_atomically(path, writer_of(contents));
 }
 
 void adopt_written_file(const fs::path& written, const fs::path& target) {

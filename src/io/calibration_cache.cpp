@@ -16,6 +16,7 @@
 #include <system_error>
 
 #include "tofkit/experiments/device_plan.hpp"
+#include "tofkit/io/atomic_file.hpp"
 #include "tofkit/io/config_file.hpp"
 #include "tofkit/io/model_json.hpp"
 
@@ -92,33 +93,6 @@ std::uint64_t fnv1a(std::string_view text) {
 
 std::string key_text(const FactoryCalibrationKey& key) {
   return "build-id " + key.build_id + "\nseed " + std::to_string(key.seed) + "\n" + key.config_text;
-}
-
-std::string errno_text(int error) {
-  return std::error_code(error, std::generic_category()).message();
-}
-
-// Writes `text` to a new temporary beside `target` and renames it over;
-// "" on success, else what failed.
-std::string write_atomically(const std::filesystem::path& target, std::string_view text) {
-  static std::atomic<unsigned> counter{0};
-  const std::filesystem::path temporary =
-      target.parent_path() / ("." + target.filename().string() + ".tmp." +
-                              std::to_string(::getpid()) + "." + std::to_string(counter++));
-  const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) return errno_text(errno);
-  std::string failure;
-  for (std::size_t done = 0; done < text.size() && failure.empty();) {
-    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) failure = errno_text(n < 0 ? errno : ENOSPC);
-    if (n > 0) done += static_cast<std::size_t>(n);
-  }
-  if (::close(fd) != 0 && failure.empty()) failure = errno_text(errno);
-  if (failure.empty() && ::rename(temporary.c_str(), target.c_str()) != 0)
-    failure = errno_text(errno);
-  if (!failure.empty()) ::unlink(temporary.c_str());
-  return failure;
 }
 
 }  // namespace
@@ -232,10 +206,10 @@ bool store_factory_calibration(const FactoryCalibrationKey& key,
              "): not cached";
       return false;
     }
-    const std::string failure = write_atomically(key.entry(), entry.dump(1) + "\n");
-    if (!failure.empty()) {
-      note = "cache entry " + key.entry().string() + " cannot be written (" + failure +
-             "): not cached";
+    try {
+      replace_file_now(key.entry(), entry.dump(1) + "\n");
+    } catch (const std::exception& e) {
+      note = std::string("cache entry not written (") + e.what() + "): not cached";
       return false;
     }
     return true;

@@ -49,6 +49,12 @@ void write_file_atomically(const std::filesystem::path& path,
 /// Write `contents` to `path`, atomically.
 void write_file_atomically(const std::filesystem::path& path, std::string_view contents);
 
+/// Replace `path` with `contents` now, atomically, whether or not a transaction
+/// is open: for a file that outlives the command that makes it (a calibration
+/// cache entry). Its temporary is removed on failure and on SIGINT / SIGTERM,
+/// as an output's is. Throws std::runtime_error naming the path on failure.
+void replace_file_now(const std::filesystem::path& path, std::string_view contents);
+
 /// The outputs of one command, committed together. At most one is open at a
 /// time per process (a second throws std::logic_error).
 class OutputTransaction {
