@@ -117,6 +117,57 @@ TEST(UncertaintyBudget, TravelsInTheModelFileAndOldModelsHaveNone) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(UncertaintyBudget, LostShotTermFollowsTheRowsShareOfLostShots) {
+  // u^2 linear in the lost share from 2 % (none) to 12 % (4 mm), held beyond;
+  // a row's share is 1 - shots_valid / shots, shots from the budget.
+  ranging::UncertaintyBudget b;
+  b.components.push_back(component("a", 3e-3));
+  ranging::BudgetComponent lost = component("false stops", 0);
+  lost.axis = ranging::BudgetComponent::Axis::lost_shot_share;
+  lost.node = {0.02, 0.12};
+  lost.variance_m2 = {0.0, 16e-6};
+  b.components.push_back(lost);
+  EXPECT_THROW(b.validate(), std::invalid_argument);  // no shots: no share
+  b.shots = 1000;
+  b.validate();
+  std::vector<ranging::RawMeasurement> raw(4);
+  const std::uint32_t valid[4] = {1000, 930, 700, 300};
+  for (std::size_t i = 0; i < raw.size(); ++i) {
+    raw[i].tof_ns = 10;
+    raw[i].distance_raw_m = 1.5;
+    raw[i].pulse_width_ns = 3;
+    raw[i].amplitude = 1;
+    raw[i].temperature_c = 20;
+    raw[i].shots_valid = valid[i];
+  }
+  ranging::Pipeline pipeline;
+  pipeline.add_step(ranging::make_offset_step(0.0));
+  pipeline.set_residual_rms_m(1e-3);
+  std::vector<ranging::Range> out(raw.size());
+  pipeline.apply(raw, out);
+  const double since[1] = {0.0};
+  ranging::apply_budget(b, pipeline, ranging::RawColumns::of(raw), since, out);
+  EXPECT_NEAR(out[0].sigma_m, 3e-3, 1e-12);
+  EXPECT_NEAR(out[1].sigma_m, std::sqrt(9e-6 + 0.5 * 16e-6), 1e-12);  // 7 % lost: halfway
+  EXPECT_NEAR(out[2].sigma_m, 5e-3, 1e-12);                           // held beyond 12 %
+  EXPECT_NEAR(out[3].sigma_m, 5e-3, 1e-12);
+  // The share is unknown without the row's shots: the term's largest.
+  std::vector<double> u(1);
+  const std::vector<double> amplitude = {1.0};
+  b.combined(amplitude, since, u);
+  EXPECT_NEAR(u[0], 5e-3, 1e-12);
+  // It travels in the model file with the shots.
+  const ranging::UncertaintyBudget read =
+      io::budget_from_json(nlohmann::json::parse(io::budget_to_json(b).dump()), "m");
+  EXPECT_EQ(read.shots, 1000);
+  EXPECT_EQ(read.components[1].axis, ranging::BudgetComponent::Axis::lost_shot_share);
+  EXPECT_DOUBLE_EQ(read.component_u_m(1, 1.0, 0.0, ranging::kNaN, 0.07),
+                   b.component_u_m(1, 1.0, 0.0, ranging::kNaN, 0.07));
+  nlohmann::json j = io::budget_to_json(b);
+  j.erase("shots");
+  EXPECT_THROW((void)io::budget_from_json(j, "m.json"), std::runtime_error);
+}
+
 TEST(UncertaintyBudget, MeasureTimingIsTheRunsTimeAxis) {
   // start 0, back to back: the bytes of run(); a later start: other draws.
   const device::DeviceConfig config = device::preset("paper");
@@ -562,6 +613,69 @@ TEST_P(HeldOut, PaperProtocolStaysHonest) {
     if (b.e_folds >= 1 && b.rows >= 10) EXPECT_LE(b.mean_u_mm, 2 * b.rms_error_mm) << b.e_folds;
 }
 
+// In Table 1 sunlight a bright target's background light makes noise cross
+// the threshold before the echo, more at cold where the APD's gain is higher:
+// the first stop of such a shot is a false one; the firmware's range gate
+// (measurement.stop_gate_ns around the median stop) drops those far before the
+// echo (the shots lost) and keeps those within it, which pull the mean short.
+// Measured on this device (rho 0.85, 8 C): 8-52 % of the shots lost at
+// 0.7-7.4 m, the mean 5.6-6.6 mm short of the same device indoors at 0.7-4.9
+// m (1.0-1.4 mm of it the background's noise alone, seen at 27 C with no
+// shots lost); narrowing the gate from 2 to 1 ns moves it by 3.0 mm, as the
+// false stops per ns just before the echo (0.008-0.011 per shot) predict to
+// within a factor 1.6. The calibration's temperature run sees it on its
+// bright plate (3-13 % lost at 0-15 C); the budget gives it the axis the row
+// carries, its share of lost shots, and no longer charges it to every row at
+// that temperature.
+TEST(UncertaintyBudget, FalseStopTermFollowsTheRowsThatLoseShots) {
+  if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "a full calibration: Release only";
+  const device::VirtualRangefinder device(held_out_device(2, true, 0));
+  const Calibrated c = calibrate(device, true, false);
+  const auto& cs = c.budget.budget.components;
+  const auto it = std::find_if(cs.begin(), cs.end(), [](const auto& k) {
+    return k.axis == ranging::BudgetComponent::Axis::lost_shot_share;
+  });
+  ASSERT_NE(it, cs.end()) << c.budget.report;
+  EXPECT_FALSE(it->type_b);
+  EXPECT_EQ(c.budget.budget.shots, device.config().measurement.shots);
+  ranging::UncertaintyBudget without = c.budget.budget;
+  without.components.erase(without.components.begin() + (it - cs.begin()));
+  // Held out: bright and middle targets at cold, 10 min after the calibration
+  // on its power-on; the rows that lose >= 2 % of their shots.
+  experiments::PlateGrid grid;
+  grid.distances_m = {1.6, 2.3, 3.0};
+  grid.reflectances = {0.5, 0.85};
+  grid.ambient_c = {6, 10, 14};
+  grid.count = 4;
+  const auto rows = experiments::run(device, experiments::plate_grid_plan(grid), 1,
+                                     {c.calibration_start_s + 600, 0});
+  std::vector<ranging::Range> with_term(rows.size()), without_term(rows.size());
+  c.fit.pipeline.apply(ranging::RawColumns::of(rows), with_term);
+  without_term = with_term;
+  const double since[1] = {600};
+  ranging::apply_budget(c.budget.budget, c.fit.pipeline, ranging::RawColumns::of(rows), since,
+                        with_term);
+  ranging::apply_budget(without, c.fit.pipeline, ranging::RawColumns::of(rows), since,
+                        without_term);
+  double n = 0, in_with = 0, in_without = 0, e2 = 0;
+  const double shots = device.config().measurement.shots;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    if (!(rows[i].raw.shots_valid < 0.98 * shots) || !(rows[i].raw.shots_valid > 0)) continue;
+    const double e = rows[i].truth.distance_m - with_term[i].distance_m;
+    n += 1;
+    e2 += e * e;
+    in_with += std::abs(e) <= 2 * with_term[i].sigma_m;
+    in_without += std::abs(e) <= 2 * without_term[i].sigma_m;
+  }
+  std::printf(
+      "rows losing >= 2 %% of their shots: %.0f, RMS error %.2f mm, within 2 sigma %.1f %% "
+      "(without the term %.1f %%)\n",
+      n, std::sqrt(e2 / n) * 1e3, 100 * in_with / n, 100 * in_without / n);
+  ASSERT_GE(n, 20) << "too few rows lose shots";
+  EXPECT_GT(in_with, in_without);
+  EXPECT_GE(in_with / n, 0.85);
+}
+
 TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
   const device::VirtualRangefinder device(held_out_device(1, false, 0));
   const Calibrated c = calibrate(device, false, false);
@@ -576,8 +690,12 @@ TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
   EXPECT_NE(report.find("warning: budget:"), std::string::npos);
   // The planner's protocol observes every cause: type A throughout.
   const Calibrated full = calibrate(device, true, false);
-  for (const auto& component : full.budget.budget.components)
+  for (const auto& component : full.budget.budget.components) {
     EXPECT_FALSE(component.type_b) << component.name;
+    // Indoors no plate loses shots to false stops.
+    EXPECT_NE(component.axis, ranging::BudgetComponent::Axis::lost_shot_share)
+        << full.budget.report;
+  }
   EXPECT_TRUE(full.budget.budget.unobserved.empty());
 }
 

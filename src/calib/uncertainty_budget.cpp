@@ -17,6 +17,10 @@ namespace {
 using ranging::BudgetComponent;
 using ranging::BudgetScope;
 
+/// Lost share of shots (above the same plate's at the reference temperature)
+/// from which a temperature-run target counts as losing shots to false stops.
+constexpr double kFalseStopShare = 0.02;
+
 /// One target: repeats of one truth.
 struct Target {
   double log_amplitude = 0;  ///< mean ln amplitude
@@ -27,6 +31,7 @@ struct Target {
   double ambient_c = 0;
   double temperature_c = 0;  ///< mean temperature reading
   double mean_m = 0;         ///< mean in-sample residual
+  double lost_share = 0;     ///< mean share of its rows' shots the device lost
   std::size_t n = 0;
   double variance_m2 = ranging::kNaN;  ///< sample variance of the in-sample residual
   double mean_oof_m = ranging::kNaN;   ///< mean cross-validated residual
@@ -34,7 +39,15 @@ struct Target {
   std::vector<std::size_t> rows;  ///< its rows
 };
 
+/// Shots per measurement: the rows' largest valid-shot count.
+double shots_of(const BudgetFitData& d) {
+  std::uint32_t shots = 0;
+  for (const auto& r : d.rows) shots = std::max(shots, r.raw.shots_valid);
+  return shots > 0 ? static_cast<double>(shots) : ranging::kNaN;
+}
+
 std::vector<Target> targets_of(const BudgetFitData& d) {
+  const double shots = shots_of(d);
   std::map<std::tuple<double, double, double, double>, std::vector<std::size_t>> rows_of;
   for (std::size_t i = 0; i < d.rows.size(); ++i) {
     const auto& r = d.rows[i];
@@ -55,6 +68,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
       t.log_amplitude += std::log(d.rows[i].raw.amplitude);
       t.tof_ns += d.rows[i].raw.tof_ns;
       t.temperature_c += d.rows[i].raw.temperature_c;
+      t.lost_share += 1.0 - d.rows[i].raw.shots_valid / shots;
       sum += d.residual_m[i];
       if (std::isfinite(d.out_of_fold_m[i])) {
         sum_oof += d.out_of_fold_m[i];
@@ -65,6 +79,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
     t.log_amplitude /= static_cast<double>(t.n);
     t.tof_ns /= static_cast<double>(t.n);
     t.temperature_c /= static_cast<double>(t.n);
+    t.lost_share /= static_cast<double>(t.n);
     const double mean = sum / static_cast<double>(t.n);
     t.mean_m = mean;
     if (t.n >= 2) {
@@ -176,6 +191,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   std::string& report = result.report;
   const double m_per_ps = d.metres_per_ns * 1e-3;
   std::vector<Target> targets = targets_of(d);
+  budget.shots = shots_of(d);
 
   // Repeatability (type A): pooled variance of the repeats per amplitude bin.
   std::vector<const Target*> repeated;
@@ -469,14 +485,28 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   std::map<double, AtTemperature> per_temperature;
   std::map<const Target*, bool> plates;
   double reference_reading = 0;
+  // False stops: a plate that loses shots away from the reference temperature
+  // (noise crossing the threshold before the echo: background light at the
+  // APD's gain there) keeps those of them that fall within the firmware's
+  // range gate before the echo, and reads short by their share times their
+  // lead. What a correction of the reading alone leaves there is this cause's,
+  // not the temperature's: it follows the share of shots lost, a reading the
+  // row carries, so it gets that axis (its excess, type A), and the other
+  // plates the temperature residual.
+  std::vector<std::pair<double, double>> false_stops;
   for (const auto& t : targets) {
     if (t.ambient_c == reference_c) continue;
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
     if (ref == at_reference.end()) continue;
     const double dm = t.mean_m - ref->second->mean_m;
+    const double excess = dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
+                          noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    if (t.lost_share - ref->second->lost_share > kFalseStopShare) {
+      false_stops.emplace_back(t.lost_share, std::max(0.0, excess));
+      continue;
+    }
     AtTemperature& at = per_temperature[t.ambient_c];
-    at.sum += dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
-              noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    at.sum += excess;
     at.reading += t.temperature_c;
     ++at.n;
     if (plates.emplace(ref->second, true).second) reference_reading += ref->second->temperature_c;
@@ -537,6 +567,32 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     budget.unobserved.push_back(
         "the delay's temperature dependence (no temperature run with its plate also at the "
         "reference temperature)");
+  }
+
+  if (!false_stops.empty() && budget.shots >= 1) {
+    // u^2 over the lost share: none up to the threshold, then the plates'
+    // excesses in order of their lost share, never falling (more false stops
+    // kept, not fewer), held beyond the last.
+    std::sort(false_stops.begin(), false_stops.end());
+    BudgetComponent c;
+    c.name = "false stops (shots lost to noise)";
+    c.axis = BudgetComponent::Axis::lost_shot_share;
+    add_node(c, kFalseStopShare, 0.0);
+    double v = 0;
+    for (const auto& [share, excess] : false_stops) {
+      v = std::max(v, excess);
+      if (share > c.node.back()) add_node(c, share, v);
+    }
+    c.step = fmt::sprintf(
+        "temperature run: %zu target(s) losing %.1f-%.1f %% of their shots away from %g C",
+        false_stops.size(), 100 * false_stops.front().first, 100 * false_stops.back().first,
+        reference_c);
+    budget.components.push_back(c);
+    report += fmt::sprintf(
+        "budget: false stops: %zu temperature-run target(s) lose %.1f-%.1f %% of their shots; "
+        "u %.2f mm at %.1f %% lost, held beyond (a row's lost share is 1 - shots_valid / %g)\n",
+        false_stops.size(), 100 * false_stops.front().first, 100 * false_stops.back().first,
+        std::sqrt(v) * 1e3, 100 * false_stops.back().first, budget.shots);
   }
 
   // Drift since calibration: structure function of the stability record.

@@ -362,6 +362,8 @@ const char* axis_name(ranging::BudgetComponent::Axis a) {
       return "time_since_calibration_s";
     case ranging::BudgetComponent::Axis::temperature_c:
       return "temperature_c";
+    case ranging::BudgetComponent::Axis::lost_shot_share:
+      return "lost_shot_share";
     case ranging::BudgetComponent::Axis::none:
       break;
   }
@@ -396,6 +398,7 @@ json budget_to_json(const ranging::UncertaintyBudget& budget) {
   }
   json j = {{"components", components}, {"unobserved", budget.unobserved}};
   if (std::isfinite(budget.calibration_time_s)) j["calibration_time_s"] = budget.calibration_time_s;
+  if (std::isfinite(budget.shots)) j["shots"] = budget.shots;
   return j;
 }
 
@@ -433,9 +436,12 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
       c.axis = ranging::BudgetComponent::Axis::time_since_calibration_s;
     } else if (axis == "temperature_c") {
       c.axis = ranging::BudgetComponent::Axis::temperature_c;
+    } else if (axis == "lost_shot_share") {
+      c.axis = ranging::BudgetComponent::Axis::lost_shot_share;
     } else {
       fail(where + ".axis",
-           "expected none, log_amplitude, time_since_calibration_s or temperature_c");
+           "expected none, log_amplitude, time_since_calibration_s, temperature_c or "
+           "lost_shot_share");
     }
     c.node = numbers(cj, "node", where);
     c.variance_m2 = numbers(cj, "variance_m2", where);
@@ -454,6 +460,10 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
     budget.calibration_time_s = number(j["calibration_time_s"], context + ".calibration_time_s");
     if (!(budget.calibration_time_s >= 0))
       fail(context + ".calibration_time_s", "expected a time since power-on >= 0 s");
+  }
+  if (j.contains("shots")) {
+    budget.shots = number(j["shots"], context + ".shots");
+    if (!(budget.shots >= 1)) fail(context + ".shots", "expected shots per measurement >= 1");
   }
   try {
     budget.validate();

@@ -30,6 +30,8 @@ void UncertaintyBudget::validate() const {
       throw std::invalid_argument(who + ": node and variance_m2 must be non-empty, equal length");
     if (c.axis == BudgetComponent::Axis::none && c.node.size() != 1)
       throw std::invalid_argument(who + ": a component without an axis has one node");
+    if (c.axis == BudgetComponent::Axis::lost_shot_share && !(shots >= 1))
+      throw std::invalid_argument(who + ": a lost_shot_share component needs the budget's shots");
     for (std::size_t j = 0; j < c.node.size(); ++j) {
       if (!std::isfinite(c.node[j]) || (j > 0 && !(c.node[j] > c.node[j - 1])))
         throw std::invalid_argument(who + ".node must be finite and ascending");
@@ -40,7 +42,7 @@ void UncertaintyBudget::validate() const {
 }
 
 double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s,
-                                        double temperature_c) const {
+                                        double temperature_c, double lost_share) const {
   const BudgetComponent& c = components[k];
   const bool same = std::isfinite(since_s);
   if ((c.scope == BudgetScope::same_power_on && !same) ||
@@ -54,6 +56,9 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
     case BudgetComponent::Axis::temperature_c:
       if (std::isfinite(temperature_c)) return c.u_m(temperature_c);
       return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+    case BudgetComponent::Axis::lost_shot_share:
+      if (std::isfinite(lost_share)) return c.u_m(lost_share);
+      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
     case BudgetComponent::Axis::none:
       break;
   }
@@ -61,20 +66,22 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
 }
 
 void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<const double> since_s,
-                                 std::span<double> u_m,
-                                 std::span<const double> temperature_c) const {
+                                 std::span<double> u_m, std::span<const double> temperature_c,
+                                 std::span<const double> lost_share) const {
   if (u_m.size() != amplitude.size() ||
       (since_s.size() != 1 && since_s.size() != amplitude.size()) ||
-      (!temperature_c.empty() && temperature_c.size() != amplitude.size()))
+      (!temperature_c.empty() && temperature_c.size() != amplitude.size()) ||
+      (!lost_share.empty() && lost_share.size() != amplitude.size()))
     throw std::invalid_argument(
-        "UncertaintyBudget::combined: amplitude, since_s (one or one per row), temperature_c (none "
-        "or one per row) and u_m differ in length");
+        "UncertaintyBudget::combined: amplitude, since_s (one or one per row), temperature_c and "
+        "lost_share (none or one per row) and u_m differ in length");
   for (std::size_t i = 0; i < amplitude.size(); ++i) {
     const double since = since_s.size() == 1 ? since_s[0] : since_s[i];
     const double t = temperature_c.empty() ? kNaN : temperature_c[i];
+    const double lost = lost_share.empty() ? kNaN : lost_share[i];
     double v = 0;
     for (std::size_t k = 0; k < components.size(); ++k) {
-      const double u = component_u_m(k, amplitude[i], since, t);
+      const double u = component_u_m(k, amplitude[i], since, t, lost);
       v += u * u;
     }
     u_m[i] = std::sqrt(v);
@@ -95,7 +102,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
   std::vector<double> total(points, 0.0);
   for (std::size_t k = 0; k < components.size(); ++k) {
     for (std::size_t p = 0; p < points; ++p) {
-      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p));
+      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p), 0.0);
       total[p] += u * u;
     }
   }
@@ -104,7 +111,7 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
     out += fmt::sprintf("%-40s %-4s ", c.name.c_str(),
                         c.type_b ? (c.default_specification ? "B*" : "B") : "A");
     for (std::size_t p = 0; p < points; ++p) {
-      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p));
+      const double u = component_u_m(k, amplitude[p], since_s[p], temperature(p), 0.0);
       out +=
           fmt::sprintf(" %6.3f (%3.0f%%)", u * 1e3, total[p] > 0 ? 100.0 * u * u / total[p] : 0.0);
     }
@@ -124,6 +131,10 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
             ? fmt::sprintf(", temperature reading %.1f C", temperature(p)).c_str()
             : "");
   }
+  if (std::any_of(components.begin(), components.end(), [](const BudgetComponent& c) {
+        return c.axis == BudgetComponent::Axis::lost_shot_share;
+      }))
+    out += "  (each point keeps all its shots: a row losing them adds the lost-shot term)\n";
   if (std::any_of(components.begin(), components.end(),
                   [](const BudgetComponent& c) { return c.default_specification; }))
     out += "  B*: type B from a default specification, not one stated for this device\n";
@@ -135,16 +146,19 @@ void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, con
   if (in.size != out.size() || (since_s.size() != 1 && since_s.size() != out.size()))
     throw std::invalid_argument("apply_budget: rows, since_s (one or one per row) and out differ");
   const std::size_t n = out.size();
-  std::vector<double> amplitude(n), temperature(n), intensity(n), distance(n), u(n), inside(n);
+  std::vector<double> amplitude(n), temperature(n), lost(n), intensity(n), distance(n), u(n),
+      inside(n);
   const auto& confidence = pipeline.confidence();
   const bool by_width = confidence && confidence->intensity_input() == IntensityInput::pulse_width;
   for (std::size_t i = 0; i < n; ++i) {
     amplitude[i] = in.amplitude[i];
     temperature[i] = in.temperature_c[i];
+    lost[i] =
+        budget.shots > 0 ? std::clamp(1.0 - in.shots_valid[i] / budget.shots, 0.0, 1.0) : kNaN;
     intensity[i] = by_width ? in.pulse_width_ns[i] : amplitude[i];
     distance[i] = out[i].distance_m;
   }
-  budget.combined(amplitude, since_s, u, temperature);
+  budget.combined(amplitude, since_s, u, temperature, lost);
   if (confidence) {
     confidence->sigma(distance, intensity, inside);
   } else {

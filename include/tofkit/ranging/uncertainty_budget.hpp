@@ -28,9 +28,11 @@ enum class BudgetScope {
 /// u^2 over one axis (constant beyond the first and last node; one node: a
 /// constant): ln(amplitude) for causes that follow the echo's strength, the
 /// time since calibration (s) for drift, the row's temperature reading
-/// (temperature_c, C) for the temperature model's residual, none for the rest.
+/// (temperature_c, C) for the temperature model's residual, the share of the
+/// row's shots the device lost (1 - shots_valid / shots) for false stops,
+/// none for the rest.
 struct BudgetComponent {
-  enum class Axis { none, log_amplitude, time_since_calibration_s, temperature_c };
+  enum class Axis { none, log_amplitude, time_since_calibration_s, temperature_c, lost_shot_share };
   std::string name;  ///< "repeatability", "correction residual", ...
   std::string step;  ///< the calibration step that gave it, or the specification key (type B)
   bool type_b = false;
@@ -52,20 +54,27 @@ struct UncertaintyBudget {
   /// their raw CSV's time_s; NaN: unknown): a row's time_s less it is its time
   /// since calibration, on the calibration's power-on.
   double calibration_time_s = kNaN;
+  /// Shots per measurement (the calibration rows' largest shots_valid; NaN:
+  /// unknown): a row's lost share is 1 - shots_valid / shots. Needed by a
+  /// lost_shot_share component only.
+  double shots = kNaN;
 
   /// Throws std::invalid_argument naming the bad component and field.
   void validate() const;
   [[nodiscard]] bool empty() const { return components.empty(); }
   /// u of component k for a row (amplitude in the row's units; since_s NaN: the
   /// time since calibration is unknown, i.e. another power-on; temperature_c
-  /// NaN: unknown, the temperature components' largest value).
+  /// NaN: unknown, the temperature components' largest value; lost_share NaN:
+  /// unknown, the lost-shot components' largest value).
   [[nodiscard]] double component_u_m(std::size_t k, double amplitude, double since_s,
-                                     double temperature_c = kNaN) const;
+                                     double temperature_c = kNaN, double lost_share = kNaN) const;
   /// Combined standard uncertainty of each row (GUM Eq. 10): since_s either
   /// one value for every row or one per row; NaN: unknown; temperature_c
-  /// (the rows' temperature readings) empty or one per row.
+  /// (the rows' temperature readings) empty or one per row; lost_share (1 -
+  /// shots_valid / shots) empty or one per row.
   void combined(std::span<const double> amplitude, std::span<const double> since_s,
-                std::span<double> u_m, std::span<const double> temperature_c = {}) const;
+                std::span<double> u_m, std::span<const double> temperature_c = {},
+                std::span<const double> lost_share = {}) const;
   /// The budget as a table: component, value at each point, step, type, share
   /// of the combined variance at each point (amplitude, since_s, temperature_c;
   /// temperature_c empty: unknown) given.
@@ -81,7 +90,8 @@ inline constexpr const char* kExtrapolationComponent =
     "extrapolation below the calibrated amplitudes";
 
 /// Replaces each corrected range's sigma_m by the budget's combined standard
-/// uncertainty at the row's amplitude and time since calibration (since_s: one
+/// uncertainty at the row's amplitude, temperature reading, lost share of
+/// shots (with budget.shots) and time since calibration (since_s: one
 /// value for every row or one per row; NaN: unknown, another power-on), plus
 /// the variance the pipeline adds where a row lies outside a step's domain
 /// (its sigma^2 there less its in-domain sigma^2; where the budget has an
