@@ -537,7 +537,11 @@ class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 //   after a calibration moves 0.93 mm sd, 95 % within 1.9 mm:
 //   DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres at 0 ps), one draw,
 //   which the budget's drift term covers (u 1.07 mm at 36 min) and no
-//   correction fitted before it can remove. The worst rows are that band's
+//   correction fitted before it can remove: over 80 power-ons the change
+//   20 / 40 / 60 min after the calibration averages +0.03 / +0.01 / -0.01 mm
+//   (+- 0.14-0.17), rms 1.23 / 1.44 / 1.47 mm, and the stability record's
+//   last minutes against its mean predict 4 % of its variance at best
+//   (DriftAfterCalibrationIsRandomPerPowerOn). The worst rows are that band's
 //   (targets +2.5-2.8 mm). Systematic <= noise of one row (0.31 mm) would
 //   need the correction within 0.3 mm and no drift.
 // - Case 1 (Table 1 sunlight, no wander): worst valid 7.54 / 7.25 mm; 95.8 /
@@ -545,25 +549,30 @@ class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 //   bright targets (rho 0.85) at 8 C: +1.9..+6.3 mm at every distance right
 //   after the calibration (+3.3 mm at 0.7 m and +3.2 mm at 1.3 m with 92-94 %
 //   valid shots), against -0.5..+1.5 mm at 17 C and about 0 at 27-37 C; the
-//   same rows lose shots (6-48 % at 8 C, 1-10 % at 17 C, none warmer): noise
-//   stops from the bright target's sunlight background, more at cold where
-//   the APD's gain rises, pull the mean early. The temperature run sees it
-//   (its residual is 2.9 mm at the coldest reading, in the budget), but the
-//   chain's temperature step is one function of the reading for every echo,
-//   and a B-spline on the residual with a temperature axis does not follow
-//   it either (7.31 mm worst, 99.1 %): the correction lacks an axis for the
-//   false alarms (the valid-shot fraction, or the background). Weak targets
-//   sit -1.3 mm (rho 0.06) at every temperature.
+//   same rows lose shots (6-48 % at 8 C, 1-10 % at 17 C, none warmer). The
+//   cause (FalseStopTermFollowsTheRowsThatLoseShots): false stops, noise
+//   crossing the threshold before the echo from the bright target's sunlit
+//   background at the cold APD's higher gain; the range gate drops those far
+//   before the echo and keeps those just before it. The lost share cannot
+//   carry a correction (the bias stays at the false-stop rate while the loss
+//   grows with the armed time before the echo, and weak echoes lose shots by
+//   missing the threshold); the budget's false-stop term gives those rows
+//   their sigma instead: rows losing shots 70.6 -> 84.4 % within 2 sigma,
+//   cold rows keeping them sigma 1.95 -> 1.66 mm (99.3 -> 99.5 %), overall
+//   95.8 -> 97.6 / 98.0 -> 98.5 % (terciles 98.9 / 97.7 / 96.1 %; the rows
+//   without lost shots are at 99.2-99.5 %: for this power-on's draws the
+//   other terms are generous). Weak targets sit -1.3 mm (rho 0.06) at every
+//   temperature.
 // - Cases 2-4 (30 ps of delay wander, run seed 1 for every case: the bands'
 //   drifts are the same draw, -2.0 / +0.2 / -5.8 / -0.9 mm): worst valid rows
-//   12.0-13.0 mm, 94.4-97.9 % overall, time bands 83.8-100 %, systematic
-//   3.9-4.4 mm against 1.5 mm of noise. Not reachable: the wander alone moves
-//   a row 60 min after the calibration 6.4 mm sd (95 % within 12 mm, 64 %
-//   beyond 3 mm) and even a row right after it 3.5 mm sd (35 % beyond 3 mm);
-//   at the paper preset's 20 ps 4.4 mm (52 %) and 2.4 mm (22 %)
-//   (DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres). +-3 mm for every
+//   12.0-13.0 mm, 94.6-97.9 % overall, time bands 84.4-100 %, systematic
+//   3.9-4.4 mm against 1.5 mm of noise (case 4, in sunlight, with the
+//   false-stop term: 95.7 / 94.6 %, bands 87.5-100 / 84.4-99.6 %). Not reachable: the wander alone
+//   moves a row 60 min after the calibration 6.4 mm sd (95 % within 12 mm, 64 % beyond 3 mm) and
+//   even a row right after it 3.5 mm sd (35 % beyond 3 mm); at the paper preset's 20 ps 4.4 mm (52
+//   %) and 2.4 mm (22 %) (DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres). +-3 mm for every
 //   row and "systematic <= noise" conflict with the wander Fig. 7 needs.
-// So disabled; run it with --gtest_also_run_disabled_tests (about 3 min).
+// So disabled; run it with --gtest_also_run_disabled_tests (10-15 s a case on a quiet machine).
 TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
   const HeldOutCase p = GetParam();
   const device::VirtualRangefinder device(held_out_device(p.draw, p.sunlight, p.wander_ps));
@@ -674,6 +683,65 @@ TEST(UncertaintyBudget, FalseStopTermFollowsTheRowsThatLoseShots) {
   ASSERT_GE(n, 20) << "too few rows lose shots";
   EXPECT_GT(in_with, in_without);
   EXPECT_GE(in_with / n, 0.85);
+}
+
+// What moves a row after the calibration on an indoor held-out device
+// without delay wander (case 0: the slow flicker and the comparator level's
+// wander) is random per power-on: over 80 power-ons the stability plate's
+// change 20, 40 and 60 min after the calibration's start averages to zero
+// within its standard error (a warm-up tail or any repeatable drift would
+// not), so no correction fitted before it can remove it, and only the drift
+// term covers it. Its ensemble rms is what that term must match.
+TEST(UncertaintyBudget, DriftAfterCalibrationIsRandomPerPowerOn) {
+  if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "a full calibration: Release only";
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const Calibrated c = calibrate(device, true, false);
+  calib::CalibrationPlanOptions field;
+  field.range_min_m = 0.7;
+  field.range_max_m = 7.4;
+  field.reflectance_min = 0.06;
+  field.reflectance_max = 0.85;
+  const experiments::Protocol protocol = experiments::plan_protocol(device, field, {});
+  experiments::PlateGrid one = protocol.steps.front().grid;  // the stability record's plate
+  ASSERT_EQ(protocol.steps.front().role, experiments::StepRole::stability);
+  one.count = 1;
+  const auto plan = experiments::plate_grid_plan(one);
+  one.count = 20;
+  const auto level = experiments::plate_grid_plan(one);
+  constexpr int kPowerOns = 80;
+  for (const double minutes : {20.0, 40.0, 60.0}) {
+    double sum = 0, sum2 = 0;
+    for (int seed = 1; seed <= kPowerOns; ++seed) {
+      // The calibration's level: the plate's mean over its first 5 min.
+      const auto a = experiments::run(device, level, seed, {c.calibration_start_s, 15});
+      double tof = 0;
+      for (const auto& r : a) tof += r.raw.tof_ns / static_cast<double>(a.size());
+      const auto b =
+          experiments::run(device, plan, seed, {c.calibration_start_s + 60 * minutes, 0});
+      const double d = device.tof_to_distance_m(b[0].raw.tof_ns - tof);
+      sum += d;
+      sum2 += d * d;
+    }
+    const double mean = sum / kPowerOns, rms = std::sqrt(sum2 / kPowerOns);
+    const double se = std::sqrt((sum2 / kPowerOns - mean * mean) / (kPowerOns - 1));
+    double u = 0, u_repeat = 0;
+    for (std::size_t k = 0; k < c.budget.budget.components.size(); ++k) {
+      const auto& component = c.budget.budget.components[k];
+      if (component.name == "drift since calibration") u = component.u_m(60 * minutes);
+      if (component.name == "repeatability (one row)")
+        u_repeat = component.u_m(
+            std::log(device.echo(device::Target::plate(one.distances_m[0], one.reflectances[0]), {})
+                         .peak_v));
+    }
+    std::printf(
+        "%2.0f min after the calibration: mean change %+.2f +- %.2f mm over %d power-ons, rms "
+        "%.2f mm; the budget's drift u (this power-on's record) %.2f mm, with a row's "
+        "repeatability %.2f mm\n",
+        minutes, mean * 1e3, se * 1e3, kPowerOns, rms * 1e3, u * 1e3,
+        std::hypot(u, u_repeat) * 1e3);
+    EXPECT_LT(std::abs(mean), 3 * se) << minutes;
+    EXPECT_GT(rms, 2 * std::abs(mean)) << minutes;
+  }
 }
 
 TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
