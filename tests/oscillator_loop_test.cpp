@@ -245,6 +245,45 @@ TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
   EXPECT_GT(*hi, 1.5 * *lo);
 }
 
+TEST(OscillatorLoop, IntensityIsTheSwingAboveTheCoupledBaseline) {
+  // The intensity output is a peak detector behind the AC coupling, scaled so a
+  // settled return reads its step amplitude A. An unrecovered baseline offset dv
+  // (a scan, device/echo_memory.hpp) lowers it to A - dv / (1 - coupling_duty),
+  // raises it for dv < 0, and floors it at threshold / (1 - duty) (while locked,
+  // the swing above the baseline exceeds the threshold). The output's noise draw
+  // is the same for the same (seed, stream): ratios are exact.
+  auto c = device::accurange_preset();
+  c.oscillator.duty_wander = 0;  // the lock margin below is the settled duty's
+  const device::OscillatorLoop loop(c);
+  const double share = 1.0 - c.oscillator.coupling_duty;
+  const auto target = device::Target::plate(0.4826, experiments::grey_reflectance(153));
+  const auto s = loop.state(target, {});
+  ASSERT_TRUE(s.oscillates);
+  ASSERT_LT(s.amplitude_v, c.link.receiver.amplitude_clip_v);
+  const auto settled = loop.measure(target, {}, 3, 17);
+  const double margin = s.swing_v * share - c.discriminator.threshold_v;
+  for (const double dv : {0.5 * margin, 0.1 * margin, -0.2}) {
+    device::Conditions cond;
+    cond.baseline_offset_v = dv;
+    const auto m = loop.measure(target, cond, 3, 17);
+    ASSERT_TRUE(m.has_echo()) << dv;
+    EXPECT_NEAR(m.amplitude / settled.amplitude, (s.amplitude_v - dv / share) / s.amplitude_v,
+                1e-12)
+        << dv;
+  }
+  // A return just locked: its reading is held at the floor, not below.
+  auto weak = device::Target::plate(0.4826, experiments::grey_reflectance(255));
+  const auto sw = loop.state(weak, {});
+  device::Conditions near_lock;
+  near_lock.baseline_offset_v = 0.99 * (sw.swing_v * share - c.discriminator.threshold_v);
+  const auto m = loop.measure(weak, near_lock, 3, 17);
+  ASSERT_TRUE(m.has_echo());
+  const double floor_v = c.discriminator.threshold_v / share;
+  const double expected =
+      std::max(sw.amplitude_v - near_lock.baseline_offset_v / share, floor_v) / sw.amplitude_v;
+  EXPECT_NEAR(m.amplitude / loop.measure(weak, {}, 3, 17).amplitude, expected, 1e-12);
+}
+
 TEST(OscillatorLoop, TurnOnTransientOfEitherSignIsItsWindowMean) {
   // laser.turn_on_bias_mm b (either sign) decaying with tau: an output whose window
   // W starts t0 after switch-on carries b tau / W exp(-t0 / tau) (1 - exp(-W / tau)).

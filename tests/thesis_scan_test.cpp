@@ -236,6 +236,46 @@ TEST(ThesisScanMemory, LoopSettledIsTheLoneMeasurementAndAStepDownLosesLock) {
   EXPECT_NEAR(out[before + after - 1].distance_raw_m, settled.distance_raw_m, 2e-3);
 }
 
+TEST(ThesisScanMemory, LoopIntensityReadsLowWhileTheBaselineRecovers) {
+  // The intensity output is a peak detector behind the loop's AC coupling
+  // (device/oscillator_loop.hpp): after a step down (mid grey to grey 204) each
+  // output reads low by offset / (1 - coupling_duty), held at threshold / (1 -
+  // duty), the offset being the window's mean unrecovered baseline (the trace);
+  // oracle: the ratio to the lone measurement of the same stream (same noise
+  // draw). Windows around a short stall are counted apart (loop_window.hpp).
+  // Settled outputs are the lone measurement's bytes.
+  auto c = device::accurange_preset();
+  c.memory.time_constant_ms = 1.0;
+  const device::VirtualRangefinder dev(c);
+  const device::OscillatorLoop loop(c);
+  const int before = 20, after = 60;
+  const auto items = loop_step(dev, before, after, 128, 204);
+  std::vector<ranging::RawMeasurement> out(items.size());
+  std::vector<device::MemoryTrace> trace(items.size());
+  device::EchoMemory(dev).measure_sequence(items, 9, out, trace);
+  const double share = 1.0 - c.oscillator.coupling_duty;
+  const double a = loop.state(items.back().path[0], {}).amplitude_v;
+  ASSERT_LT(a, c.link.receiver.amplitude_clip_v);
+  const double floor_v = c.discriminator.threshold_v / share;  // locked: above the threshold
+  double lowest = 1;
+  int checked = 0;
+  for (int i = 0; i < before + after; ++i) {
+    const auto lone = dev.measure(items[i].path[0], {}, 9, static_cast<std::uint64_t>(i));
+    if (i < before) {
+      EXPECT_EQ(out[i].amplitude, lone.amplitude) << i;
+      continue;
+    }
+    if (trace[i].stall_s > 0) continue;  // counted around a stall (device/loop_window.hpp)
+    ++checked;
+    ASSERT_TRUE(out[i].has_echo()) << i;
+    const double ratio = out[i].amplitude / lone.amplitude;
+    EXPECT_NEAR(ratio, std::max(a - trace[i].baseline_offset_v / share, floor_v) / a, 1e-12) << i;
+    lowest = std::min(lowest, ratio);
+  }
+  EXPECT_GT(checked, after - 10);
+  EXPECT_LT(lowest, 0.7);  // the first windows after the step: visibly low
+}
+
 TEST(ThesisScanMemory, LoopMovingWindowIsCountedOverItsGate) {
   // A DC-coupled loop (no memory) whose beam moves from white onto black during
   // an output: the board counts during the first gate_fraction (0.5) of the

@@ -291,9 +291,23 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   out.distance_raw_m = tof_to_distance_m(out.tof_ns);
   out.pulse_width_ns = s.comparator_high_ns;
   out.shots_valid = static_cast<std::uint32_t>(n);
-  // The intensity output: a peak detector on the linear stage (clips at amplitude_clip_v).
+  // The intensity output: a peak detector on the linear stage (clips at amplitude_clip_v)
+  // behind the loop's AC coupling. It sees the return's swing above the coupling's
+  // baseline: settled, (1 - coupling_duty) of the step, which the vendor's scale reads
+  // as the step itself. In a scan a baseline left high by a stronger return
+  // (conditions.baseline_offset_v, device/echo_memory.hpp) lowers it by
+  // offset / (1 - coupling_duty), so a pixel the memory disturbs also reads a lower
+  // intensity (thesis Fig. 4.23: a surface over range and intensity removes most of
+  // the line scans' extra error). While the loop is locked the swing above the
+  // baseline exceeds the threshold, so the reading stays above threshold / (1 - duty).
   const auto& rx = cfg.link.receiver;
-  const double peak = std::min(s.amplitude_v, rx.amplitude_clip_v);
+  double peak = std::min(s.amplitude_v, rx.amplitude_clip_v);
+  if (cond.baseline_offset_v != 0.0) {
+    const double share = 1.0 - osc.coupling_duty;
+    peak = std::min(
+        std::max(peak - cond.baseline_offset_v / share, cfg.discriminator.threshold_v / share),
+        rx.amplitude_clip_v);
+  }
   out.amplitude = std::min(peak * (1.0 + rx.amplitude_noise_rel * z1[1] / std::sqrt(double(n))),
                            rx.amplitude_clip_v);
   if (s.saturated) out.flags |= ranging::kRawSaturated;

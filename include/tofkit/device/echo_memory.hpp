@@ -27,7 +27,9 @@
 /// falls early (reads long); where the level reaches the swing's top the loop
 /// loses lock until the baseline has come down, and the counting window around
 /// the stall (device/loop_window.hpp) reads long or not by where its gate falls
-/// on it (thesis Fig. 4.28: black after mid grey swings erratically). After a
+/// on it (thesis Fig. 4.28: black after mid grey swings erratically); the
+/// intensity output, a peak detector behind the same coupling, reads low by
+/// offset / (1 - coupling_duty) meanwhile (device/oscillator_loop.hpp). After a
 /// weaker return the level is low: the rise comes earlier and the fall later,
 /// so the period, counted over both edges, barely moves on an unsaturated echo
 /// (at most 0.05 in short at 19 in), and a saturated echo's slow fall from the

@@ -38,6 +38,12 @@
 ///    of the output period measurement.shots / laser.repetition_hz
 ///    (312,500 / 2^N samples/s): resolution = c/4 x t_clk x T / gate, so it
 ///    trades against the sampling rate (thesis Fig. 4.4);
+///  - the intensity output is a peak detector on the linear stage (clipping at
+///    receiver.amplitude_clip_v) behind the same AC coupling: on a still target it
+///    reads the step amplitude; a baseline left high by a stronger return
+///    (Conditions::baseline_offset_v, in a scan) lowers it by
+///    offset / (1 - coupling_duty), so what the memory does to range is visible
+///    in intensity;
 ///  - the device reports the mean half period minus its vendor zero
 ///    (oscillator.zero_half_period_ns) as the round-trip time; thermal drift,
 ///    warm-up and the laser's turn-on transient add to the half period as in the
