@@ -199,6 +199,16 @@ DeviceConfig accurange_preset() {
   // and Fig. 4.4's mean moves by +-0.26 in from one setting's acquisition to the
   // next (19.64-20.16 in) with no trend in the sampling rate.
   osc.duty_wander = 0.13;
+  // Assumption: the comparator's hysteresis. Where a baseline left high by a
+  // stronger return brings the level within a few noise sigmas of a weak swing's
+  // top, the noise adds edges (reads short) or delays rises (reads long)
+  // (near_top_edges, device/oscillator_loop.hpp); the hysteresis sets how deep
+  // a dip must go to add an edge. Thesis Fig. 4.28 (black after mid grey at
+  // 19 in: erratic, at most 23.91 in): with 10 mV (~3 noise sigmas on black) the
+  // loop reads at most 23.6-24.5 in after re-locking (seeds 1-3, 2022; one seed of
+  // five 26.7 in). Without hysteresis the chatter reads negative ranges; with
+  // 5-8 mV both short and long readings appear, down to 14-17 in and below.
+  osc.comparator_hysteresis_mv = 10.0;
   return c;
 }
 

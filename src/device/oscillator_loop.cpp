@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -66,6 +67,30 @@ std::pair<double, double> crossing(const std::vector<Step>& steps, bool rising, 
 }
 
 }  // namespace
+
+NearTopEdges near_top_edges(double margin_v, double noise_v, double bandwidth_mhz, double high_ns,
+                            double hysteresis_v) {
+  NearTopEdges e;
+  if (!(noise_v > 0) || !(bandwidth_mhz > 0)) return e;
+  const double z = margin_v / noise_v;
+  if (z >= kNearTopSigmas) return e;
+  if (!(z > -kNearTopSigmas)) {  // the top far below the level: no edges at all
+    e.missed_wait_ns = std::numeric_limits<double>::infinity();
+    return e;
+  }
+  // Rice: a band-limited Gaussian noise of rms sigma crosses the level u (in
+  // either direction) at B / sqrt(3) exp(-u^2 / 2 sigma^2) for an ideal low pass
+  // of bandwidth B (here per ns).
+  const double rice_per_ns = bandwidth_mhz * 1e-3 / std::sqrt(3.0);
+  const double rate_per_ns = rice_per_ns * std::exp(-0.5 * z * z);
+  const double below = 0.5 * std::erfc(z / std::sqrt(2.0));  // Phi(-z)
+  // A chatter edge needs a dip below level - hysteresis: margin + hysteresis
+  // under the top.
+  const double zh = (margin_v + std::max(hysteresis_v, 0.0)) / noise_v;
+  e.extra_edges_per_period = std::max(high_ns, 0.0) * rice_per_ns * std::exp(-0.5 * zh * zh);
+  e.missed_wait_ns = below * below / rate_per_ns;
+  return e;
+}
 
 OscillatorLoop::OscillatorLoop(DeviceConfig config) : config_(std::move(config)) {
   c_nominal_m_per_ns_ = nominal_light_speed_m_per_ns(config_);
