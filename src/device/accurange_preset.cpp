@@ -149,8 +149,9 @@ DeviceConfig accurange_preset() {
   // At the line scans' 0.15 m/s that is about 5 mm of a 2 in black area. Set
   // for a 6-7 in swing when black's swing was 4.7 times the threshold; with
   // this receiver (12.6 times) the lock margin is wider and the swing is
-  // 3.3-4.5 in for any time constant from 20 to 80 ms. The same state gives
-  // the mirror's edge spikes (Figs. 3.4-3.5; here 1-3 mm against ~15 mm) and,
+  // 3.3-4.5 in for any time constant from 20 to 80 ms (3.8-6.9 in with the
+  // comparator near the top, oscillator.comparator_hysteresis_mv). The same state gives
+  // the mirror's edge spikes (Figs. 3.4-3.5; here 2-6 mm against ~15 mm) and,
   // held out, part of the line and checkerboard scans' larger raw spread
   // (Figs. 4.23, 4.27).
   c.memory.time_constant_ms = 30.0;
