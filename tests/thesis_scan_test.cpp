@@ -236,6 +236,54 @@ TEST(ThesisScanMemory, LoopSettledIsTheLoneMeasurementAndAStepDownLosesLock) {
   EXPECT_NEAR(out[before + after - 1].distance_raw_m, settled.distance_raw_m, 2e-3);
 }
 
+TEST(ThesisScanMemory, LoopNearTheSwingsTopChattersShortOrWaitsLong) {
+  // Grey 204 to black at 19 in: the baseline left by grey 204 (half its swing)
+  // puts the level ~2 mV (0.6 noise sigma) under black's top, so the first
+  // black outputs are near the top (device::near_top_edges); a few time
+  // constants' fraction later the margin exceeds 8 sigmas and nothing changes.
+  auto c = device::accurange_preset();
+  c.memory.time_constant_ms = 1.0;
+  c.oscillator.duty_wander = 0.0;  // the baseline at exactly half the swing
+  const device::OscillatorLoop loop(c);
+  const auto black = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(255));
+  const auto grey = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(204));
+  const auto sb = loop.state(black, {}), sg = loop.state(grey, {});
+  const double margin0 = sb.swing_v * 0.5 - c.discriminator.threshold_v;
+  const double offset0 = 0.5 * (sg.swing_v - sb.swing_v);
+  ASSERT_GT(margin0 - offset0, 0.0);
+  ASSERT_LT(margin0 - offset0, sb.noise_v);
+  const int before = 20, after = 60;
+  auto run = [&](double hysteresis_mv) {
+    auto cc = c;
+    cc.oscillator.comparator_hysteresis_mv = hysteresis_mv;
+    const device::VirtualRangefinder dev(cc);
+    const auto items = loop_step(dev, before, after, 204, 255);
+    std::vector<ranging::RawMeasurement> out(items.size());
+    device::EchoMemory(dev).measure_sequence(items, 17, out);
+    return out;
+  };
+  const auto chatter = run(0.0);  // every dip below the level is an edge
+  const auto waits = run(1e4);    // no dip reaches the level minus 10 V: missed rises only
+  const double settled = waits.back().distance_raw_m;
+  ASSERT_TRUE(chatter[before].has_echo());
+  ASSERT_TRUE(waits[before].has_echo());
+  // Extra edges read short (~2 per period at the top: far short of the truth),
+  // missed rises long.
+  EXPECT_LT(chatter[before].distance_raw_m, settled - 0.1);
+  EXPECT_GT(waits[before].distance_raw_m, settled + inches_to_m(0.5));
+  // Once the margin is 8 sigmas (tau ln(offset0 / (margin0 - 8 sigma)), < 0.5 ms
+  // = 10 outputs) the hysteresis no longer matters: the same bytes.
+  const double far_s =
+      c.memory.time_constant_ms * 1e-3 * std::log(offset0 / (margin0 - 8 * sb.noise_v));
+  const int far =
+      before + 1 +
+      static_cast<int>(far_s / device::EchoMemory(device::VirtualRangefinder(c)).window_s(0));
+  ASSERT_LT(far, before + after);
+  for (int i = far; i < before + after; ++i)
+    EXPECT_EQ(std::memcmp(&chatter[i].tof_ns, &waits[i].tof_ns, sizeof(double)), 0) << i;
+  for (int i = 0; i < before; ++i) EXPECT_EQ(chatter[i].tof_ns, waits[i].tof_ns) << i;
+}
+
 TEST(ThesisScanMemory, LoopIntensityReadsLowWhileTheBaselineRecovers) {
   // The intensity output is a peak detector behind the loop's AC coupling
   // (device/oscillator_loop.hpp): after a step down (mid grey to grey 204) each
