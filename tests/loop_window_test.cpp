@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 #include <vector>
 
@@ -90,6 +91,37 @@ TEST(LoopWindow, AStallBetweenEdgesReadsLongAStallBeforeThemDoesNot) {
   ASSERT_TRUE(b.has_echo());
   EXPECT_NEAR(period_ns(loop, b), t_black, 2e-3);
   EXPECT_TRUE(b.flags & ranging::kRawPartialEchoes);
+}
+
+TEST(LoopWindow, ExtraEdgesReadShortMissedRisesReadLong) {
+  // count_factor edges per clean period over the same span: the mean period is
+  // the clean one over the factor (chatter, > 1: short; missed rises, < 1: long).
+  const auto c = quiet_config();
+  const device::OscillatorLoop loop(c);
+  const double w = window_ns(c);
+  const double t_black = loop.state(kBlack, {}).period_ns;
+  const std::vector<device::LoopStretch> clean{{kBlack, {}, w, 0.0}};
+  const auto m0 = device::count_loop_window(loop, clean, 5, 600, kShots);
+  // A factor of exactly 1 is today's window, byte for byte.
+  const std::vector<device::LoopStretch> one{{kBlack, {}, w, 0.0, 1.0}};
+  const auto m1 = device::count_loop_window(loop, one, 5, 600, kShots);
+  EXPECT_EQ(std::memcmp(&m0.tof_ns, &m1.tof_ns, sizeof(double)), 0);
+  EXPECT_NEAR(period_ns(loop, m0), t_black, 2e-3);
+  for (const double f : {0.9, 1.1}) {
+    const std::vector<device::LoopStretch> s{{kBlack, {}, w, 0.0, f}};
+    const auto m = device::count_loop_window(loop, s, 5, 600, kShots);
+    ASSERT_TRUE(m.has_echo());
+    EXPECT_NEAR(period_ns(loop, m), t_black / f, 2e-3) << f;
+    if (f > 1)
+      EXPECT_LT(m.distance_raw_m, m0.distance_raw_m - 0.1);  // -2.1 ns of period: 0.16 m short
+    else
+      EXPECT_GT(m.distance_raw_m, m0.distance_raw_m + 0.1);  // +2.6 ns: 0.19 m long
+  }
+  // No edges counted: no echo; a negative count is refused.
+  const std::vector<device::LoopStretch> none{{kBlack, {}, w, 0.0, 0.0}};
+  EXPECT_FALSE(device::count_loop_window(loop, none, 5, 600, kShots).has_echo());
+  const std::vector<device::LoopStretch> bad{{kBlack, {}, w, 0.0, -0.1}};
+  EXPECT_THROW((void)device::count_loop_window(loop, bad, 5, 600, kShots), std::invalid_argument);
 }
 
 TEST(LoopWindow, NoLockedTimeInTheGateIsNoEcho) {

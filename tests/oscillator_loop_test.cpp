@@ -2,7 +2,8 @@
 // Fig. 3.2, Section 4.4, Fig. 4.4). Oracles: the single-pole step response's
 // closed-form crossing times, the thesis's loop periods, the counter's
 // resolution c/4 t_clk T / gate, the dispatch against the loop itself, the
-// thread-count independence of counter-based randomness, and key validation.
+// thread-count independence of counter-based randomness, key validation, and
+// Rice's level-crossing rate against a simulated band-limited noise.
 #include "tofkit/device/oscillator_loop.hpp"
 
 #include <gtest/gtest.h>
@@ -10,6 +11,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -245,6 +247,45 @@ TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
   EXPECT_GT(*hi, 1.5 * *lo);
 }
 
+TEST(OscillatorLoop, IntensityIsTheSwingAboveTheCoupledBaseline) {
+  // The intensity output is a peak detector behind the AC coupling, scaled so a
+  // settled return reads its step amplitude A. An unrecovered baseline offset dv
+  // (a scan, device/echo_memory.hpp) lowers it to A - dv / (1 - coupling_duty),
+  // raises it for dv < 0, and floors it at threshold / (1 - duty) (while locked,
+  // the swing above the baseline exceeds the threshold). The output's noise draw
+  // is the same for the same (seed, stream): ratios are exact.
+  auto c = device::accurange_preset();
+  c.oscillator.duty_wander = 0;  // the lock margin below is the settled duty's
+  const device::OscillatorLoop loop(c);
+  const double share = 1.0 - c.oscillator.coupling_duty;
+  const auto target = device::Target::plate(0.4826, experiments::grey_reflectance(153));
+  const auto s = loop.state(target, {});
+  ASSERT_TRUE(s.oscillates);
+  ASSERT_LT(s.amplitude_v, c.link.receiver.amplitude_clip_v);
+  const auto settled = loop.measure(target, {}, 3, 17);
+  const double margin = s.swing_v * share - c.discriminator.threshold_v;
+  for (const double dv : {0.5 * margin, 0.1 * margin, -0.2}) {
+    device::Conditions cond;
+    cond.baseline_offset_v = dv;
+    const auto m = loop.measure(target, cond, 3, 17);
+    ASSERT_TRUE(m.has_echo()) << dv;
+    EXPECT_NEAR(m.amplitude / settled.amplitude, (s.amplitude_v - dv / share) / s.amplitude_v,
+                1e-12)
+        << dv;
+  }
+  // A return just locked: its reading is held at the floor, not below.
+  auto weak = device::Target::plate(0.4826, experiments::grey_reflectance(255));
+  const auto sw = loop.state(weak, {});
+  device::Conditions near_lock;
+  near_lock.baseline_offset_v = 0.99 * (sw.swing_v * share - c.discriminator.threshold_v);
+  const auto m = loop.measure(weak, near_lock, 3, 17);
+  ASSERT_TRUE(m.has_echo());
+  const double floor_v = c.discriminator.threshold_v / share;
+  const double expected =
+      std::max(sw.amplitude_v - near_lock.baseline_offset_v / share, floor_v) / sw.amplitude_v;
+  EXPECT_NEAR(m.amplitude / loop.measure(weak, {}, 3, 17).amplitude, expected, 1e-12);
+}
+
 TEST(OscillatorLoop, TurnOnTransientOfEitherSignIsItsWindowMean) {
   // laser.turn_on_bias_mm b (either sign) decaying with tau: an output whose window
   // W starts t0 after switch-on carries b tau / W exp(-t0 / tau) (1 - exp(-W / tau)).
@@ -276,4 +317,71 @@ TEST(OscillatorLoop, TurnOnTransientOfEitherSignIsItsWindowMean) {
           << bias_mm << " " << t0;
     }
   }
+}
+
+TEST(OscillatorLoop, NearTopEdgesFollowRicesCrossingRate) {
+  // An independent reader of Rice's rate: band-limited Gaussian noise built as a
+  // sum of many sinusoids with frequencies spread evenly over (0, B) and random phases
+  // (a flat spectrum to B), sampled finely; count its down-crossings of -u.
+  const double bandwidth_mhz = 360.0, sigma = 1e-3, high_ns = 10.0;
+  const int tones = 100;
+  std::vector<double> freq(tones), phase(tones);
+  std::uint64_t state = 12345;
+  auto uniform = [&state] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(state >> 11) * 0x1.0p-53;
+  };
+  for (int k = 0; k < tones; ++k) {
+    freq[k] = bandwidth_mhz * 1e-3 * (k + uniform()) / tones;  // per ns, stratified
+    phase[k] = 2 * kPi * uniform();
+  }
+  const double amp = sigma * std::sqrt(2.0 / tones);
+  const double dt = 0.05, span = 4e4;  // ns: 55 samples per period at B; >= 1,100 crossings
+  const std::vector<double> u_sigmas{0.0, 1.0, 2.0};
+  std::vector<long> down(u_sigmas.size(), 0);
+  double prev = 0;
+  for (long i = 0; i * dt < span; ++i) {
+    double x = 0;
+    for (int k = 0; k < tones; ++k) x += amp * std::cos(2 * kPi * freq[k] * i * dt + phase[k]);
+    for (std::size_t j = 0; j < u_sigmas.size(); ++j) {
+      const double u = u_sigmas[j] * sigma;
+      if (i > 0 && prev >= -u && x < -u) ++down[j];
+    }
+    prev = x;
+  }
+  for (std::size_t j = 0; j < u_sigmas.size(); ++j) {
+    // Extra edges per period: a dip below level - hysteresis while the top is
+    // margin above the level, for high_ns: margin + hysteresis = u.
+    const double u = u_sigmas[j] * sigma;
+    const double counted = static_cast<double>(down[j]) / span * high_ns;
+    const auto e = device::near_top_edges(0.4 * u, sigma, bandwidth_mhz, high_ns, 0.6 * u);
+    EXPECT_NEAR(e.extra_edges_per_period, counted, 0.06 * counted) << u_sigmas[j];
+  }
+}
+
+TEST(OscillatorLoop, NearTopEdgesHaveTheirSignsAndVanishFarFromTheTop) {
+  const double b = 360.0, sigma = 3.5e-3, high = 11.0;
+  const double rice = b * 1e-3 / std::sqrt(3.0);  // per ns
+  // At the top: high x nu(0) extra edges, and the noise is below half the time,
+  // waiting Rice's mean excursion 0.5 / nu(0): a quarter of 1 / nu(0) per period.
+  const auto top = device::near_top_edges(0.0, sigma, b, high);
+  EXPECT_NEAR(top.extra_edges_per_period, high * rice, 1e-12);
+  EXPECT_NEAR(top.missed_wait_ns, 0.25 / rice, 1e-12);
+  // The hysteresis: a dip must reach the level minus it.
+  const auto hyst = device::near_top_edges(0.0, sigma, b, high, 3 * sigma);
+  EXPECT_NEAR(hyst.extra_edges_per_period, high * rice * std::exp(-4.5), 1e-12);
+  EXPECT_EQ(hyst.missed_wait_ns, top.missed_wait_ns);
+  // Above the top chatter falls and waits fall faster; below it waits grow to
+  // the wait for one up-crossing, 1 / nu(margin).
+  const auto above = device::near_top_edges(2 * sigma, sigma, b, high);
+  EXPECT_LT(above.extra_edges_per_period, top.extra_edges_per_period);
+  EXPECT_LT(above.missed_wait_ns / top.missed_wait_ns, 0.2);
+  const auto below = device::near_top_edges(-4 * sigma, sigma, b, high);
+  EXPECT_NEAR(below.missed_wait_ns, 1.0 / (rice * std::exp(-8.0)), 1e-3 / (rice * std::exp(-8.0)));
+  // Far above: a clean swing, exactly; far below: no edges at all.
+  const auto clean = device::near_top_edges(device::kNearTopSigmas * sigma, sigma, b, high);
+  EXPECT_EQ(clean.extra_edges_per_period, 0.0);
+  EXPECT_EQ(clean.missed_wait_ns, 0.0);
+  EXPECT_TRUE(std::isinf(
+      device::near_top_edges(-device::kNearTopSigmas * sigma, sigma, b, high).missed_wait_ns));
 }

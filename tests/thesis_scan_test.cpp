@@ -236,6 +236,94 @@ TEST(ThesisScanMemory, LoopSettledIsTheLoneMeasurementAndAStepDownLosesLock) {
   EXPECT_NEAR(out[before + after - 1].distance_raw_m, settled.distance_raw_m, 2e-3);
 }
 
+TEST(ThesisScanMemory, LoopNearTheSwingsTopChattersShortOrWaitsLong) {
+  // Grey 204 to black at 19 in: the baseline left by grey 204 (half its swing)
+  // puts the level ~2 mV (0.6 noise sigma) under black's top, so the first
+  // black outputs are near the top (device::near_top_edges); a few time
+  // constants' fraction later the margin exceeds 8 sigmas and nothing changes.
+  auto c = device::accurange_preset();
+  c.memory.time_constant_ms = 1.0;
+  c.oscillator.duty_wander = 0.0;  // the baseline at exactly half the swing
+  const device::OscillatorLoop loop(c);
+  const auto black = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(255));
+  const auto grey = device::Target::plate(inches_to_m(19), experiments::grey_reflectance(204));
+  const auto sb = loop.state(black, {}), sg = loop.state(grey, {});
+  const double margin0 = sb.swing_v * 0.5 - c.discriminator.threshold_v;
+  const double offset0 = 0.5 * (sg.swing_v - sb.swing_v);
+  ASSERT_GT(margin0 - offset0, 0.0);
+  ASSERT_LT(margin0 - offset0, sb.noise_v);
+  const int before = 20, after = 60;
+  auto run = [&](double hysteresis_mv) {
+    auto cc = c;
+    cc.oscillator.comparator_hysteresis_mv = hysteresis_mv;
+    const device::VirtualRangefinder dev(cc);
+    const auto items = loop_step(dev, before, after, 204, 255);
+    std::vector<ranging::RawMeasurement> out(items.size());
+    device::EchoMemory(dev).measure_sequence(items, 17, out);
+    return out;
+  };
+  const auto chatter = run(0.0);  // every dip below the level is an edge
+  const auto waits = run(1e4);    // no dip reaches the level minus 10 V: missed rises only
+  const double settled = waits.back().distance_raw_m;
+  ASSERT_TRUE(chatter[before].has_echo());
+  ASSERT_TRUE(waits[before].has_echo());
+  // Extra edges read short (~2 per period at the top: far short of the truth),
+  // missed rises long.
+  EXPECT_LT(chatter[before].distance_raw_m, settled - 0.1);
+  EXPECT_GT(waits[before].distance_raw_m, settled + inches_to_m(0.5));
+  // Once the margin is 8 sigmas (tau ln(offset0 / (margin0 - 8 sigma)), < 0.5 ms
+  // = 10 outputs) the hysteresis no longer matters: the same bytes.
+  const double far_s =
+      c.memory.time_constant_ms * 1e-3 * std::log(offset0 / (margin0 - 8 * sb.noise_v));
+  const int far =
+      before + 1 +
+      static_cast<int>(far_s / device::EchoMemory(device::VirtualRangefinder(c)).window_s(0));
+  ASSERT_LT(far, before + after);
+  for (int i = far; i < before + after; ++i)
+    EXPECT_EQ(std::memcmp(&chatter[i].tof_ns, &waits[i].tof_ns, sizeof(double)), 0) << i;
+  for (int i = 0; i < before; ++i) EXPECT_EQ(chatter[i].tof_ns, waits[i].tof_ns) << i;
+}
+
+TEST(ThesisScanMemory, LoopIntensityReadsLowWhileTheBaselineRecovers) {
+  // The intensity output is a peak detector behind the loop's AC coupling
+  // (device/oscillator_loop.hpp): after a step down (mid grey to grey 204) each
+  // output reads low by offset / (1 - coupling_duty), held at threshold / (1 -
+  // duty), the offset being the window's mean unrecovered baseline (the trace);
+  // oracle: the ratio to the lone measurement of the same stream (same noise
+  // draw). Windows around a short stall are counted apart (loop_window.hpp).
+  // Settled outputs are the lone measurement's bytes.
+  auto c = device::accurange_preset();
+  c.memory.time_constant_ms = 1.0;
+  const device::VirtualRangefinder dev(c);
+  const device::OscillatorLoop loop(c);
+  const int before = 20, after = 60;
+  const auto items = loop_step(dev, before, after, 128, 204);
+  std::vector<ranging::RawMeasurement> out(items.size());
+  std::vector<device::MemoryTrace> trace(items.size());
+  device::EchoMemory(dev).measure_sequence(items, 9, out, trace);
+  const double share = 1.0 - c.oscillator.coupling_duty;
+  const double a = loop.state(items.back().path[0], {}).amplitude_v;
+  ASSERT_LT(a, c.link.receiver.amplitude_clip_v);
+  const double floor_v = c.discriminator.threshold_v / share;  // locked: above the threshold
+  double lowest = 1;
+  int checked = 0;
+  for (int i = 0; i < before + after; ++i) {
+    const auto lone = dev.measure(items[i].path[0], {}, 9, static_cast<std::uint64_t>(i));
+    if (i < before) {
+      EXPECT_EQ(out[i].amplitude, lone.amplitude) << i;
+      continue;
+    }
+    if (trace[i].stall_s > 0) continue;  // counted around a stall (device/loop_window.hpp)
+    ++checked;
+    ASSERT_TRUE(out[i].has_echo()) << i;
+    const double ratio = out[i].amplitude / lone.amplitude;
+    EXPECT_NEAR(ratio, std::max(a - trace[i].baseline_offset_v / share, floor_v) / a, 1e-12) << i;
+    lowest = std::min(lowest, ratio);
+  }
+  EXPECT_GT(checked, after - 10);
+  EXPECT_LT(lowest, 0.7);  // the first windows after the step: visibly low
+}
+
 TEST(ThesisScanMemory, LoopMovingWindowIsCountedOverItsGate) {
   // A DC-coupled loop (no memory) whose beam moves from white onto black during
   // an output: the board counts during the first gate_fraction (0.5) of the

@@ -149,8 +149,9 @@ DeviceConfig accurange_preset() {
   // At the line scans' 0.15 m/s that is about 5 mm of a 2 in black area. Set
   // for a 6-7 in swing when black's swing was 4.7 times the threshold; with
   // this receiver (12.6 times) the lock margin is wider and the swing is
-  // 3.3-4.5 in for any time constant from 20 to 80 ms. The same state gives
-  // the mirror's edge spikes (Figs. 3.4-3.5; here 1-3 mm against ~15 mm) and,
+  // 3.3-4.5 in for any time constant from 20 to 80 ms (3.8-6.9 in with the
+  // comparator near the top, oscillator.comparator_hysteresis_mv). The same state gives
+  // the mirror's edge spikes (Figs. 3.4-3.5; here 2-6 mm against ~15 mm) and,
   // held out, part of the line and checkerboard scans' larger raw spread
   // (Figs. 4.23, 4.27).
   c.memory.time_constant_ms = 30.0;
@@ -199,6 +200,16 @@ DeviceConfig accurange_preset() {
   // and Fig. 4.4's mean moves by +-0.26 in from one setting's acquisition to the
   // next (19.64-20.16 in) with no trend in the sampling rate.
   osc.duty_wander = 0.13;
+  // Assumption: the comparator's hysteresis. Where a baseline left high by a
+  // stronger return brings the level within a few noise sigmas of a weak swing's
+  // top, the noise adds edges (reads short) or delays rises (reads long)
+  // (near_top_edges, device/oscillator_loop.hpp); the hysteresis sets how deep
+  // a dip must go to add an edge. Thesis Fig. 4.28 (black after mid grey at
+  // 19 in: erratic, at most 23.91 in): with 10 mV (~3 noise sigmas on black) the
+  // loop reads at most 23.6-24.5 in after re-locking (seeds 1-3, 2022; one seed of
+  // five 26.7 in). Without hysteresis the chatter reads negative ranges; with
+  // 5-8 mV both short and long readings appear, down to 14-17 in and below.
+  osc.comparator_hysteresis_mv = 10.0;
   return c;
 }
 

@@ -267,6 +267,10 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("oscillator.duty_wander", &config.oscillator.duty_wander, 0, 0.5,
             "rms of the loop duty's slow wander per output (share); the AC-coupled baseline "
             "follows it, and the edges' slopes turn it into time (grows on weak returns)"),
+      field("oscillator.comparator_hysteresis_mv", &config.oscillator.comparator_hysteresis_mv, 0,
+            1e4,
+            "comparator hysteresis: noise near a weak swing's top adds an edge only by "
+            "dipping this far below the level"),
   };
 }
 

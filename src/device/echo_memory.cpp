@@ -42,6 +42,29 @@ double mean_remaining(double window_s, double tau_s) {
   return (1.0 - std::exp(-x)) / x;
 }
 
+/// Edges the loop's board counts per clean period over a locked time of
+/// locked_s whose swing top sits margin_v - offset_v exp(-t / tau_s) above the
+/// comparator's level at t (the baseline recovering from a stronger return):
+/// (1 / L) integral_0^L T (1 + extra(t)) / (T + wait(t)) dt with near_top_edges'
+/// extra edges and missed-rise waits per period T (the settled state's period,
+/// noise and comparator high time). Exactly 1 when the top stays
+/// kNearTopSigmas noise sigmas above the level over the whole time.
+double near_top_count_factor(const LoopState& s, double margin_v, double offset_v, double locked_s,
+                             double tau_s, double bandwidth_mhz, double hysteresis_v) {
+  if (!(locked_s > 0) || !(offset_v > 0) || !(s.noise_v > 0)) return 1.0;
+  // The margin grows as the baseline comes down: its least is at the start.
+  if (margin_v - offset_v >= kNearTopSigmas * s.noise_v) return 1.0;
+  constexpr int kNodes = 64;  // midpoint rule over the locked time
+  double sum = 0;
+  for (int j = 0; j < kNodes; ++j) {
+    const double t = (j + 0.5) / kNodes * locked_s;
+    const auto e = near_top_edges(margin_v - offset_v * std::exp(-t / tau_s), s.noise_v,
+                                  bandwidth_mhz, s.comparator_high_ns, hysteresis_v);
+    sum += s.period_ns * (1.0 + e.extra_edges_per_period) / (s.period_ns + e.missed_wait_ns);
+  }
+  return sum / kNodes;
+}
+
 /// Valid-shot weighted average of the sub-measurements of a moving window.
 ranging::RawMeasurement combine(std::span<const ranging::RawMeasurement> parts) {
   ranging::RawMeasurement out;
@@ -161,6 +184,8 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
   const bool loop_memory_on = loop && tau_s > 0;
   const double duty = cfg.oscillator.coupling_duty;
   const double threshold_v = cfg.discriminator.threshold_v;
+  const double bandwidth_mhz = cfg.link.receiver.bandwidth_mhz;
+  const double hysteresis_v = cfg.oscillator.comparator_hysteresis_mv * 1e-3;
   auto loop_segment = [&](std::size_t begin, std::size_t end) {
     double baseline_v = ranging::kNaN;  // the loop's coupling capacitor voltage
     std::vector<LoopStretch> stretches;
@@ -184,6 +209,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       }
       stretches.clear();
       double settled_sum = 0, offset_sum = 0, stall_sum = 0, strength_sum = 0;
+      bool factor_unclean = false;
       // The loop's duty at this output's time (oscillator.duty_wander) sets the
       // share of the swing the baseline settles at.
       const double item_duty = duty + loop_->duty_offset(item.conditions, seed);
@@ -217,7 +243,17 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
         Conditions conditions = item.conditions;
         conditions.baseline_offset_v =
             offset_v * std::exp(-stall_s / tau_s) * mean_remaining(locked_s, tau_s);
-        stretches.push_back({target, conditions, sub_window * 1e9, stall_s * 1e9});
+        // Locked with the top near the level, the noise adds and drops edges
+        // (near_top_edges, thesis Fig. 4.28's erratic range on black).
+        const double count_factor =
+            settled_state.oscillates
+                ? near_top_count_factor(settled_state,
+                                        settled_state.swing_v - threshold_v - settled_v,
+                                        offset_v * std::exp(-stall_s / tau_s), locked_s, tau_s,
+                                        bandwidth_mhz, hysteresis_v)
+                : 1.0;
+        stretches.push_back({target, conditions, sub_window * 1e9, stall_s * 1e9, count_factor});
+        factor_unclean |= count_factor != 1.0;
         settled_sum += settled_v;
         offset_sum += conditions.baseline_offset_v;
         stall_sum += stall_s;
@@ -226,7 +262,7 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
         baseline_v = settled_v + offset_v * std::exp(-sub_window / tau_s);
       }
       const auto [first_shots, first_stream] = path_element(i, 0, k_count, shots);
-      if (k_count == 1 && stall_sum == 0) {
+      if (k_count == 1 && stall_sum == 0 && !factor_unclean) {
         out[i] = device_->measure(stretches.front().target, stretches.front().conditions, seed,
                                   first_stream, first_shots);
       } else {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <string>
 
 namespace tofkit::device {
 
@@ -40,11 +41,14 @@ ranging::RawMeasurement count_loop_window(const OscillatorLoop& loop,
       ++temp_n;
     }
     if (s.stall_ns > 0) lost = true;
-    if (locked_ns > 0 && m.has_echo()) {
+    if (!(s.count_factor >= 0))
+      throw std::invalid_argument("count_loop_window: stretch " + std::to_string(k) +
+                                  " needs count_factor >= 0");
+    if (locked_ns > 0 && m.has_echo() && s.count_factor > 0) {
       const double period_ns = 2.0 * (m.tof_ns + zero_ns);
       if (std::isnan(first_edge)) first_edge = lo;
       last_edge = hi;
-      periods += locked_ns / period_ns;
+      periods += s.count_factor * locked_ns / period_ns;
       locked_sum += locked_ns;
       amp += locked_ns * m.amplitude;
       width += locked_ns * m.pulse_width_ns;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -66,6 +67,30 @@ std::pair<double, double> crossing(const std::vector<Step>& steps, bool rising, 
 }
 
 }  // namespace
+
+NearTopEdges near_top_edges(double margin_v, double noise_v, double bandwidth_mhz, double high_ns,
+                            double hysteresis_v) {
+  NearTopEdges e;
+  if (!(noise_v > 0) || !(bandwidth_mhz > 0)) return e;
+  const double z = margin_v / noise_v;
+  if (z >= kNearTopSigmas) return e;
+  if (!(z > -kNearTopSigmas)) {  // the top far below the level: no edges at all
+    e.missed_wait_ns = std::numeric_limits<double>::infinity();
+    return e;
+  }
+  // Rice: a band-limited Gaussian noise of rms sigma crosses the level u (in
+  // either direction) at B / sqrt(3) exp(-u^2 / 2 sigma^2) for an ideal low pass
+  // of bandwidth B (here per ns).
+  const double rice_per_ns = bandwidth_mhz * 1e-3 / std::sqrt(3.0);
+  const double rate_per_ns = rice_per_ns * std::exp(-0.5 * z * z);
+  const double below = 0.5 * std::erfc(z / std::sqrt(2.0));  // Phi(-z)
+  // A chatter edge needs a dip below level - hysteresis: margin + hysteresis
+  // under the top.
+  const double zh = (margin_v + std::max(hysteresis_v, 0.0)) / noise_v;
+  e.extra_edges_per_period = std::max(high_ns, 0.0) * rice_per_ns * std::exp(-0.5 * zh * zh);
+  e.missed_wait_ns = below * below / rate_per_ns;
+  return e;
+}
 
 OscillatorLoop::OscillatorLoop(DeviceConfig config) : config_(std::move(config)) {
   c_nominal_m_per_ns_ = nominal_light_speed_m_per_ns(config_);
@@ -291,9 +316,23 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   out.distance_raw_m = tof_to_distance_m(out.tof_ns);
   out.pulse_width_ns = s.comparator_high_ns;
   out.shots_valid = static_cast<std::uint32_t>(n);
-  // The intensity output: a peak detector on the linear stage (clips at amplitude_clip_v).
+  // The intensity output: a peak detector on the linear stage (clips at amplitude_clip_v)
+  // behind the loop's AC coupling. It sees the return's swing above the coupling's
+  // baseline: settled, (1 - coupling_duty) of the step, which the vendor's scale reads
+  // as the step itself. In a scan a baseline left high by a stronger return
+  // (conditions.baseline_offset_v, device/echo_memory.hpp) lowers it by
+  // offset / (1 - coupling_duty), so a pixel the memory disturbs also reads a lower
+  // intensity (thesis Fig. 4.23: a surface over range and intensity removes most of
+  // the line scans' extra error). While the loop is locked the swing above the
+  // baseline exceeds the threshold, so the reading stays above threshold / (1 - duty).
   const auto& rx = cfg.link.receiver;
-  const double peak = std::min(s.amplitude_v, rx.amplitude_clip_v);
+  double peak = std::min(s.amplitude_v, rx.amplitude_clip_v);
+  if (cond.baseline_offset_v != 0.0) {
+    const double share = 1.0 - osc.coupling_duty;
+    peak = std::min(
+        std::max(peak - cond.baseline_offset_v / share, cfg.discriminator.threshold_v / share),
+        rx.amplitude_clip_v);
+  }
   out.amplitude = std::min(peak * (1.0 + rx.amplitude_noise_rel * z1[1] / std::sqrt(double(n))),
                            rx.amplitude_clip_v);
   if (s.saturated) out.flags |= ranging::kRawSaturated;

@@ -157,6 +157,10 @@ struct OscillatorConfig {
   /// baseline, at the duty share of the swing, moves with it, and both edges turn
   /// that into time through their slopes (a weak return's slow rise the most)
   double duty_wander = 0.0;
+  /// comparator hysteresis: once high, the comparator goes low only below the
+  /// level minus this, so noise near a weak swing's top adds fewer edges
+  /// (device/oscillator_loop.hpp, near_top_edges)
+  double comparator_hysteresis_mv = 0.0;
 };
 
 /// A complete device.

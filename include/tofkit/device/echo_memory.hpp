@@ -27,14 +27,19 @@
 /// falls early (reads long); where the level reaches the swing's top the loop
 /// loses lock until the baseline has come down, and the counting window around
 /// the stall (device/loop_window.hpp) reads long or not by where its gate falls
-/// on it (thesis Fig. 4.28: black after mid grey swings erratically). After a
+/// on it (thesis Fig. 4.28: black after mid grey swings erratically); the
+/// intensity output, a peak detector behind the same coupling, reads low by
+/// offset / (1 - coupling_duty) meanwhile (device/oscillator_loop.hpp). After a
 /// weaker return the level is low: the rise comes earlier and the fall later,
 /// so the period, counted over both edges, barely moves on an unsaturated echo
 /// (at most 0.05 in short at 19 in), and a saturated echo's slow fall from the
-/// clip reads long (white after black: +1.9 in). The loop therefore reads
-/// short only after a still stronger return (at most 0.7 in); the thesis's
-/// short readings on black (Fig. 4.28, 15.65 in at ~19.5 in) need a cause this
-/// model does not have.
+/// clip reads long (white after black: +1.9 in). While the level is within a
+/// few noise sigmas of a weak swing's top, the noise adds edges (reads short)
+/// and delays rises (reads long): near_top_edges (device/oscillator_loop.hpp),
+/// integrated over each locked stretch as the baseline comes down and counted
+/// by count_loop_window. With the preset's comparator hysteresis the first
+/// outputs after re-lock on black read long (to ~24 in at 19 in); the thesis's
+/// short readings (Fig. 4.28, 15.65 in) appear only with less hysteresis.
 ///  - **Motion**: a beam moving during the averaging window sweeps several
 ///    targets (`SequenceItem::path`); the shots are shared among them, the window
 ///    reports the valid-shot average of their times, widths and amplitudes (the

@@ -19,7 +19,10 @@
 ///    count does not, and the output reads long by stall / count periods. A
 ///    stall before the first edge or after the last only costs periods. The
 ///    same stall thus reads long or not by where the window's gate falls on it:
-///    erratic, not a smooth offset.
+///    erratic, not a smooth offset;
+///  - a stretch locked with the swing's top within a few noise sigmas of the
+///    level (the baseline still recovering) counts count_factor edges per clean
+///    period over the same span: extra edges read short, missed rises long.
 /// The reported intensity is the peak detector's mean over the locked time.
 
 #include <cstdint>
@@ -37,6 +40,10 @@ struct LoopStretch {
   Conditions conditions;  ///< baseline_offset_v: the coupling's mean offset while locked
   double duration_ns = 0;
   double stall_ns = 0;  ///< lock lost at the stretch's start (<= duration_ns)
+  /// Edges the board counts per clean loop period over the locked time: 1 on a
+  /// clean swing; near the swing's top (near_top_edges) chatter adds edges (> 1,
+  /// reads short) and missed rises lengthen periods (< 1, reads long).
+  double count_factor = 1.0;
 };
 
 /// One output of the loop over `stretches` (in time order, durations summing to

@@ -38,6 +38,12 @@
 ///    of the output period measurement.shots / laser.repetition_hz
 ///    (312,500 / 2^N samples/s): resolution = c/4 x t_clk x T / gate, so it
 ///    trades against the sampling rate (thesis Fig. 4.4);
+///  - the intensity output is a peak detector on the linear stage (clipping at
+///    receiver.amplitude_clip_v) behind the same AC coupling: on a still target it
+///    reads the step amplitude; a baseline left high by a stronger return
+///    (Conditions::baseline_offset_v, in a scan) lowers it by
+///    offset / (1 - coupling_duty), so what the memory does to range is visible
+///    in intensity;
 ///  - the device reports the mean half period minus its vendor zero
 ///    (oscillator.zero_half_period_ns) as the round-trip time; thermal drift,
 ///    warm-up and the laser's turn-on transient add to the half period as in the
@@ -72,6 +78,35 @@ struct LoopState {
   double rise_slope_v_per_ns = 0;
   double fall_slope_v_per_ns = 0;  ///< magnitude of the falling edge's slope at the level
 };
+
+/// The comparator near the top of a weak swing (thesis Fig. 4.28: on black after
+/// mid grey the range swings erratically, both short and long of the truth).
+/// Where the swing's top sits only a few noise sigmas above or below the
+/// comparator's level (margin_v = top - level), the receiver noise (noise_v rms,
+/// band-limited to bandwidth_mhz: an ideal low pass, so it crosses a level u at
+/// Rice's rate nu(u) = B / sqrt(3) exp(-u^2 / 2 sigma^2)) decides the edges:
+///  - extra edges: while the return sits at its top (the comparator's high time,
+///    high_ns), each dip of the noise below the level minus the comparator's
+///    hysteresis takes the comparator low and high again, an edge the board
+///    counts as one more period (reads short): high_ns nu(margin + hysteresis)
+///    per period;
+///  - missed crossings: when the rise reaches the top, the noise is below -margin
+///    with probability Phi(-margin / sigma); the rise then waits for that
+///    excursion to end, on average Phi(-margin / sigma) / nu(margin) (Rice's mean
+///    excursion time), so the period lengthens (reads long):
+///    Phi(-margin / sigma)^2 / nu(margin) per period; far below the top that is
+///    the wait for a rare up-crossing, 1 / nu(margin).
+/// Far above the top (margin >= kNearTopSigmas sigma) both are zero; far below
+/// it the wait is infinite (lock lost: the loop has no edges).
+struct NearTopEdges {
+  double extra_edges_per_period = 0;  ///< chatter edges counted per loop period
+  double missed_wait_ns = 0;          ///< mean wait per period for a missed rise
+};
+/// Margin, in noise sigmas, beyond which the comparator sees a clean swing
+/// (Rice's rate there is exp(-32) ~ 1e-14 of nu(0): below one edge per hour).
+inline constexpr double kNearTopSigmas = 8.0;
+[[nodiscard]] NearTopEdges near_top_edges(double margin_v, double noise_v, double bandwidth_mhz,
+                                          double high_ns, double hysteresis_v = 0.0);
 
 class OscillatorLoop {
  public:
