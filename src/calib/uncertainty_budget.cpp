@@ -46,8 +46,7 @@ double shots_of(const BudgetFitData& d) {
   return shots > 0 ? static_cast<double>(shots) : ranging::kNaN;
 }
 
-std::vector<Target> targets_of(const BudgetFitData& d) {
-  const double shots = shots_of(d);
+std::vector<Target> targets_of(const BudgetFitData& d, double shots) {
   std::map<std::tuple<double, double, double, double>, std::vector<std::size_t>> rows_of;
   for (std::size_t i = 0; i < d.rows.size(); ++i) {
     const auto& r = d.rows[i];
@@ -68,7 +67,7 @@ std::vector<Target> targets_of(const BudgetFitData& d) {
       t.log_amplitude += std::log(d.rows[i].raw.amplitude);
       t.tof_ns += d.rows[i].raw.tof_ns;
       t.temperature_c += d.rows[i].raw.temperature_c;
-      t.lost_share += 1.0 - d.rows[i].raw.shots_valid / shots;
+      t.lost_share += ranging::lost_shot_share(d.rows[i].raw.shots_valid, shots);
       sum += d.residual_m[i];
       if (std::isfinite(d.out_of_fold_m[i])) {
         sum_oof += d.out_of_fold_m[i];
@@ -190,8 +189,8 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   auto& budget = result.budget;
   std::string& report = result.report;
   const double m_per_ps = d.metres_per_ns * 1e-3;
-  std::vector<Target> targets = targets_of(d);
   budget.shots = shots_of(d);
+  std::vector<Target> targets = targets_of(d, budget.shots);
 
   // Repeatability (type A): pooled variance of the repeats per amplitude bin.
   std::vector<const Target*> repeated;
@@ -499,14 +498,14 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
     if (ref == at_reference.end()) continue;
     const double dm = t.mean_m - ref->second->mean_m;
-    const double excess = dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
-                          noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    const double excess2 = dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
+                           noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
     if (t.lost_share - ref->second->lost_share > kFalseStopShare) {
-      false_stops.emplace_back(t.lost_share, std::max(0.0, excess));
+      false_stops.emplace_back(t.lost_share, std::max(0.0, excess2));
       continue;
     }
     AtTemperature& at = per_temperature[t.ambient_c];
-    at.sum += excess;
+    at.sum += excess2;
     at.reading += t.temperature_c;
     ++at.n;
     if (plates.emplace(ref->second, true).second) reference_reading += ref->second->temperature_c;
@@ -579,8 +578,8 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     c.axis = BudgetComponent::Axis::lost_shot_share;
     add_node(c, kFalseStopShare, 0.0);
     double v = 0;
-    for (const auto& [share, excess] : false_stops) {
-      v = std::max(v, excess);
+    for (const auto& [share, share_excess2] : false_stops) {
+      v = std::max(v, share_excess2);
       if (share > c.node.back()) add_node(c, share, v);
     }
     c.step = fmt::sprintf(

@@ -226,7 +226,8 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
         // loop re-locks when the receiver's noise first lifts the swing over it,
         // so within a few noise sigmas of the top which side the level is on is a
         // draw (thesis Fig. 4.28: the range on black after mid grey is erratic).
-        double margin_v = settled_state.swing_v - threshold_v - settled_v;
+        const double settled_margin_v = settled_state.swing_v - threshold_v - settled_v;
+        double margin_v = settled_margin_v;
         double stall_s = 0;
         if (!settled_state.oscillates) {
           stall_s = sub_window;
@@ -241,16 +242,15 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
         }
         const double locked_s = sub_window - stall_s;
         Conditions conditions = item.conditions;
-        conditions.baseline_offset_v =
-            offset_v * std::exp(-stall_s / tau_s) * mean_remaining(locked_s, tau_s);
+        // The offset left when the loop locks, relaxing over the locked time.
+        const double locked_offset_v = offset_v * std::exp(-stall_s / tau_s);
+        conditions.baseline_offset_v = locked_offset_v * mean_remaining(locked_s, tau_s);
         // Locked with the top near the level, the noise adds and drops edges
         // (near_top_edges, thesis Fig. 4.28's erratic range on black).
         const double count_factor =
             settled_state.oscillates
-                ? near_top_count_factor(settled_state,
-                                        settled_state.swing_v - threshold_v - settled_v,
-                                        offset_v * std::exp(-stall_s / tau_s), locked_s, tau_s,
-                                        bandwidth_mhz, hysteresis_v)
+                ? near_top_count_factor(settled_state, settled_margin_v, locked_offset_v, locked_s,
+                                        tau_s, bandwidth_mhz, hysteresis_v)
                 : 1.0;
         stretches.push_back({target, conditions, sub_window * 1e9, stall_s * 1e9, count_factor});
         factor_unclean |= count_factor != 1.0;

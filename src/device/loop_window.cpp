@@ -28,6 +28,9 @@ ranging::RawMeasurement count_loop_window(const OscillatorLoop& loop,
     if (!(s.duration_ns >= 0) || !(s.stall_ns >= 0) || s.stall_ns > s.duration_ns + 1e-9)
       throw std::invalid_argument("count_loop_window: stretch " + std::to_string(k) +
                                   " needs 0 <= stall_ns <= duration_ns");
+    if (!(s.count_factor >= 0))
+      throw std::invalid_argument("count_loop_window: stretch " + std::to_string(k) +
+                                  " needs count_factor >= 0");
     // Locked time of this stretch inside the gate [0, gate).
     const double lo = std::min(t + s.stall_ns, gate_ns), hi = std::min(t + s.duration_ns, gate_ns);
     const double locked_ns = hi - lo;
@@ -41,9 +44,6 @@ ranging::RawMeasurement count_loop_window(const OscillatorLoop& loop,
       ++temp_n;
     }
     if (s.stall_ns > 0) lost = true;
-    if (!(s.count_factor >= 0))
-      throw std::invalid_argument("count_loop_window: stretch " + std::to_string(k) +
-                                  " needs count_factor >= 0");
     if (locked_ns > 0 && m.has_echo() && s.count_factor > 0) {
       const double period_ns = 2.0 * (m.tof_ns + zero_ns);
       if (std::isnan(first_edge)) first_edge = lo;

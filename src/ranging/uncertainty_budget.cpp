@@ -41,6 +41,10 @@ void UncertaintyBudget::validate() const {
   }
 }
 
+double lost_shot_share(double shots_valid, double shots) {
+  return shots > 0 ? std::clamp(1.0 - shots_valid / shots, 0.0, 1.0) : kNaN;
+}
+
 double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s,
                                         double temperature_c, double lost_share) const {
   const BudgetComponent& c = components[k];
@@ -153,8 +157,7 @@ void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, con
   for (std::size_t i = 0; i < n; ++i) {
     amplitude[i] = in.amplitude[i];
     temperature[i] = in.temperature_c[i];
-    lost[i] =
-        budget.shots > 0 ? std::clamp(1.0 - in.shots_valid[i] / budget.shots, 0.0, 1.0) : kNaN;
+    lost[i] = lost_shot_share(in.shots_valid[i], budget.shots);
     intensity[i] = by_width ? in.pulse_width_ns[i] : amplitude[i];
     distance[i] = out[i].distance_m;
   }

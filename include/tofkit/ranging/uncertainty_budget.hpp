@@ -86,6 +86,10 @@ struct UncertaintyBudget {
 /// Name of the component for rows below the calibrated amplitudes (the
 /// correction extrapolated there); apply_budget counts it and the pipeline's
 /// out-of-domain growth as one cause.
+/// A row's share of lost shots, 1 - shots_valid / shots, within [0, 1]; NaN
+/// when shots per measurement is unknown (not > 0).
+[[nodiscard]] double lost_shot_share(double shots_valid, double shots);
+
 inline constexpr const char* kExtrapolationComponent =
     "extrapolation below the calibrated amplitudes";
 
