@@ -524,6 +524,51 @@ TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
   EXPECT_LT(r.checker_images.within_2_sigma.share, r.stripe_images.within_2_sigma.share);
 }
 
+TEST(ThesisScanFigures, LineScanPixelNoiseIsTheLoopsWanderNotTheScan) {
+  // Where a line scan's per-pixel noise comes from. Without the loop's duty
+  // wander, a stripe's inner pixel (two or more columns from an edge) averages
+  // ~20 samples of 256 shots, each far finer than thesis Fig. 4.4's single-sample
+  // spread at that setting (variance 0.00019 in^2 at 1221 samples/s, sd 0.014 in):
+  // the scan's motion, memory and resampling add no noise there, and the pixel
+  // reads what a still beam reads on a plate of its grey.
+  auto cfg = device::accurange_preset();
+  cfg.oscillator.duty_wander = 0.0;
+  const device::VirtualRangefinder quiet(cfg);
+  const auto r = experiments::run_line_scan(quiet, {}, 3);
+  const device::OscillatorLoop loop(cfg);
+  const double fig44_sd_m = inches_to_m(std::sqrt(0.00019));
+  ASSERT_EQ(r.per_grey.size(), 6u);
+  for (const auto& row : r.per_grey) {
+    EXPECT_LT(row.centre_noise_m, fig44_sd_m) << row.grey;
+    double sum = 0;
+    const int n = 50;
+    const auto plate =
+        device::Target::plate(r.options.test_distance_m, experiments::grey_reflectance(row.grey));
+    device::Conditions c;
+    c.ambient_c = r.options.ambient_c;
+    for (int k = 0; k < n; ++k)
+      sum += loop.measure(plate, c, 9, static_cast<std::uint64_t>(k), r.options.shots_per_sample)
+                 .distance_raw_m;
+    const double still_m = r.options.test_distance_m - sum / n;
+    if (row.grey <= 153) {
+      EXPECT_NEAR(row.centre_mean_m, still_m, fig44_sd_m) << row.grey;
+    } else {
+      // The dark stripes follow a brighter one on every other line: the loop's
+      // AC coupling (memory.time_constant_ms, 30 ms: 4.5 mm of stage travel)
+      // has not quite settled two columns (5 mm) in, so they read long, by
+      // less than a millimetre.
+      EXPECT_LT(row.centre_mean_m, still_m) << row.grey;
+      EXPECT_GT(row.centre_mean_m, still_m - 1e-3) << row.grey;
+    }
+  }
+  // With the preset's wander (one draw a second: one per line) the bright greys'
+  // pixels scatter from scan to scan by tenths of an inch, as the point scans'
+  // points do (Fig. 4.18's corrected variance): the line scans' noise limit.
+  const auto& preset = line_result();
+  for (const auto& row : preset.per_grey)
+    if (row.grey <= 51) EXPECT_GT(row.centre_noise_m, 10 * fig44_sd_m) << row.grey;
+}
+
 TEST(ThesisScanFigures, MirrorEdgeSpikesAndColourTransitionLoseLockAndReadLong) {
   const auto& m = memory_result();
   // The memory correction (a signed lag filter, tofkit's) is still fitted on the

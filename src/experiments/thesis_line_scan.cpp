@@ -190,6 +190,37 @@ double noise_limit_m(const scan::ScanImages& a, const scan::ScanImages& b) {
   return n > 0 ? std::sqrt(sum / (2.0 * static_cast<double>(n))) : ranging::kNaN;
 }
 
+/// Where a grey's raw error comes from (Fig. 4.24's rows): the error's mean and
+/// spread, and the pixel noise from two scans, at the stripe's inner columns (two
+/// or more from either edge) and at its first and last columns.
+void locate_grey_errors(const scan::ScanImages& a, const scan::ScanImages& b,
+                        const std::vector<double>& pixel_grey, int columns_per_stripe, int grey,
+                        LineGreyRow& row) {
+  std::vector<double> centre, edge;
+  double centre_d2 = 0, edge_d2 = 0;
+  const int columns = a.range.columns;
+  for (std::size_t i = 0; i < a.range.values.size(); ++i) {
+    if (pixel_grey[i] != grey) continue;
+    const double r = a.range.values[i], t = a.truth.values[i];
+    if (!std::isfinite(r) || !std::isfinite(t)) continue;
+    const int position =
+        static_cast<int>(i % static_cast<std::size_t>(columns)) % columns_per_stripe;
+    const bool at_edge = position == 0 || position == columns_per_stripe - 1;
+    if (!at_edge && (position < 2 || position > columns_per_stripe - 3)) continue;
+    (at_edge ? edge : centre).push_back(t - r);
+    const double d = r - double(b.range.values[i]);
+    if (std::isfinite(d)) (at_edge ? edge_d2 : centre_d2) += d * d;
+  }
+  const auto c = calib::error_stats(centre), e = calib::error_stats(edge);
+  row.centre_mean_m = c.bias_m;
+  row.centre_sd_m = std::sqrt(c.variance_m2);
+  row.edge_mean_m = e.bias_m;
+  row.edge_sd_m = std::sqrt(e.variance_m2);
+  // var(a - b) = 2 var(noise)
+  if (!centre.empty()) row.centre_noise_m = std::sqrt(centre_d2 / (2.0 * double(centre.size())));
+  if (!edge.empty()) row.edge_noise_m = std::sqrt(edge_d2 / (2.0 * double(edge.size())));
+}
+
 struct Fitted {
   std::string model;
   std::shared_ptr<const calib::CorrectionSurface> surface;
@@ -376,7 +407,10 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
       raw.push_back(test.error_m[i]);
       best.push_back(best_resid[i]);
     }
-    result.per_grey.push_back({g, calib::error_stats(raw).rms_m, calib::error_stats(best).rms_m});
+    LineGreyRow row{g, calib::error_stats(raw).rms_m, calib::error_stats(best).rms_m};
+    locate_grey_errors(test_scan.images, test_repeat.images, test_chart.pixel_grey,
+                       options.columns_per_stripe, g, row);
+    result.per_grey.push_back(row);
   }
 
   // Confidence (Section 4.8): fitted on the confidence scans' residuals, judged
@@ -451,8 +485,14 @@ std::vector<ResultTable> LineScanResult::tables() const {
     }
     out.push_back(t);
   }
-  ResultTable grey{"per_grey", {"grey", "raw_rms_m", "best_rms_m"}, {}};
-  for (const auto& g : per_grey) grey.rows.push_back({double(g.grey), g.raw_rms_m, g.best_rms_m});
+  ResultTable grey{"per_grey",
+                   {"grey", "raw_rms_m", "best_rms_m", "centre_mean_m", "centre_sd_m",
+                    "centre_noise_m", "edge_mean_m", "edge_sd_m", "edge_noise_m"},
+                   {}};
+  for (const auto& g : per_grey) {
+    grey.rows.push_back({double(g.grey), g.raw_rms_m, g.best_rms_m, g.centre_mean_m, g.centre_sd_m,
+                         g.centre_noise_m, g.edge_mean_m, g.edge_sd_m, g.edge_noise_m});
+  }
   out.push_back(grey);
   ResultTable cov{
       "coverage", {"within_1_sigma", "within_2_sigma", "sigma_min_m", "sigma_max_m"}, {}};
@@ -494,6 +534,17 @@ std::string LineScanResult::summary() const {
     }
     std::snprintf(line_text, sizeof line_text, "    noise limit: %.4f in RMS\n",
                   m_to_inches(table->noise_limit_m));
+    out += line_text;
+  }
+  out +=
+      "  raw error per grey (Fig. 4.24): inner columns (2+ from an edge), edge columns; noise\n"
+      "  from a repeated scan:\n"
+      "    grey  inner mean [in]  sd [in]  noise [in]  edge mean [in]  sd [in]  noise [in]\n";
+  for (const auto& g : per_grey) {
+    std::snprintf(line_text, sizeof line_text, "    %4d %16.3f %8.3f %11.3f %15.3f %8.3f %11.3f\n",
+                  g.grey, m_to_inches(g.centre_mean_m), m_to_inches(g.centre_sd_m),
+                  m_to_inches(g.centre_noise_m), m_to_inches(g.edge_mean_m),
+                  m_to_inches(g.edge_sd_m), m_to_inches(g.edge_noise_m));
     out += line_text;
   }
   for (const auto& [name, im] :

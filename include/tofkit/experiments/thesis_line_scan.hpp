@@ -86,10 +86,20 @@ struct LineModelRow {
   std::size_t out_of_domain = 0;
 };
 
-struct LineGreyRow {  ///< Fig. 4.24
+struct LineGreyRow {  ///< Fig. 4.24, with where each grey's raw error comes from
   int grey = 0;
   double raw_rms_m = ranging::kNaN;
   double best_rms_m = ranging::kNaN;
+  /// Raw error (true - measured) at the stripe's inner columns (two or more
+  /// columns from either edge: what the stripe's grey does) and at its first
+  /// and last columns (where the beam has just crossed, or is about to cross,
+  /// an edge: the footprint's mixed pixels and the loop's memory): mean and
+  /// standard deviation over the pixels.
+  double centre_mean_m = ranging::kNaN, centre_sd_m = ranging::kNaN;
+  double edge_mean_m = ranging::kNaN, edge_sd_m = ranging::kNaN;
+  /// A pixel's noise from two independent scans of the chart (what no surface
+  /// over range and intensity can remove), at the inner and the edge columns.
+  double centre_noise_m = ranging::kNaN, edge_noise_m = ranging::kNaN;
 };
 
 /// An image of a chart with everything the figures need (row-major, NaN: no echo).
