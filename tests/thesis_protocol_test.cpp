@@ -127,6 +127,10 @@ TEST(ThesisProtocol, RawErrorIsOfTheThesisOrder) {
     }
     ASSERT_GT(n, 0);
     mean_error.push_back(sum / n);
+    // The per-grey row's mean is the test rows' (an independent sum), and its
+    // point-to-point spread makes up the rest of the grey's RMS.
+    EXPECT_NEAR(g.raw_mean_m, sum / n, 1e-9) << g.grey;
+    EXPECT_NEAR(std::hypot(g.raw_mean_m, g.raw_sd_m), g.raw_rms_m, 1e-9) << g.grey;
   }
   for (std::size_t k = 1; k < mean_error.size(); ++k) EXPECT_LT(mean_error[k], mean_error[k - 1]);
   EXPECT_GT(mean_error.front() - mean_error.back(), inches_to_m(0.5));

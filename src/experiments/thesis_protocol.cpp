@@ -308,8 +308,10 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
       spline.push_back(r.bspline_error_m);
       amplitude.push_back(r.amplitude);
     }
+    const auto raw_stats_g = calib::error_stats(raw);
     result.per_grey.push_back({g, grey_reflectance(g), sample_stats(amplitude).mean, rms_of(raw),
-                               rms_of(poly), rms_of(spline)});
+                               rms_of(poly), rms_of(spline), raw_stats_g.bias_m,
+                               std::sqrt(raw_stats_g.variance_m2)});
   }
 
   // Section 4.4's explanation of the thesis's residual: the test scan repeated
@@ -427,11 +429,11 @@ std::vector<ResultTable> ThesisProtocolResult::tables() const {
   out.push_back(cov);
   ResultTable grey{"per_grey",
                    {"grey", "reflectance", "mean_amplitude", "raw_rms_m", "best_polynomial_rms_m",
-                    "bspline_rms_m"},
+                    "bspline_rms_m", "raw_mean_m", "raw_sd_m"},
                    {}};
   for (const auto& g : per_grey) {
     grey.rows.push_back({double(g.grey), g.reflectance, g.mean_amplitude, g.raw_rms_m,
-                         g.best_polynomial_rms_m, g.bspline_rms_m});
+                         g.best_polynomial_rms_m, g.bspline_rms_m, g.raw_mean_m, g.raw_sd_m});
   }
   out.push_back(grey);
   ResultTable test_table{
@@ -512,12 +514,12 @@ std::string ThesisProtocolResult::summary() const {
     out += line;
   }
   out +=
-      "  RMS per grey level at the test distance [in] (Fig. 4.19):\n"
-      "    grey   rho    raw      best poly  bspline\n";
+      "  per grey level at the test distance [in] (Fig. 4.19: RMS; raw mean, raw sd):\n"
+      "    grey   rho    raw      best poly  bspline   raw mean  raw sd (point to point)\n";
   for (const auto& g : per_grey) {
-    std::snprintf(line, sizeof line, "    %4d  %5.3f  %7.4f  %9.4f  %7.4f\n", g.grey, g.reflectance,
-                  m_to_inches(g.raw_rms_m), m_to_inches(g.best_polynomial_rms_m),
-                  m_to_inches(g.bspline_rms_m));
+    std::snprintf(line, sizeof line, "    %4d  %5.3f  %7.4f  %9.4f  %7.4f  %9.4f  %6.4f\n", g.grey,
+                  g.reflectance, m_to_inches(g.raw_rms_m), m_to_inches(g.best_polynomial_rms_m),
+                  m_to_inches(g.bspline_rms_m), m_to_inches(g.raw_mean_m), m_to_inches(g.raw_sd_m));
     out += line;
   }
   if (!temperature.empty()) {

@@ -109,6 +109,11 @@ struct ThesisGreyRow {
   double raw_rms_m = ranging::kNaN;
   double best_polynomial_rms_m = ranging::kNaN;
   double bspline_rms_m = ranging::kNaN;
+  /// The raw error's mean over the grey's points and its spread from point to
+  /// point (each point its own acquisition: the loop's slow wander differs), to
+  /// set beside the line scans' per-grey rows (LineGreyRow).
+  double raw_mean_m = ranging::kNaN;
+  double raw_sd_m = ranging::kNaN;
 };
 
 /// The test scan taken warmer than the training (thesis Section 4.4's explanation
