@@ -247,6 +247,96 @@ TEST(UncertaintyBudget, ExtrapolationTermCoversAWalkSteepeningBelowTheWeakestPla
                    fit.budget.component_u_m(k, std::exp(-3.0), 0.0));
 }
 
+// The drift term's estimator against known drift laws: synthetic stability
+// records (60 min every 15 s, as the planner's) of a white row noise (the
+// repeatability, 0.3 mm) plus a random walk, a drift that saturates
+// (Ornstein-Uhlenbeck: D(tau) = 2 s^2 (1 - exp(-tau / T)), a flicker-like
+// floor) or nothing. Over many records the curve's mean must match the law's
+// D(tau) (the variance a row tau after the calibration adds) within its
+// statistical error, at every lag. The row noise taken off was half D at one
+// step, clamped at the repeatability: a step's drift counted as noise and the
+// clamp's positive mean (a noise around 0) came off every lag, so the curve
+// read low by a constant variance: u 0.058 / 0.155 / 0.113 mm at 15 s against
+// 0.075 / 0.222 / 0.164 mm, 0.344 against 0.380 mm at 45 s (saturating law).
+// Now D's intercept at lag 0 (2 D(1) - D(2)), unclamped: 0.077 / 0.218 /
+// 0.159 and 0.377 mm. The last node (37 min) reads high, +4 % in u for the
+// saturating law (pooling adjacent violators leaves a long lag that noise put
+// high unpooled).
+struct DriftLaw {
+  const char* name;
+  double walk_m2_per_s;         ///< random walk: D = q tau
+  double floor_m, floor_tau_s;  ///< Ornstein-Uhlenbeck: sd s, time constant T
+  [[nodiscard]] double d(double tau_s) const {
+    return walk_m2_per_s * tau_s +
+           (floor_m > 0 ? 2 * floor_m * floor_m * (1 - std::exp(-tau_s / floor_tau_s)) : 0.0);
+  }
+};
+
+struct DriftRecovery {
+  std::vector<double> lag_s, mean_m2, se_m2;
+};
+
+DriftRecovery recover(const DriftLaw& law, int records, double white_m) {
+  constexpr std::size_t kRows = 241;
+  constexpr double kEvery = 15;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> normal;
+  DriftRecovery out;
+  std::vector<double> sum, sum2;
+  for (int r = 0; r < records; ++r) {
+    std::vector<double> y(kRows);
+    double walk = 0;
+    const double a = law.floor_m > 0 ? std::exp(-kEvery / law.floor_tau_s) : 0.0;
+    double floor = law.floor_m * normal(rng);  // stationary start
+    for (std::size_t i = 0; i < kRows; ++i) {
+      if (i > 0) {
+        walk += std::sqrt(law.walk_m2_per_s * kEvery) * normal(rng);
+        floor = a * floor + law.floor_m * std::sqrt(1 - a * a) * normal(rng);
+      }
+      y[i] = walk + (law.floor_m > 0 ? floor : 0.0) + white_m * normal(rng);
+    }
+    const calib::DriftCurve c = calib::drift_structure_function(y, kEvery, white_m * white_m);
+    if (sum.empty()) {
+      out.lag_s = c.lag_s;
+      sum.assign(c.lag_s.size(), 0.0);
+      sum2.assign(c.lag_s.size(), 0.0);
+    }
+    EXPECT_EQ(c.lag_s, out.lag_s);
+    for (std::size_t k = 0; k < c.lag_s.size(); ++k) {
+      sum[k] += c.variance_m2[k];
+      sum2[k] += c.variance_m2[k] * c.variance_m2[k];
+    }
+  }
+  for (std::size_t k = 0; k < sum.size(); ++k) {
+    const double mean = sum[k] / records;
+    out.mean_m2.push_back(mean);
+    out.se_m2.push_back(std::sqrt(std::max(0.0, sum2[k] / records - mean * mean) / (records - 1)));
+  }
+  return out;
+}
+
+TEST(UncertaintyBudget, DriftTermRecoversAKnownDriftLaw) {
+  constexpr int kRecords = 400;
+  constexpr double kWhite = 0.3e-3;
+  for (const DriftLaw& law : {DriftLaw{"random walk, 1 mm at 45 min", 1e-6 / 2700, 0, 1},
+                              DriftLaw{"saturating, 1 mm sd over 10 min", 0, 1e-3, 600},
+                              DriftLaw{"both", 0.5e-6 / 2700, 0.7e-3, 600}}) {
+    const DriftRecovery r = recover(law, kRecords, kWhite);
+    ASSERT_FALSE(r.lag_s.empty());
+    EXPECT_LE(r.lag_s.back(), 0.75 * 240 * 15);  // to 3/4 of the record
+    EXPECT_GT(r.lag_s.back(), 0.75 * 240 * 15 / 1.3);
+    std::printf("%s:", law.name);
+    for (std::size_t k = 0; k < r.lag_s.size(); ++k) {
+      const double truth = law.d(r.lag_s[k]);
+      std::printf(" %.0fs %.3f/%.3f(+-%.3f)", r.lag_s[k], std::sqrt(r.mean_m2[k]) * 1e3,
+                  std::sqrt(truth) * 1e3, r.se_m2[k] / (2 * std::sqrt(truth)) * 1e3);
+      EXPECT_NEAR(r.mean_m2[k], truth, 4 * r.se_m2[k])
+          << law.name << ", lag " << r.lag_s[k] << " s";
+    }
+    std::printf(" [lag: estimated u / law's u (+- se) mm]\n");
+  }
+}
+
 // ------------------------------------------------------------ held out
 
 /// A device drawn away from both presets: receiver bandwidth, pulse width,
@@ -1081,6 +1171,145 @@ TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
 
 namespace tofkit {
 namespace {
+
+// Diagnosis of coverage per time band (issue 34): held-out case 0 (indoors,
+// no delay wander) calibrated by the planner's protocol (chain) on several
+// power-ons, each tested in the field on its own power-on. Per power-on: the
+// 2-sigma coverage per time band (0 / 20 / 40 / 60 min), the band's mean
+// error (the power-on's drift draw plus the correction's mean residual), the
+// systematic residual per band and the drift term u its stability record gave;
+// then, over the power-ons, the pooled coverage per band, the rms of the
+// bands' mean errors against the rms of the drift terms. TOFKIT_POWER_ONS sets
+// their number (8).
+TEST(UncertaintyBudgetDiagnosis, DISABLED_CoverageByTimeBandOverPowerOns) {
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const int power_ons =
+      std::getenv("TOFKIT_POWER_ONS") ? std::atoi(std::getenv("TOFKIT_POWER_ONS")) : 8;
+  const double minutes[4] = {0, 20, 40, 60};
+  std::array<double, 4> coverage{}, mean2{}, drift2{}, systematic2{}, mean_sum{};
+  double noise2 = 0;
+  for (int p = 1; p <= power_ons; ++p) {
+    const Calibrated c = calibrate(device, true, false, static_cast<std::uint64_t>(p));
+    const FieldFigures f = field_test(device, c, static_cast<std::uint64_t>(p));
+    std::array<double, 4> u{};
+    for (const auto& component : c.budget.budget.components)
+      if (component.name == "drift since calibration")
+        for (int b = 0; b < 4; ++b) u[b] = component.u_m(60 * minutes[b]);
+    std::printf("power-on %2d: 2-sigma %.1f %%, bands", p, 100 * f.within_2sigma);
+    for (int b = 0; b < 4; ++b) std::printf(" %5.1f", 100 * f.by_time[b]);
+    std::printf(" %%; mean error");
+    for (int b = 0; b < 4; ++b) std::printf(" %+5.2f", f.mean_by_time_mm[b]);
+    std::printf(" mm; systematic");
+    for (int b = 0; b < 4; ++b) std::printf(" %4.2f", f.systematic_by_time_mm[b]);
+    std::printf(" mm; drift u");
+    for (int b = 0; b < 4; ++b) std::printf(" %4.2f", u[b] * 1e3);
+    std::printf(" mm; noise %.2f mm\n", f.noise_mm);
+    for (int b = 0; b < 4; ++b) {
+      coverage[b] += f.by_time[b] / power_ons;
+      mean2[b] += f.mean_by_time_mm[b] * f.mean_by_time_mm[b] / power_ons;
+      mean_sum[b] += f.mean_by_time_mm[b] / power_ons;
+      drift2[b] += u[b] * u[b] * 1e6 / power_ons;
+      systematic2[b] += f.systematic_by_time_mm[b] * f.systematic_by_time_mm[b] / power_ons;
+    }
+    noise2 += f.noise_mm * f.noise_mm / power_ons;
+  }
+  std::printf("over %d power-ons, per band (0 / 20 / 40 / 60 min):\n  2-sigma", power_ons);
+  for (int b = 0; b < 4; ++b) std::printf(" %5.1f", 100 * coverage[b]);
+  std::printf(" %%\n  mean error: mean");
+  for (int b = 0; b < 4; ++b) std::printf(" %+5.2f", mean_sum[b]);
+  std::printf(" rms");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(mean2[b]));
+  std::printf(" mm\n  drift u (rms over the records)");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(drift2[b]));
+  std::printf(" mm\n  systematic (rms)");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(systematic2[b]));
+  std::printf(" mm against one row's noise %.2f mm\n", std::sqrt(noise2));
+}
+
+// Diagnosis of the drift term against the ensemble (issue 34), held-out case
+// 0: the stability record of the planner's protocol measured on 16 power-ons,
+// each record's drift term at 20 / 40 / 60 min (with a row's repeatability),
+// against the rms change over 80 power-ons of one row 20 / 40 / 60 min after
+// the calibration's start from the plate's mean over its first 5 min (as
+// DriftAfterCalibrationIsRandomPerPowerOn), and from one row at the start.
+TEST(UncertaintyBudgetDiagnosis, DISABLED_DriftTermOverRecordsAgainstTheEnsemble) {
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const Calibrated c = calibrate(device, true, false);
+  calib::CalibrationPlanOptions field;
+  field.range_min_m = 0.7;
+  field.range_max_m = 7.4;
+  field.reflectance_min = 0.06;
+  field.reflectance_max = 0.85;
+  const experiments::Protocol protocol = experiments::plan_protocol(device, field, {});
+  const experiments::ProtocolStep& stability = protocol.steps.front();
+  ASSERT_EQ(stability.role, experiments::StepRole::stability);
+  const auto record_plan = experiments::plate_grid_plan(stability.grid);
+  double rep2 = 0;
+  for (const auto& component : c.budget.budget.components)
+    if (component.name == "repeatability (one row)")
+      rep2 = std::pow(
+          component.u_m(std::log(device
+                                     .echo(device::Target::plate(stability.grid.distances_m[0],
+                                                                 stability.grid.reflectances[0]),
+                                           {})
+                                     .peak_v)),
+          2);
+  const double minutes[3] = {20, 40, 60};
+  std::array<double, 3> term2{};
+  constexpr int kRecords = 16;
+  for (int p = 1; p <= kRecords; ++p) {
+    const auto rows =
+        experiments::run(device, record_plan, static_cast<std::uint64_t>(p), stability.timing);
+    std::vector<ranging::Range> ranges(rows.size());
+    c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+    std::vector<double> y;
+    for (std::size_t i = 0; i < rows.size(); ++i)
+      y.push_back(rows[i].truth.distance_m - ranges[i].distance_m);
+    const calib::DriftCurve curve =
+        calib::drift_structure_function(y, stability.timing.every_s, rep2);
+    std::printf("record %2d:", p);
+    for (int b = 0; b < 3; ++b) {
+      // Held beyond the last lag, linear between the nodes.
+      const double t = 60 * minutes[b];
+      double v = curve.variance_m2.back();
+      for (std::size_t k = 1; k < curve.lag_s.size(); ++k)
+        if (t <= curve.lag_s[k]) {
+          const double w = (t - curve.lag_s[k - 1]) / (curve.lag_s[k] - curve.lag_s[k - 1]);
+          v = curve.variance_m2[k - 1] + w * (curve.variance_m2[k] - curve.variance_m2[k - 1]);
+          break;
+        }
+      term2[b] += v / kRecords;
+      std::printf(" %.2f", std::sqrt(v) * 1e3);
+    }
+    std::printf(" mm\n");
+  }
+  experiments::PlateGrid one = stability.grid;
+  one.count = 1;
+  const auto plan = experiments::plate_grid_plan(one);
+  one.count = 20;
+  const auto level = experiments::plate_grid_plan(one);
+  constexpr int kPowerOns = 80;
+  for (int b = 0; b < 3; ++b) {
+    double from_mean2 = 0, from_row2 = 0;
+    for (int seed = 1; seed <= kPowerOns; ++seed) {
+      const auto a = experiments::run(device, level, seed, {c.calibration_start_s, 15});
+      double tof = 0;
+      for (const auto& r : a) tof += r.raw.tof_ns / static_cast<double>(a.size());
+      const auto later =
+          experiments::run(device, plan, seed, {c.calibration_start_s + 60 * minutes[b], 0});
+      from_mean2 += std::pow(device.tof_to_distance_m(later[0].raw.tof_ns - tof), 2) / kPowerOns;
+      from_row2 +=
+          std::pow(device.tof_to_distance_m(later[0].raw.tof_ns - a[0].raw.tof_ns), 2) / kPowerOns;
+    }
+    std::printf(
+        "%2.0f min: drift term (rms over %d records) %.2f mm, with a row's repeatability %.2f mm; "
+        "ensemble of %d power-ons: from the 5-min mean %.2f mm, from one row %.2f mm (less the "
+        "first row's repeatability: %.2f mm)\n",
+        minutes[b], kRecords, std::sqrt(term2[b]) * 1e3, std::sqrt(term2[b] + rep2) * 1e3,
+        kPowerOns, std::sqrt(from_mean2) * 1e3, std::sqrt(from_row2) * 1e3,
+        std::sqrt(std::max(0.0, from_row2 - rep2)) * 1e3);
+  }
+}
 
 // Diagnosis of the weak-echo residual (issue 34): one held-out device,
 // calibrated by the planner's protocol (chain); each field target measured 20
