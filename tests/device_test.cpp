@@ -754,6 +754,103 @@ TEST(Device, ModesAgreeForAFastReceiver) {
   }
 }
 
+// One arming time for both modes. The comparator's stops count once the TDC
+// has started, at the laser's trigger, before any light leaves: noise crossing
+// the threshold from then to the echo is a false stop at Rice's rate nu, so the
+// share p of shots stopped more than 1 ns before the echo's rise t_r gives
+// -ln(1 - p) = nu (t_r - 1 ns - t_arm): a line in t_r whose zero is the
+// arming time, the same in both modes, at the light's onset (6 sigma before a
+// Gaussian pulse's peak). Bright sunlit plates (Table 1, rho 0.85) at 8 C
+// (cold APD: high gain, many false stops), the default parts and slower,
+// wider-pulse ones, 0.7-3 m. The waveform mode (and an analytic measurement
+// that samples slow edges) counted noise crossings from the start of its
+// sampled record instead, a fixed 4 ns + 6 receiver time constants before the
+// echo however far it was: the same false-stop share at 0.7 and 1.3 m, a line
+// whose zero fell 4.0 and 6.0 ns before the onset (-6.58 +- 0.39 and -10.18 +-
+// 0.56 ns); where the analytic mode froze its noise it counted from t = 0 (the
+// pulse's peak), so at 27 C, 0.7 m the slower parts' modes differed (1 against
+// 23 early stops in 20000). Now -3.15 +- 0.20 and -4.77 +- 0.23 ns against
+// onsets of -2.55 and -4.18 ns: the sampled noise, in 100 ps steps, crosses
+// 8-25 % more often than Rice's continuous rate, and the short ranges' windows
+// are all sampled, which pulls the line's zero about 0.6 ns early.
+TEST(Device, FalseStopsCountFromOneArmingTimeInBothModes) {
+  struct Parts {
+    const char* name;
+    double bandwidth_mhz, pulse_width_ns, apd_gain;
+  };
+  const int shots = static_cast<int>(20000 * sanitized_scale());
+  for (const Parts& parts :
+       {Parts{"paper", 150.0, 1.0, 100.0}, Parts{"slower, wider pulse", 128.6, 1.64, 110.0}}) {
+    auto cfg = preset("paper");
+    cfg.link.environment.solar_irradiance_w_per_m2_um = physics::kTable1SolarIrradiance_w_per_m2_um;
+    cfg.link.receiver.bandwidth_mhz = parts.bandwidth_mhz;
+    cfg.link.laser.pulse_width_ns = parts.pulse_width_ns;
+    cfg.link.receiver.apd_gain = parts.apd_gain;
+    ASSERT_EQ(cfg.discriminator.blanking_ns, 0.0);
+    ASSERT_EQ(cfg.link.laser.lasing_onset_ns, 0.0);
+    const double onset_ns = -6.0 * parts.pulse_width_ns / (2.0 * std::sqrt(2.0 * std::log(2.0)));
+    const VirtualRangefinder analytic(cfg, SimulationMode::kAnalytic);
+    const VirtualRangefinder waveform(cfg, SimulationMode::kWaveform);
+    for (const double ambient : {8.0, 27.0}) {
+      Conditions c;
+      c.ambient_c = ambient;
+      std::vector<double> window_end, lost[2], se[2];  // per range; per mode
+      for (const double r : {0.7, 1.3, 2.0, 3.0}) {
+        const auto target = Target::plate(r, 0.85);
+        const double rise = analytic.echo(target, c).rise_crossing_ns;
+        const double echo_tof = rise + cfg.measurement.fixed_delay_ns;
+        int early[2] = {0, 0};
+        for (int k = 0; k < 2; ++k) {
+          const VirtualRangefinder& dev = k == 0 ? analytic : waveform;
+          for (int i = 0; i < shots; ++i) {
+            const auto s = dev.shoot(target, c, 5, 0, static_cast<std::uint32_t>(i));
+            if (s.echo && s.tof_ns < echo_tof - 1.0) ++early[k];
+          }
+          const double p = early[k] / double(shots);
+          lost[k].push_back(-std::log1p(-p));
+          se[k].push_back(std::sqrt(std::max(p, 1.0 / shots) / ((1.0 - p) * shots)));
+        }
+        window_end.push_back(rise - 1.0);
+        SCOPED_TRACE(testing::Message() << parts.name << ", " << ambient << " C, R = " << r
+                                        << " m: early stops " << early[0] << " / " << early[1]);
+        // The modes count the same false stops (their difference within 4
+        // standard errors, Poisson).
+        EXPECT_NEAR(early[0], early[1], 4.0 * std::sqrt(double(early[0] + early[1])) + 2.0);
+      }
+      if (ambient != 8.0) continue;
+      // Cold: enough false stops for the line. Weighted least squares of
+      // -ln(1 - p) on the window's end gives nu and the arming time.
+      for (int k = 0; k < 2; ++k) {
+        double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+        for (std::size_t j = 0; j < window_end.size(); ++j) {
+          const double w = 1.0 / (se[k][j] * se[k][j]);
+          sw += w;
+          sx += w * window_end[j];
+          sy += w * lost[k][j];
+          sxx += w * window_end[j] * window_end[j];
+          sxy += w * window_end[j] * lost[k][j];
+        }
+        const double det = sw * sxx - sx * sx;
+        const double nu = (sw * sxy - sx * sy) / det;
+        const double intercept = (sxx * sy - sx * sxy) / det;
+        const double arm = -intercept / nu;
+        // The arming time's standard error from the fit's covariance.
+        const double var_nu = sw / det, var_b = sxx / det, cov = -sx / det;
+        const double se_arm =
+            std::sqrt(var_b / (nu * nu) + intercept * intercept * var_nu / (nu * nu * nu * nu) -
+                      2.0 * intercept * cov / (nu * nu * nu));
+        SCOPED_TRACE(testing::Message() << parts.name << (k == 0 ? ", analytic" : ", waveform")
+                                        << ": nu " << nu << " /ns, armed at " << arm << " +- "
+                                        << se_arm << " ns (onset " << onset_ns << " ns)");
+        EXPECT_GT(nu, 0.003);
+        EXPECT_NEAR(arm, onset_ns, std::max(4.0 * se_arm, 0.1));
+        for (std::size_t j = 0; j < window_end.size(); ++j)
+          EXPECT_NEAR(lost[k][j], nu * (window_end[j] - arm), 4.0 * se[k][j]) << j;
+      }
+    }
+  }
+}
+
 TEST(Device, SunlitFalseStopsAreRejectedBeforeAveraging) {
   // 8 m, rho 0.9 in Table 1 sunlight: noise crosses the threshold before the
   // echo on a share of the shots. The firmware's median gate drops them, so the

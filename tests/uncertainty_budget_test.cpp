@@ -247,6 +247,96 @@ TEST(UncertaintyBudget, ExtrapolationTermCoversAWalkSteepeningBelowTheWeakestPla
                    fit.budget.component_u_m(k, std::exp(-3.0), 0.0));
 }
 
+// The drift term's estimator against known drift laws: synthetic stability
+// records (60 min every 15 s, as the planner's) of a white row noise (the
+// repeatability, 0.3 mm) plus a random walk, a drift that saturates
+// (Ornstein-Uhlenbeck: D(tau) = 2 s^2 (1 - exp(-tau / T)), a flicker-like
+// floor) or nothing. Over many records the curve's mean must match the law's
+// D(tau) (the variance a row tau after the calibration adds) within its
+// statistical error, at every lag. The row noise taken off was half D at one
+// step, clamped at the repeatability: a step's drift counted as noise and the
+// clamp's positive mean (a noise around 0) came off every lag, so the curve
+// read low by a constant variance: u 0.058 / 0.155 / 0.113 mm at 15 s against
+// 0.075 / 0.222 / 0.164 mm, 0.344 against 0.380 mm at 45 s (saturating law).
+// Now D's intercept at lag 0 (2 D(1) - D(2)), unclamped: 0.077 / 0.218 /
+// 0.159 and 0.377 mm. The last node (37 min) reads high, +4 % in u for the
+// saturating law (pooling adjacent violators leaves a long lag that noise put
+// high unpooled).
+struct DriftLaw {
+  const char* name;
+  double walk_m2_per_s;         ///< random walk: D = q tau
+  double floor_m, floor_tau_s;  ///< Ornstein-Uhlenbeck: sd s, time constant T
+  [[nodiscard]] double d(double tau_s) const {
+    return walk_m2_per_s * tau_s +
+           (floor_m > 0 ? 2 * floor_m * floor_m * (1 - std::exp(-tau_s / floor_tau_s)) : 0.0);
+  }
+};
+
+struct DriftRecovery {
+  std::vector<double> lag_s, mean_m2, se_m2;
+};
+
+DriftRecovery recover(const DriftLaw& law, int records, double white_m) {
+  constexpr std::size_t kRows = 241;
+  constexpr double kEvery = 15;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> normal;
+  DriftRecovery out;
+  std::vector<double> sum, sum2;
+  for (int r = 0; r < records; ++r) {
+    std::vector<double> y(kRows);
+    double walk = 0;
+    const double a = law.floor_m > 0 ? std::exp(-kEvery / law.floor_tau_s) : 0.0;
+    double floor = law.floor_m * normal(rng);  // stationary start
+    for (std::size_t i = 0; i < kRows; ++i) {
+      if (i > 0) {
+        walk += std::sqrt(law.walk_m2_per_s * kEvery) * normal(rng);
+        floor = a * floor + law.floor_m * std::sqrt(1 - a * a) * normal(rng);
+      }
+      y[i] = walk + (law.floor_m > 0 ? floor : 0.0) + white_m * normal(rng);
+    }
+    const calib::DriftCurve c = calib::drift_structure_function(y, kEvery, white_m * white_m);
+    if (sum.empty()) {
+      out.lag_s = c.lag_s;
+      sum.assign(c.lag_s.size(), 0.0);
+      sum2.assign(c.lag_s.size(), 0.0);
+    }
+    EXPECT_EQ(c.lag_s, out.lag_s);
+    for (std::size_t k = 0; k < c.lag_s.size(); ++k) {
+      sum[k] += c.variance_m2[k];
+      sum2[k] += c.variance_m2[k] * c.variance_m2[k];
+    }
+  }
+  for (std::size_t k = 0; k < sum.size(); ++k) {
+    const double mean = sum[k] / records;
+    out.mean_m2.push_back(mean);
+    out.se_m2.push_back(std::sqrt(std::max(0.0, sum2[k] / records - mean * mean) / (records - 1)));
+  }
+  return out;
+}
+
+TEST(UncertaintyBudget, DriftTermRecoversAKnownDriftLaw) {
+  constexpr int kRecords = 400;
+  constexpr double kWhite = 0.3e-3;
+  for (const DriftLaw& law : {DriftLaw{"random walk, 1 mm at 45 min", 1e-6 / 2700, 0, 1},
+                              DriftLaw{"saturating, 1 mm sd over 10 min", 0, 1e-3, 600},
+                              DriftLaw{"both", 0.5e-6 / 2700, 0.7e-3, 600}}) {
+    const DriftRecovery r = recover(law, kRecords, kWhite);
+    ASSERT_FALSE(r.lag_s.empty());
+    EXPECT_LE(r.lag_s.back(), 0.75 * 240 * 15);  // to 3/4 of the record
+    EXPECT_GT(r.lag_s.back(), 0.75 * 240 * 15 / 1.3);
+    std::printf("%s:", law.name);
+    for (std::size_t k = 0; k < r.lag_s.size(); ++k) {
+      const double truth = law.d(r.lag_s[k]);
+      std::printf(" %.0fs %.3f/%.3f(+-%.3f)", r.lag_s[k], std::sqrt(r.mean_m2[k]) * 1e3,
+                  std::sqrt(truth) * 1e3, r.se_m2[k] / (2 * std::sqrt(truth)) * 1e3);
+      EXPECT_NEAR(r.mean_m2[k], truth, 4 * r.se_m2[k])
+          << law.name << ", lag " << r.lag_s[k] << " s";
+    }
+    std::printf(" [lag: estimated u / law's u (+- se) mm]\n");
+  }
+}
+
 // ------------------------------------------------------------ held out
 
 /// A device drawn away from both presets: receiver bandwidth, pulse width,
@@ -275,8 +365,10 @@ struct Calibrated {
 };
 
 /// The protocol's steps measured as `tofkit plan` prints them, fitted as its
-/// fit line does.
-Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline) {
+/// fit line does; `power_on` moves the calibration's power-on (seed 1 as
+/// printed) and its repeats' (seeds 2...) to other draws.
+Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline,
+                     std::uint64_t power_on = 1) {
   calib::CalibrationPlanOptions field;
   field.range_min_m = 0.7;
   field.range_max_m = 7.4;
@@ -288,8 +380,9 @@ Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bo
   std::vector<ranging::Record> calibration, stability;
   calib::ProtocolSteps steps;
   for (const auto& step : protocol.steps) {
-    const auto rows =
-        experiments::run(device, experiments::plate_grid_plan(step.grid), step.seed, step.timing);
+    const auto rows = experiments::run(
+        device, experiments::plate_grid_plan(step.grid),
+        step.seed == 1 ? power_on : step.seed + 1000 * (power_on - 1), step.timing);
     switch (step.role) {
       case experiments::StepRole::calibration:
         calibration.insert(calibration.end(), rows.begin(), rows.end());
@@ -330,6 +423,11 @@ struct FieldFigures {
   std::vector<double> by_time;                                 ///< per time band
   std::vector<double> mean_by_time_mm, systematic_by_time_mm;  ///< per time band
   double systematic_mm = 0, noise_mm = 0;
+  /// The same over rows keeping at least half their shots (a row losing more
+  /// to false stops can have its firmware's median gate on a false stop), and
+  /// how many rows lost more.
+  double systematic_kept_mm = 0, noise_kept_mm = 0;
+  std::size_t rows_losing_most = 0;
   /// Rows below the calibrated amplitudes, per e-fold below the weakest
   /// target: their RMS and largest error against the extrapolation term's u.
   std::string extrapolation;
@@ -380,11 +478,12 @@ std::string extrapolation_figures(const ranging::UncertaintyBudget& budget,
 }
 
 /// Field rows: a grid of targets, each measured 3 times, at 0, 20, 40 and 60
-/// min after the calibration on its power-on.
-FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrated& c) {
+/// min after the calibration on its power-on (`power_on`, as calibrate's).
+FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrated& c,
+                        std::uint64_t power_on = 1) {
   const std::vector<double> minutes = {0, 20, 40, 60};
   std::vector<double> err, sigma, amplitude, band;
-  std::map<std::tuple<double, double, double, double>, std::vector<double>> repeats;
+  std::map<std::tuple<double, double, double, double>, std::vector<double>> repeats, kept;
   FieldFigures f;
   const int shots = device.config().measurement.shots;
   for (std::size_t b = 0; b < minutes.size(); ++b) {
@@ -394,7 +493,7 @@ FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrat
     grid.ambient_c = {8, 17, 27, 37};
     grid.count = 3;
     const double since = minutes[b] * 60;
-    const auto rows = experiments::run(device, experiments::plate_grid_plan(grid), 1,
+    const auto rows = experiments::run(device, experiments::plate_grid_plan(grid), power_on,
                                        {c.calibration_start_s + since, 0});
     std::vector<ranging::Range> ranges(rows.size());
     c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
@@ -426,6 +525,11 @@ FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrat
       band.push_back(static_cast<double>(b));
       repeats[{rows[i].truth.distance_m, rows[i].truth.reflectance, rows[i].truth.ambient_c, since}]
           .push_back(e);
+      if (2 * rows[i].raw.shots_valid >= shots)
+        kept[{rows[i].truth.distance_m, rows[i].truth.reflectance, rows[i].truth.ambient_c, since}]
+            .push_back(e);
+      else
+        ++f.rows_losing_most;
     }
   }
   f.rows = err.size();
@@ -494,6 +598,23 @@ FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrat
       std::printf("%s", worst[i].second.c_str());
   }
   f.noise_mm = std::sqrt(s2 / groups) * 1e3;
+  {
+    double km2 = 0, ks2 = 0, kgroups = 0;
+    for (const auto& [key, e] : kept) {
+      if (e.size() < 2) continue;
+      double mean = 0;
+      for (double x : e) mean += x;
+      mean /= static_cast<double>(e.size());
+      double v = 0;
+      for (double x : e) v += (x - mean) * (x - mean);
+      v /= static_cast<double>(e.size() - 1);
+      km2 += mean * mean - v / static_cast<double>(e.size());
+      ks2 += v;
+      kgroups += 1;
+    }
+    f.systematic_kept_mm = std::sqrt(std::max(0.0, km2 / kgroups)) * 1e3;
+    f.noise_kept_mm = std::sqrt(ks2 / kgroups) * 1e3;
+  }
   return f;
 }
 
@@ -510,7 +631,10 @@ void print(const char* what, const FieldFigures& f) {
       f.systematic_mm, f.noise_mm);
   for (std::size_t b = 0; b < f.by_time.size(); ++b)
     std::printf(" %.2f / %.2f", f.mean_by_time_mm[b], f.systematic_by_time_mm[b]);
-  std::printf(" mm\n%s", f.extrapolation.c_str());
+  std::printf(
+      " mm; rows keeping >= half their shots: systematic %.3f vs noise %.3f mm (%zu rows lost "
+      "more)\n%s",
+      f.systematic_kept_mm, f.noise_kept_mm, f.rows_losing_most, f.extrapolation.c_str());
 }
 
 struct HeldOutCase {
@@ -539,11 +663,22 @@ class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 //   which the budget's drift term covers (u 1.07 mm at 36 min) and no
 //   correction fitted before it can remove: over 80 power-ons the change
 //   20 / 40 / 60 min after the calibration averages +0.03 / +0.01 / -0.01 mm
-//   (+- 0.14-0.17), rms 1.23 / 1.44 / 1.47 mm, and the stability record's
+//   (+- 0.14-0.17), rms 1.23 / 1.44 / 1.47 mm of raw rows (what the
+//   temperature correction removes included), and the stability record's
 //   last minutes against its mean predict 4 % of its variance at best
-//   (DriftAfterCalibrationIsRandomPerPowerOn). The worst rows are that band's
+//   (DriftAfterCalibrationIsRandomPerPowerOn). Corrected rows move 0.71 /
+//   0.89 / 0.78 mm rms from the plate's mean over the calibration's first 5
+//   min and 1.18 / 1.14 / 1.13 mm from its first row, against the drift term
+//   with a row's repeatability 1.05-1.07 mm (16 power-ons' records give 0.97-
+//   1.17 mm: UncertaintyBudgetDiagnosis.DISABLED_DriftTermOverRecordsAgainst-
+//   TheEnsemble); over 8 power-ons calibrated and field-tested the bands'
+//   mean error has rms 0.14 / 1.00 / 1.03 / 0.78 mm against a drift term of
+//   1.00-1.02 mm, and 2-sigma per band is 94.8 / 97.4 / 91.4 / 98.3 %
+//   (DISABLED_CoverageByTimeBandOverPowerOns): this power-on's 100 / 99.8 %
+//   at 40 / 60 min are its drift draw. The worst rows are the 20-min band's
 //   (targets +2.5-2.8 mm). Systematic <= noise of one row (0.31 mm) would
-//   need the correction within 0.3 mm and no drift.
+//   need the correction within 0.3 mm (over 8 power-ons the 0-min band's
+//   systematic is 0.60 mm) and no drift.
 // - Case 1 (Table 1 sunlight, no wander): worst valid 7.54 / 7.25 mm; 95.8 /
 //   98.0 %; systematic 1.64 / 1.55 mm against 0.65 mm. The error is in the
 //   bright targets (rho 0.85) at 8 C: +1.9..+6.3 mm at every distance right
@@ -562,12 +697,22 @@ class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 //   95.8 -> 97.6 / 98.0 -> 98.5 % (terciles 98.9 / 97.7 / 96.1 %; the rows
 //   without lost shots are at 99.2-99.5 %: for this power-on's draws the
 //   other terms are generous). Weak targets sit -1.3 mm (rho 0.06) at every
-//   temperature.
+//   temperature. Since the comparator counts noise from the TDC's start in
+//   both modes (Device.FalseStopsCountFromOneArmingTimeInBothModes; it counted
+//   from t = 0, or from a sampled record's begin): worst valid 7.08 / 6.76 mm,
+//   96.8 / 98.3 % (terciles 98.4 / 96.7 / 95.2 %, bands 94.2 / 97.5 / 98.1 /
+//   97.3 %), and the 7.4 m rho 0.85 target at 8 C loses 97 % of its shots:
+//   more than half its stops are false, the firmware's median gate sits on
+//   noise and its rows read 0.25-0.9 m short (systematic 44 mm over all rows;
+//   over the rows keeping at least half their shots 1.64 / 1.55 mm against
+//   0.65 mm, as before).
 // - Cases 2-4 (30 ps of delay wander, run seed 1 for every case: the bands'
 //   drifts are the same draw, -2.0 / +0.2 / -5.8 / -0.9 mm): worst valid rows
 //   12.0-13.0 mm, 94.6-97.9 % overall, time bands 84.4-100 %, systematic
 //   3.9-4.4 mm against 1.5 mm of noise (case 4, in sunlight, with the
-//   false-stop term: 95.7 / 94.6 %, bands 87.5-100 / 84.4-99.6 %). Not reachable: the wander alone
+//   false-stop term: 95.3 / 94.3 %, bands 86.9-99.6 / 84.4-99.6 %; systematic over the rows
+//   keeping half their shots 4.36 / 4.44 mm, with the 7.4 m rho 0.85 target at 8 C 44.8 mm,
+//   as in case 1). Not reachable: the wander alone
 //   moves a row 60 min after the calibration 6.4 mm sd (95 % within 12 mm, 64 % beyond 3 mm) and
 //   even a row right after it 3.5 mm sd (35 % beyond 3 mm); at the paper preset's 20 ps 4.4 mm (52
 //   %) and 2.4 mm (22 %) (DelayWanderAloneMovesFieldRowsBeyondThreeMillimetres). +-3 mm for every
@@ -754,7 +899,7 @@ TEST(UncertaintyBudget, DriftAfterCalibrationIsRandomPerPowerOn) {
     }
     std::printf(
         "%2.0f min after the calibration: mean change %+.2f +- %.2f mm over %d power-ons, rms "
-        "%.2f mm; the budget's drift u (this power-on's record) %.2f mm, with a row's "
+        "%.2f mm (raw rows); the budget's drift u (this power-on's record) %.2f mm, with a row's "
         "repeatability %.2f mm\n",
         minutes, mean * 1e3, se * 1e3, kPowerOns, rms * 1e3, u * 1e3,
         std::hypot(u, u_repeat) * 1e3);
@@ -1037,6 +1182,159 @@ TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
 
 namespace tofkit {
 namespace {
+
+// Diagnosis of coverage per time band (issue 34): held-out case 0 (indoors,
+// no delay wander) calibrated by the planner's protocol (chain) on several
+// power-ons, each tested in the field on its own power-on. Per power-on: the
+// 2-sigma coverage per time band (0 / 20 / 40 / 60 min), the band's mean
+// error (the power-on's drift draw plus the correction's mean residual), the
+// systematic residual per band and the drift term u its stability record gave;
+// then, over the power-ons, the pooled coverage per band, the rms of the
+// bands' mean errors against the rms of the drift terms. TOFKIT_POWER_ONS sets
+// their number (8).
+TEST(UncertaintyBudgetDiagnosis, DISABLED_CoverageByTimeBandOverPowerOns) {
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const int power_ons =
+      std::getenv("TOFKIT_POWER_ONS") ? std::atoi(std::getenv("TOFKIT_POWER_ONS")) : 8;
+  const double minutes[4] = {0, 20, 40, 60};
+  std::array<double, 4> coverage{}, mean2{}, drift2{}, systematic2{}, mean_sum{};
+  double noise2 = 0;
+  for (int p = 1; p <= power_ons; ++p) {
+    const Calibrated c = calibrate(device, true, false, static_cast<std::uint64_t>(p));
+    const FieldFigures f = field_test(device, c, static_cast<std::uint64_t>(p));
+    std::array<double, 4> u{};
+    for (const auto& component : c.budget.budget.components)
+      if (component.name == "drift since calibration")
+        for (int b = 0; b < 4; ++b) u[b] = component.u_m(60 * minutes[b]);
+    std::printf("power-on %2d: 2-sigma %.1f %%, bands", p, 100 * f.within_2sigma);
+    for (int b = 0; b < 4; ++b) std::printf(" %5.1f", 100 * f.by_time[b]);
+    std::printf(" %%; mean error");
+    for (int b = 0; b < 4; ++b) std::printf(" %+5.2f", f.mean_by_time_mm[b]);
+    std::printf(" mm; systematic");
+    for (int b = 0; b < 4; ++b) std::printf(" %4.2f", f.systematic_by_time_mm[b]);
+    std::printf(" mm; drift u");
+    for (int b = 0; b < 4; ++b) std::printf(" %4.2f", u[b] * 1e3);
+    std::printf(" mm; noise %.2f mm\n", f.noise_mm);
+    for (int b = 0; b < 4; ++b) {
+      coverage[b] += f.by_time[b] / power_ons;
+      mean2[b] += f.mean_by_time_mm[b] * f.mean_by_time_mm[b] / power_ons;
+      mean_sum[b] += f.mean_by_time_mm[b] / power_ons;
+      drift2[b] += u[b] * u[b] * 1e6 / power_ons;
+      systematic2[b] += f.systematic_by_time_mm[b] * f.systematic_by_time_mm[b] / power_ons;
+    }
+    noise2 += f.noise_mm * f.noise_mm / power_ons;
+  }
+  std::printf("over %d power-ons, per band (0 / 20 / 40 / 60 min):\n  2-sigma", power_ons);
+  for (int b = 0; b < 4; ++b) std::printf(" %5.1f", 100 * coverage[b]);
+  std::printf(" %%\n  mean error: mean");
+  for (int b = 0; b < 4; ++b) std::printf(" %+5.2f", mean_sum[b]);
+  std::printf(" rms");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(mean2[b]));
+  std::printf(" mm\n  drift u (rms over the records)");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(drift2[b]));
+  std::printf(" mm\n  systematic (rms)");
+  for (int b = 0; b < 4; ++b) std::printf(" %5.2f", std::sqrt(systematic2[b]));
+  std::printf(" mm against one row's noise %.2f mm\n", std::sqrt(noise2));
+}
+
+// Diagnosis of the drift term against the ensemble (issue 34), held-out case
+// 0: the stability record of the planner's protocol measured on 16 power-ons,
+// each record's drift term at 20 / 40 / 60 min (with a row's repeatability),
+// against the rms change over 80 power-ons of one row 20 / 40 / 60 min after
+// the calibration's start from the plate's mean over its first 5 min (as
+// DriftAfterCalibrationIsRandomPerPowerOn), and from one row at the start.
+TEST(UncertaintyBudgetDiagnosis, DISABLED_DriftTermOverRecordsAgainstTheEnsemble) {
+  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const Calibrated c = calibrate(device, true, false);
+  calib::CalibrationPlanOptions field;
+  field.range_min_m = 0.7;
+  field.range_max_m = 7.4;
+  field.reflectance_min = 0.06;
+  field.reflectance_max = 0.85;
+  const experiments::Protocol protocol = experiments::plan_protocol(device, field, {});
+  const experiments::ProtocolStep& stability = protocol.steps.front();
+  ASSERT_EQ(stability.role, experiments::StepRole::stability);
+  const auto record_plan = experiments::plate_grid_plan(stability.grid);
+  double rep2 = 0;
+  for (const auto& component : c.budget.budget.components)
+    if (component.name == "repeatability (one row)")
+      rep2 = std::pow(
+          component.u_m(std::log(device
+                                     .echo(device::Target::plate(stability.grid.distances_m[0],
+                                                                 stability.grid.reflectances[0]),
+                                           {})
+                                     .peak_v)),
+          2);
+  const double minutes[3] = {20, 40, 60};
+  std::array<double, 3> term2{};
+  constexpr int kRecords = 16;
+  for (int p = 1; p <= kRecords; ++p) {
+    const auto rows =
+        experiments::run(device, record_plan, static_cast<std::uint64_t>(p), stability.timing);
+    std::vector<ranging::Range> ranges(rows.size());
+    c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+    std::vector<double> y;
+    for (std::size_t i = 0; i < rows.size(); ++i)
+      y.push_back(rows[i].truth.distance_m - ranges[i].distance_m);
+    const calib::DriftCurve curve =
+        calib::drift_structure_function(y, stability.timing.every_s, rep2);
+    std::printf("record %2d:", p);
+    for (int b = 0; b < 3; ++b) {
+      // Held beyond the last lag, linear between the nodes.
+      const double t = 60 * minutes[b];
+      double v = curve.variance_m2.back();
+      for (std::size_t k = 1; k < curve.lag_s.size(); ++k)
+        if (t <= curve.lag_s[k]) {
+          const double w = (t - curve.lag_s[k - 1]) / (curve.lag_s[k] - curve.lag_s[k - 1]);
+          v = curve.variance_m2[k - 1] + w * (curve.variance_m2[k] - curve.variance_m2[k - 1]);
+          break;
+        }
+      term2[b] += v / kRecords;
+      std::printf(" %.2f", std::sqrt(v) * 1e3);
+    }
+    std::printf(" mm\n");
+  }
+  experiments::PlateGrid one = stability.grid;
+  one.count = 1;
+  const auto plan = experiments::plate_grid_plan(one);
+  one.count = 20;
+  const auto level = experiments::plate_grid_plan(one);
+  constexpr int kPowerOns = 80;
+  for (int b = 0; b < 3; ++b) {
+    double from_mean2 = 0, from_row2 = 0, corrected_mean2 = 0, corrected_row2 = 0;
+    const auto corrected = [&](const std::vector<ranging::Record>& rows) {
+      std::vector<ranging::Range> ranges(rows.size());
+      c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+      std::vector<double> d;
+      for (const auto& r : ranges) d.push_back(r.distance_m);
+      return d;
+    };
+    for (int seed = 1; seed <= kPowerOns; ++seed) {
+      const auto a = experiments::run(device, level, seed, {c.calibration_start_s, 15});
+      double tof = 0;
+      for (const auto& r : a) tof += r.raw.tof_ns / static_cast<double>(a.size());
+      const auto later =
+          experiments::run(device, plan, seed, {c.calibration_start_s + 60 * minutes[b], 0});
+      from_mean2 += std::pow(device.tof_to_distance_m(later[0].raw.tof_ns - tof), 2) / kPowerOns;
+      from_row2 +=
+          std::pow(device.tof_to_distance_m(later[0].raw.tof_ns - a[0].raw.tof_ns), 2) / kPowerOns;
+      const std::vector<double> ca = corrected(a), cl = corrected(later);
+      double mean = 0;
+      for (double x : ca) mean += x / static_cast<double>(ca.size());
+      corrected_mean2 += std::pow(cl[0] - mean, 2) / kPowerOns;
+      corrected_row2 += std::pow(cl[0] - ca[0], 2) / kPowerOns;
+    }
+    std::printf("%2.0f min, corrected rows: from the 5-min mean %.2f mm, from one row %.2f mm\n",
+                minutes[b], std::sqrt(corrected_mean2) * 1e3, std::sqrt(corrected_row2) * 1e3);
+    std::printf(
+        "%2.0f min: drift term (rms over %d records) %.2f mm, with a row's repeatability %.2f mm; "
+        "ensemble of %d power-ons: from the 5-min mean %.2f mm, from one row %.2f mm (less the "
+        "first row's repeatability: %.2f mm)\n",
+        minutes[b], kRecords, std::sqrt(term2[b]) * 1e3, std::sqrt(term2[b] + rep2) * 1e3,
+        kPowerOns, std::sqrt(from_mean2) * 1e3, std::sqrt(from_row2) * 1e3,
+        std::sqrt(std::max(0.0, from_row2 - rep2)) * 1e3);
+  }
+}
 
 // Diagnosis of the weak-echo residual (issue 34): one held-out device,
 // calibrated by the planner's protocol (chain); each field target measured 20

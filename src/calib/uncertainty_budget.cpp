@@ -179,6 +179,75 @@ void BudgetSpecification::set(const std::string& assignment) {
       "temperature_half_range_c, drift_ps, power_on_ps)");
 }
 
+DriftCurve drift_structure_function(std::span<const double> residual_m, double every_s,
+                                    double row_noise2_m2) {
+  DriftCurve out;
+  const std::size_t ns = residual_m.size();
+  if (ns < 2 || !(every_s > 0)) return out;
+  const double white2 = row_noise2_m2;
+  const std::size_t max_lag = std::max<std::size_t>(1, (3 * ns) / 4);
+  std::vector<std::size_t> lags;
+  for (double l = 1; l <= static_cast<double>(max_lag); l *= 1.3)
+    if (lags.empty() || static_cast<std::size_t>(l) != lags.back())
+      lags.push_back(static_cast<std::size_t>(l));
+  // D(lag) less the rows' own noise, then made non-decreasing by pooling
+  // adjacent violators (least squares, pairs as weights): a drift's
+  // variance does not fall with the lag, and the noisy long lags (few
+  // pairs) must not push the curve up as a running maximum would.
+  // The record's own row noise may exceed a row's repeatability (flicker
+  // faster than the rows' spacing): D(lag) holds it twice, once for the row at
+  // the calibration (averaged away by the calibration's many rows) and once
+  // for the field row; a field row keeps its excess over the repeatability
+  // once (a deficit too: the repeatability in its sigma covers the rest), so
+  // D(lag) loses noise^2 + u_rep^2 (unclamped: a clamp at 0 of an excess that
+  // is noise around 0 would take its positive mean off every lag). The row noise
+  // is half D's intercept at lag 0, 2 D(1) - D(2): noise gives D flat over the
+  // first steps, a drift adds to it linearly there (a random walk's q tau, a
+  // slower wander's 2 s^2 tau / T), so D(1) / 2 would count a step's drift as
+  // noise and take it off at every lag (a random walk's q step / 2, a wander's
+  // D(step) / 2: 0.025 of 1.44 mm^2 at 13 min for one of 1 mm over 10 min).
+  const auto structure = [&](std::size_t lag) {
+    double sum = 0;
+    for (std::size_t i = 0; i + lag < ns; ++i)
+      sum += std::pow(residual_m[i + lag] - residual_m[i], 2);
+    return sum / static_cast<double>(ns - lag);
+  };
+  const double d1 = structure(1);
+  const double row_noise2 = 0.5 * (ns >= 3 ? 2 * d1 - structure(2) : d1);
+  const double noise_taken2 = row_noise2 + white2;
+  std::vector<double> value, weight;
+  std::vector<std::size_t> count;  // lags pooled into each block
+  for (const std::size_t lag : lags) {
+    double sum = 0;
+    for (std::size_t i = 0; i + lag < ns; ++i) {
+      const double dd = residual_m[i + lag] - residual_m[i];
+      sum += dd * dd;
+    }
+    const double pairs = static_cast<double>(ns - lag);
+    value.push_back(sum / pairs - noise_taken2);
+    weight.push_back(pairs);
+    count.push_back(1);
+    while (value.size() > 1 && value[value.size() - 2] > value.back()) {
+      const std::size_t k = value.size() - 1;
+      value[k - 1] =
+          (value[k - 1] * weight[k - 1] + value[k] * weight[k]) / (weight[k - 1] + weight[k]);
+      weight[k - 1] += weight[k];
+      count[k - 1] += count[k];
+      value.pop_back();
+      weight.pop_back();
+      count.pop_back();
+    }
+  }
+  std::size_t next = 0;
+  for (std::size_t b = 0; b < value.size(); ++b) {
+    for (std::size_t j = 0; j < count[b]; ++j, ++next) {
+      out.lag_s.push_back(static_cast<double>(lags[next]) * every_s);
+      out.variance_m2.push_back(std::max(0.0, value[b]));
+    }
+  }
+  return out;
+}
+
 BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpecification& spec) {
   spec.validate();
   if (d.out_of_fold_m.size() != d.rows.size() || d.residual_m.size() != d.rows.size() ||
@@ -613,55 +682,10 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     drift.scope = BudgetScope::same_power_on;
     drift.axis = BudgetComponent::Axis::time_since_calibration_s;
     add_node(drift, 0.0, 0.0);
-    const std::size_t max_lag = std::max<std::size_t>(1, (3 * ns) / 4);
-    std::vector<std::size_t> lags;
-    for (double l = 1; l <= static_cast<double>(max_lag); l *= 1.3)
-      if (lags.empty() || static_cast<std::size_t>(l) != lags.back())
-        lags.push_back(static_cast<std::size_t>(l));
-    // D(lag) less the rows' own noise, then made non-decreasing by pooling
-    // adjacent violators (least squares, pairs as weights): a drift's
-    // variance does not fall with the lag, and the noisy long lags (few
-    // pairs) must not push the curve up as a running maximum would.
-    // The record's own short-term noise (half its structure function at one
-    // step) may exceed a row's repeatability (flicker between back-to-back
-    // repeats and rows 15 s apart): D(lag) holds it twice, once for the row at
-    // the calibration (averaged away by the calibration's many rows) and once
-    // for the field row; a field row keeps its excess over the repeatability
-    // once, so D(lag) loses 2 u_rep^2 + max(0, D(1) / 2 - u_rep^2).
-    double d1 = 0;
-    for (std::size_t i = 0; i + 1 < ns; ++i)
-      d1 += std::pow(d.stability_residual_m[i + 1] - d.stability_residual_m[i], 2);
-    d1 /= static_cast<double>(ns - 1);
-    const double short_excess2 = std::max(0.0, 0.5 * d1 - white2);
-    std::vector<double> value, weight;
-    std::vector<std::size_t> count;  // lags pooled into each block
-    for (const std::size_t lag : lags) {
-      double sum = 0;
-      for (std::size_t i = 0; i + lag < ns; ++i) {
-        const double dd = d.stability_residual_m[i + lag] - d.stability_residual_m[i];
-        sum += dd * dd;
-      }
-      const double pairs = static_cast<double>(ns - lag);
-      value.push_back(sum / pairs - 2 * white2 - short_excess2);
-      weight.push_back(pairs);
-      count.push_back(1);
-      while (value.size() > 1 && value[value.size() - 2] > value.back()) {
-        const std::size_t k = value.size() - 1;
-        value[k - 1] =
-            (value[k - 1] * weight[k - 1] + value[k] * weight[k]) / (weight[k - 1] + weight[k]);
-        weight[k - 1] += weight[k];
-        count[k - 1] += count[k];
-        value.pop_back();
-        weight.pop_back();
-        count.pop_back();
-      }
-    }
-    std::size_t next = 0;
-    for (std::size_t b = 0; b < value.size(); ++b) {
-      for (std::size_t j = 0; j < count[b]; ++j, ++next)
-        add_node(drift, static_cast<double>(lags[next]) * d.stability_every_s,
-                 std::max(0.0, value[b]));
-    }
+    const DriftCurve curve =
+        drift_structure_function(d.stability_residual_m, d.stability_every_s, white2);
+    for (std::size_t k = 0; k < curve.lag_s.size(); ++k)
+      add_node(drift, curve.lag_s[k], curve.variance_m2[k]);
     budget.components.push_back(drift);
     // The Allan deviation at a few averaging times, for the certificate.
     std::string allan;

@@ -415,6 +415,8 @@ struct MeasurementValues {
   bool sampled = false;
   double record_begin_ns = 0;          // waveform mode samples from here on
   double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
+  double armed_ns = 0;                 // its stops count from here: the blanking's end, or the
+                                       // TDC's start (armed_time_ns)
   double record_end_ns = 0;            // waveform mode samples up to here
   double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
   double false_alarm_probability = 0;  // 1 - exp(-nu window)
@@ -780,6 +782,7 @@ struct VirtualRangefinder::Impl {
         std::max(threshold - kLevelSpanSigma * sigma - level_wander_span_v, 0.05 * threshold);
     m.level_end_v = threshold + kLevelSpanSigma * sigma + level_wander_span_v;
     m.blanking_ns = config.discriminator.blanking_ns;
+    m.armed_ns = m.blanking_ns > 0.0 ? m.blanking_ns : armed_time_ns();
     if (!shapes) return Echo::kExact;
     // Fast path: one surface whose echo has a single peak, analytic mode.
     int surfaces = 0;
@@ -792,7 +795,7 @@ struct VirtualRangefinder::Impl {
     }
     const double crosstalk_v = crosstalk_at(c);
     if (surfaces == 0 && crosstalk_v <= 0.0) {
-      set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
+      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
       return Echo::kNone;
     }
     // (No crosstalk, and the echo starts after any blanking.)
@@ -862,7 +865,8 @@ struct VirtualRangefinder::Impl {
     set_edge_correlation(m, m.peak_v >= threshold ? pulse.noise_correlation(lag_ns) : 1.0);
     // A shot's alarm needs its 24-bit uniform below the probability, so one
     // below 2^-26 never fires: the window need not be worked out.
-    const double longest_window_ns = pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns();
+    const double longest_window_ns =
+        pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns() - armed_time_ns();
     if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
       m.false_alarm_probability = 0.0;
     else
@@ -881,7 +885,7 @@ struct VirtualRangefinder::Impl {
     components(target, c, comps);
     if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
-      set_false_alarm_window(m, pulse_period_ns);  // armed until next pulse
+      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
       return;
     }
 
@@ -914,7 +918,7 @@ struct VirtualRangefinder::Impl {
                                 std::ceil((m.blanking_ns - m.grid_begin_ns) / kCompositeStepNs)))
               : 0;
     if (i_gate >= n) {
-      set_false_alarm_window(m, pulse_period_ns);  // everything blanked
+      set_false_alarm_window(m, next_start_ns());  // everything blanked
       m.composite.clear();
       return;
     }
@@ -1128,9 +1132,24 @@ struct VirtualRangefinder::Impl {
     m.edge_independence = std::sqrt(1.0 - correlation * correlation);
   }
 
-  /// Noise crossings count from the end of the blanking to `end_ns`.
+  /// When the comparator's stops start to count without blanking (echo time):
+  /// when the TDC starts. The paper's FPGA both fires the laser driver and
+  /// counts the time of flight (its Fig. 2 architecture; S = c n tau / 2 in its
+  /// clock's periods), so the count starts with the trigger, before any light
+  /// leaves; how long before is folded into measurement.fixed_delay_ns with the
+  /// receive chain's delay, so the start is taken at the light's onset, the
+  /// pulse template's begin (lasing_onset_ns, or 6 sigma before a Gaussian's
+  /// peak). No echo crosses earlier, a strong echo of a long pulse may cross
+  /// before the pulse's centre (t = 0), and noise crossings count from here in
+  /// both modes: as Rice's false alarms before an analytic echo or a sampled
+  /// record, and on the sampled record itself.
+  [[nodiscard]] double armed_time_ns() const { return pulse.begin_ns(); }
+  /// The next pulse's start: the TDC restarts there.
+  [[nodiscard]] double next_start_ns() const { return pulse_period_ns + armed_time_ns(); }
+
+  /// Noise crossings count from the comparator's arming to `end_ns`.
   static void set_false_alarm_window(MeasurementSetup& m, double end_ns) {
-    m.false_alarm_window_ns = std::max(end_ns - m.blanking_ns, 0.0);
+    m.false_alarm_window_ns = std::max(end_ns - m.armed_ns, 0.0);
     m.false_alarm_probability = -std::expm1(-m.false_alarm_rate_per_ns * m.false_alarm_window_ns);
   }
 
@@ -1264,9 +1283,10 @@ struct VirtualRangefinder::Impl {
       if (k > 0) {
         if (!above && prev_v < threshold && v >= threshold) {
           rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          // A blanked crossing is not seen; without blanking every one is (a
-          // strong echo of a long pulse crosses before the pulse's centre, t = 0).
-          above = m.blanking_ns <= 0.0 || rise >= m.blanking_ns;
+          // A crossing before the comparator is armed (blanked, or before the
+          // TDC's start) is not seen; a strong echo of a long pulse crosses
+          // before the pulse's centre, t = 0, but after the light's onset.
+          above = rise >= m.armed_ns;
         } else if (above) {
           if (amplifier_v > rx.saturation_v) {
             clipped = true;
@@ -1490,13 +1510,13 @@ struct VirtualRangefinder::Impl {
 
   /// Noise alone firing the comparator before the echo (a false alarm) when
   /// the shot's uniform u_false falls below the window's probability: its
-  /// first threshold upcrossing after the comparator is armed (at emission) is
+  /// first threshold upcrossing after the comparator is armed (armed_ns) is
   /// exponential with Rice's rate, in both modes.
   [[nodiscard]] static bool false_alarm(const MeasurementSetup& m, double u_false, double& rise,
                                         double& fall) {
     if (u_false >= m.false_alarm_probability) return false;
     // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-    rise = m.blanking_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
+    rise = m.armed_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
     // Mean excursion length above the level: P(X > u) / nu.
     fall =
         rise + 0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;

@@ -29,8 +29,9 @@
 ///   delay_tempco_ps_per_c (u = tempco x |T - T_ref|);
 /// - drift since calibration (type A): the structure function of a stability
 ///   record (a static target over time), D(tau) = E[(y(t + tau) - y(t))^2]
-///   less twice its rows' noise: the variance a row tau after the
-///   calibration adds; else type B from drift_ps;
+///   less its rows' noise and a row's repeatability (drift_structure_function):
+///   the variance a row tau after the calibration adds; else type B from
+///   drift_ps;
 /// - power-on reproducibility (type A): the mean residual of repeats on other
 ///   power-ons; else type B from power_on_ps.
 
@@ -100,6 +101,19 @@ struct BudgetFitResult {
   ranging::UncertaintyBudget budget;
   std::string report;  ///< how each component was estimated; warnings for default specifications
 };
+
+/// The drift term's curve from a stability record (residuals of one static
+/// target in time order, every_s apart): at lags from one step to 3/4 of the
+/// record (steps x 1.3), the structure function D(tau) = mean (y(t + tau) -
+/// y(t))^2 less the record's own row noise (half D's intercept at lag 0,
+/// 2 D(step) - D(2 steps)) and a row's repeatability (row_noise2_m2), made
+/// non-decreasing by pooling adjacent violators (pairs as weights), floored
+/// at 0. Empty with fewer than 2 rows.
+struct DriftCurve {
+  std::vector<double> lag_s, variance_m2;
+};
+[[nodiscard]] DriftCurve drift_structure_function(std::span<const double> residual_m,
+                                                  double every_s, double row_noise2_m2);
 
 /// Throws std::invalid_argument when the rows have no repeats (>= 3 targets
 /// with two or more rows are needed for the repeatability).
