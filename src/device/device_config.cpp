@@ -224,6 +224,9 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "the paper's Fig. 7 and 9 scatter"),
       field("measurement.stop_gate_ns", &m.stop_gate_ns, 0, 1e6,
             "false-stop rejection: drop stops this far from the median stop (0: off). Assumption"),
+      field("measurement.stop_gate_min_share", &m.stop_gate_min_share, 0, 1,
+            "no distance when the stop gate keeps less than this share of the stops (false stops "
+            "outnumber the echo's; 0: off). Assumption: a majority"),
       field("measurement.window_ns", &m.window_ns, 0.01, 1e5,
             "waveform-mode record length around the echo"),
       field("measurement.sample_period_ps", &m.sample_period_ps, 1e-3, 1e6,

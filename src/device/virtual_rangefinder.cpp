@@ -1604,6 +1604,15 @@ struct VirtualRangefinder::Impl {
       sum_width += st[1];
       ++valid;
     }
+    // The median stop is the echo's only while the echo's stops are the
+    // majority: false stops come before the echo (the first crossing stops the
+    // TDC), so once they outnumber it the median, and the gate around it, sit
+    // on noise and the average reads short by up to the time of flight. The
+    // firmware then gives no distance (the gate keeps too few of the stops).
+    if (gate > 0 && valid < config.measurement.stop_gate_min_share * double(stops.size())) {
+      valid = 0;
+      sum_tof = sum_width = 0;
+    }
     const auto extra = rng.draw(stream, kMeasurementCounter, 0);
     return finish(m, cond, normal_pair(extra[0], extra[1]), n, sum_tof, sum_width, valid);
   }

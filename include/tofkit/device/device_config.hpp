@@ -110,6 +110,10 @@ struct MeasurementConfig {
   double stop_gate_ns = 2.0;         ///< firmware's false-stop rejection: stops farther than this
                               ///< from the median stop are dropped before averaging (0: off).
                               ///< Assumption: +-0.3 m, wider than any walk (< 1 ns).
+  double stop_gate_min_share = 0.5;       ///< the gate must keep at least this share of the stops,
+                                          ///< else no distance: fewer means false stops (noise
+                                          ///< before the echo) outnumber the echo's and the median
+                                          ///< is noise's. 0: off. Assumption: a majority.
   double window_ns = 30.0;                ///< waveform-mode record length around the echo
   double sample_period_ps = 100.0;        ///< waveform-mode sampling period (at most: finer
                                           ///< for a fast receiver, device::waveform_step_ns)

@@ -19,7 +19,8 @@ inline constexpr double kMaxMagnitude = 1e100;
 
 /// Status bits of a RawMeasurement (`flags` column).
 enum RawFlag : std::uint32_t {
-  kRawNoEcho = 1u << 0,           ///< no shot crossed the threshold; distance is empty
+  kRawNoEcho = 1u << 0,           ///< no echo (no shot crossed the threshold, or false stops
+                                  ///< outnumbered the echo's); distance is empty
   kRawPartialEchoes = 1u << 1,    ///< some, not all, shots gave an echo
   kRawSaturated = 1u << 2,        ///< the amplifier clipped (mean echo above saturation)
   kRawTurnOnTransient = 1u << 3,  ///< taken while the laser was still in its turn-on transient
