@@ -21,6 +21,7 @@
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/receiver_echo.hpp"
+#include "tofkit/device/slow_offsets.hpp"
 #include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/physics/air.hpp"
@@ -39,16 +40,7 @@ using physics::kPi;
 constexpr std::size_t kLevels = 129;       // entries of the level -> crossing-time tables
 constexpr double kLevelSpanSigma = 6.0;    // the tables cover threshold +- 6 sigma
 constexpr double kCompositeStepNs = 0.01;  // grid of the noise-free composite echo
-constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;   // per-measurement draws
-constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-on) draws
-constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
-constexpr double kFlickerLowestHz = 1e-3;
-// Random delay wander: kWanderLevels random processes whose correlation times
-// grow by kWanderLevelRatio (two octaves) from kWanderShortestS, equal power each.
-constexpr int kWanderLevels = 12;  // 1 ms ... 4^11 ms (70 min)
-constexpr double kWanderShortestS = 1e-3;
-constexpr double kWanderLevelRatio = 4.0;
-constexpr std::uint64_t kWanderStream = ~std::uint64_t{0} - 1;  // level k: kWanderStream - k
+constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;  // per-measurement draws
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 // Analytic crossings need the noise frozen over each edge: at most this many
 // extra (chatter) crossings per edge on average, else the noise is sampled.
@@ -168,6 +160,7 @@ struct ConditionState {
 
 /// Working storage of measure_single_shots: kLanes measurements at a time.
 constexpr std::size_t kLanes = 64;
+static_assert(kLanes <= SlowOffsets::kMaxOutputs);
 struct Lanes {
   std::array<MeasurementSetup, kLanes> setups;
   std::array<SurfaceEcho, kLanes> echoes;
@@ -197,8 +190,8 @@ struct VirtualRangefinder::Impl {
   bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
   double shots_per_time_constant = 0;  // pulses per coupling time constant
   double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
-  bool wandering = false;              // delay or comparator-level wander (add_wander_ns)
   double level_wander_span_v = 0;      // the level tables' extra span for the level's wander
+  SlowOffsets slow;                    // timing: power-on offset, flicker, delay and level wander
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -206,7 +199,8 @@ struct VirtualRangefinder::Impl {
         pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz, 5.0,
               config.link.laser.lasing_onset_ns),
         tdc(config.tdc),
-        id(next_device_id.fetch_add(1)) {
+        id(next_device_id.fetch_add(1)),
+        slow(config, id) {
     const auto& rx = config.link.receiver;
     volts_per_watt_unity_gain =
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
@@ -224,8 +218,6 @@ struct VirtualRangefinder::Impl {
         config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
     for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
       pulse_area_ns += pulse(t) * kCompositeStepNs;
-    wandering =
-        config.measurement.delay_wander_ps > 0.0 || config.discriminator.level_wander_mv > 0.0;
     // 5 sigma of the level's wander (a sum of 12 bounded-variance normals).
     level_wander_span_v = 5.0 * config.discriminator.level_wander_mv * 1e-3;
   }
@@ -1009,203 +1001,15 @@ struct VirtualRangefinder::Impl {
     return true;
   }
 
-  /// The run's draws (power-on offset, the phases of the 1/f wander's
-  /// octaves): they depend on the seed only, so they are worked out once per
-  /// thread and seed.
-  struct RunDraws {
-    std::uint64_t device = 0, seed = 0;
-    double offset = 0;
-    std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
-  };
-  [[nodiscard]] const RunDraws& run_draws(const CounterRng& rng) const {
-    const auto& mc = config.measurement;
-    thread_local RunDraws run;
-    if (run.device != id || run.seed != rng.seed()) {
-      const auto power_on = rng.draw(kPowerOnStream, 0, 0);
-      run.offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
-      for (int k = 0; k < kFlickerOctaves; k += 4) {
-        const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
-        for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
-          const auto o = static_cast<std::size_t>(k + j);
-          ::sincos(2.0 * kPi * unit_open(r[static_cast<std::size_t>(j)]), &run.sin_phase[o],
-                   &run.cos_phase[o]);
-        }
-      }
-      run.device = id;
-      run.seed = rng.seed();
-    }
-    return run;
-  }
-
   /// Delay offset (ns) common to every shot of one measurement: the run's
   /// power-on offset plus the slow 1/f flicker and the random wander at the
-  /// measurement's time (stream i starts i measurement periods after power-on).
-  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, const RunDraws& run,
-                                      std::uint64_t stream, const Conditions& cond,
-                                      MeasurementSetup& m) const {
+  /// measurement's time (stream i starts i measurement periods after power-on);
+  /// the comparator level's wander into m.
+  [[nodiscard]] double slow_offset_ns(std::uint64_t seed, std::uint64_t stream,
+                                      const Conditions& cond, MeasurementSetup& m) const {
     double offset = 0;
-    slow_offsets_ns(rng, run, stream, 1, &cond, &offset, &m.level_offset_v);
+    slow.offsets_ns(seed, slow.run_draws(seed), stream, 1, &cond, &offset, &m.level_offset_v);
     return offset;
-  }
-
-  /// Knot j of wander level k: a unit-variance draw of the run (seed), level and
-  /// knot only, so any output reads the same knots on any thread or grouping.
-  /// The last two knots of each level are kept per thread (consecutive outputs
-  /// share them).
-  /// Each knot is a pair of independent draws: [0] for the delay's wander,
-  /// [1] for the comparator level's.
-  using KnotPair = std::array<double, 2>;
-  [[nodiscard]] static const std::array<KnotPair, 2>& wander_knots(const CounterRng& rng,
-                                                                   std::uint64_t device, int level,
-                                                                   std::uint64_t j) {
-    struct Knots {
-      std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
-      std::array<KnotPair, 2> g{};
-    };
-    thread_local std::array<Knots, kWanderLevels> cache;
-    auto& c = cache[static_cast<std::size_t>(level)];
-    if (c.device != device || c.seed != rng.seed() || c.j != j) {
-      auto knot = [&](std::uint64_t index) {
-        const auto r =
-            rng.draw(kWanderStream - static_cast<std::uint64_t>(level),
-                     static_cast<std::uint32_t>(index), static_cast<std::uint32_t>(index >> 32));
-        // Two uniforms each (triangular, unit variance): one draw, no
-        // logarithm; an output sums 24 knots, normal by the central limit.
-        constexpr double kUnitTriangle = 2.449489742783178;  // sqrt(6)
-        return KnotPair{kUnitTriangle * (unit_open(r[0]) + unit_open(r[1]) - 1.0),
-                        kUnitTriangle * (unit_open(r[2]) + unit_open(r[3]) - 1.0)};
-      };
-      // A step of one knot reuses the shared one.
-      c.g = c.device == device && c.seed == rng.seed() && c.j + 1 == j
-                ? std::array<KnotPair, 2>{c.g[1], knot(j + 1)}
-                : std::array<KnotPair, 2>{knot(j), knot(j + 1)};
-      c.device = device;
-      c.seed = rng.seed();
-      c.j = j;
-    }
-    return c.g;
-  }
-
-  /// cos(pi w / 2) for w in [0, 1] (Taylor to w^10: within 5e-7).
-  static double cos_quarter_turn(double w) {
-    constexpr double h = kPi / 2;
-    const double x = h * h * w * w;
-    return 1.0 + x * (-1.0 / 2 +
-                      x * (1.0 / 24 + x * (-1.0 / 720 + x * (1.0 / 40320 + x * (-1.0 / 3628800)))));
-  }
-
-  /// The power-on offset plus the 1/f flicker (measurement.flicker_delay_ps)
-  /// of n <= kLanes consecutive streams from stream0 (in stages over the
-  /// streams: the octaves' sum vectorizes).
-  void flicker_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
-                          double* offsets) const {
-    const auto& mc = config.measurement;
-    if (mc.flicker_delay_ps <= 0.0) {
-      std::fill(offsets, offsets + n, run.offset);
-      return;
-    }
-    // 1/f noise has equal power per octave: one sinusoid of random phase per
-    // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
-    // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
-    const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
-    std::array<double, kLanes> sin_a, cos_a;
-    for (std::size_t i = 0; i < n; ++i) {
-      const double t_s =
-          static_cast<double>(stream0 + i) * mc.shots / config.link.laser.repetition_hz;
-      // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
-      const double cycles = kFlickerLowestHz * t_s;
-      const auto phase = static_cast<std::uint32_t>(
-          static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
-      sincos_of_phase(phase, sin_a[i], cos_a[i]);
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      double s = sin_a[i], c = cos_a[i], wander = 0;
-      for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
-        wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
-        const double s2 = 2.0 * s * c;
-        c = (c - s) * (c + s);
-        s = s2;
-      }
-      offsets[i] = run.offset + amplitude * wander;
-    }
-  }
-
-  /// Adds the random delay wander (measurement.delay_wander_ps) of n <= kLanes
-  /// consecutive streams from stream0 to offsets: a sum of kWanderLevels
-  /// processes of equal power whose
-  /// correlation times s_k grow by kWanderLevelRatio (two octaves) from
-  /// kWanderShortestS: level k passes from one independent normal knot to the
-  /// next over s_k as cos(pi w / 2) g_j + sin(pi w / 2) g_j+1 (its variance
-  /// stays 1 at every w, and it decorrelates after s_k). Equal power per two
-  /// octaves: a 1/f spectrum from 1 / s_max to 1 / s_0, so averaging over
-  /// longer runs stops helping. Each output's value depends on its time and
-  /// the seed only; its time is its place in the run (stream x output period)
-  /// plus its conditions' session time (a protocol that waits between points,
-  /// e.g. for a plate swap or a climate chamber, says so there).
-  /// The comparator level's wander (discriminator.level_wander_mv) is a
-  /// second, independent process on the same levels and knot times, added to
-  /// level_offsets (V).
-  /// Also compiled for AVX2, as measure_single_shots (the interpolation vectorizes).
-  __attribute__((target_clones("avx2", "default"))) void add_wander_ns(
-      const CounterRng& rng, std::uint64_t stream0, std::size_t n, const Conditions* conds,
-      double* offsets, double* level_offsets) const {
-    const auto& mc = config.measurement;
-    const double norm = 1.0 / std::sqrt(static_cast<double>(kWanderLevels));
-    const double amplitude = mc.delay_wander_ps * 1e-3 * norm;
-    const double level_amplitude = config.discriminator.level_wander_mv * 1e-3 * norm;
-    const double period_s = static_cast<double>(mc.shots) / config.link.laser.repetition_hz;
-    std::array<double, kLanes> t_s, wander, level_wander;
-    for (std::size_t i = 0; i < n; ++i) {
-      t_s[i] = static_cast<double>(stream0 + i) * period_s + conds[i].session_time_s;
-      wander[i] = 0.0;
-      level_wander[i] = 0.0;
-    }
-    // Per level: the knots in a scalar pass (a lookup only where the knot
-    // index changes from the previous lane), then the interpolation over the
-    // lanes in a pass that vectorizes.
-    std::array<double, kLanes> w, g0, g1, h0, h1;
-    double inv_scale = 1.0 / kWanderShortestS;
-    for (int level = 0; level < kWanderLevels; ++level) {
-      std::uint64_t j_prev = ~std::uint64_t{0};
-      const std::array<KnotPair, 2>* g = nullptr;
-      for (std::size_t i = 0; i < n; ++i) {
-        const double u = t_s[i] * inv_scale;
-        const double floor_u = std::floor(u);
-        w[i] = u - floor_u;
-        const auto j = static_cast<std::uint64_t>(floor_u);
-        if (g == nullptr || j != j_prev) {
-          g = &wander_knots(rng, id, level, j);
-          j_prev = j;
-        }
-        g0[i] = (*g)[0][0];
-        g1[i] = (*g)[1][0];
-        h0[i] = (*g)[0][1];
-        h1[i] = (*g)[1][1];
-      }
-      for (std::size_t i = 0; i < n; ++i) {
-        const double c0 = cos_quarter_turn(w[i]), c1 = cos_quarter_turn(1.0 - w[i]);
-        wander[i] += c0 * g0[i] + c1 * g1[i];
-        level_wander[i] += c0 * h0[i] + c1 * h1[i];
-      }
-      inv_scale /= kWanderLevelRatio;
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      offsets[i] += amplitude * wander[i];
-      level_offsets[i] = level_amplitude * level_wander[i];
-    }
-  }
-
-  /// The offsets of n <= kLanes consecutive streams from stream0: power-on
-  /// offset, 1/f flicker, random wander.
-  /// level_offsets: the comparator level's wander (V), 0 without wander.
-  void slow_offsets_ns(const CounterRng& rng, const RunDraws& run, std::uint64_t stream0,
-                       std::size_t n, const Conditions* conds, double* offsets,
-                       double* level_offsets) const {
-    flicker_offsets_ns(run, stream0, n, offsets);
-    if (wandering)
-      add_wander_ns(rng, stream0, n, conds, offsets, level_offsets);
-    else
-      std::fill(level_offsets, level_offsets + n, 0.0);
   }
 
   /// Noise alone firing the comparator before the echo (a false alarm) when
@@ -1273,7 +1077,7 @@ struct VirtualRangefinder::Impl {
     }
     const CounterRng rng(seed);
     auto m = setup(target, cond);
-    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream, cond, m);
+    const double offset_ns = slow_offset_ns(seed, stream, cond, m);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
@@ -1321,7 +1125,7 @@ struct VirtualRangefinder::Impl {
       std::span<const Target> targets, std::span<const Conditions> conds, std::uint64_t seed,
       std::uint64_t first_stream, std::span<ranging::RawMeasurement> out) const {
     const CounterRng rng(seed);
-    const RunDraws& run = run_draws(rng);
+    const SlowOffsets::RunDraws& run = slow.run_draws(seed);
     thread_local Lanes lanes;
     auto& m = lanes.setups;
     for (std::size_t begin = 0; begin < targets.size(); begin += kLanes) {
@@ -1351,7 +1155,7 @@ struct VirtualRangefinder::Impl {
       }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
-      slow_offsets_ns(rng, run, stream0, n, conds.data() + begin, lanes.offsets.data(),
+      slow.offsets_ns(seed, run, stream0, n, conds.data() + begin, lanes.offsets.data(),
                       lanes.level_offsets.data());
       for (std::size_t k = 0; k < n; ++k) m[k].level_offset_v = lanes.level_offsets[k];
       for (std::size_t k = 0; k < n; ++k) {
@@ -1485,7 +1289,7 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   if (oscillator_) return oscillator_->shoot(target, conditions, seed, stream, shot);
   const CounterRng rng(seed);
   auto m = impl_->setup(target, conditions);
-  const double offset_ns = impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream, conditions, m);
+  const double offset_ns = impl_->slow_offset_ns(seed, stream, conditions, m);
   Shot s;
   double start = 0, rise = 0, fall = 0;
   s.echo =
