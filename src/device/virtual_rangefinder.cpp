@@ -19,6 +19,7 @@
 
 #include "random_draws.hpp"
 #include "tofkit/device/config_limits.hpp"
+#include "tofkit/device/discriminator.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/receiver_echo.hpp"
 #include "tofkit/device/slow_offsets.hpp"
@@ -99,19 +100,16 @@ struct MeasurementValues {
   double temperature_reading_c = 0;
   double amplitude_noise_rel = 0;
   double turn_on_start_ms = 0;
-  // Noise alone crossing the threshold before the echo (false alarms).
-  double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
-  double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
+  // Noise alone crossing the threshold before the echo (false alarms): Rice's
+  // rate at the threshold, the arming (the stops count from there: the
+  // blanking's end, or the TDC's start, armed_time_ns) and the window.
+  FalseAlarms alarms;
   // The noise is sampled on the waveform (waveform mode, or an analytic
   // measurement whose edges are too slow for a frozen-noise crossing).
   bool sampled = false;
-  double record_begin_ns = 0;          // waveform mode samples from here on
-  double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
-  double armed_ns = 0;                 // its stops count from here: the blanking's end, or the
-                                       // TDC's start (armed_time_ns)
-  double record_end_ns = 0;            // waveform mode samples up to here
-  double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
-  double false_alarm_probability = 0;  // 1 - exp(-nu window)
+  double record_begin_ns = 0;  // waveform mode samples from here on
+  double blanking_ns = 0;      // comparator ignores crossings (and alarms) before this
+  double record_end_ns = 0;    // waveform mode samples up to here
 };
 
 struct MeasurementSetup : MeasurementValues {
@@ -449,18 +447,17 @@ struct VirtualRangefinder::Impl {
       if (cache.device != id || cache.floor_var != m.noise_floor_var_v2 ||
           cache.shot_var != m.shot_var_per_v) {
         cache.at_threshold = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * threshold);
-        // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
-        // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
+        // Rice's formula for the upcrossing rate of the receiver's noise.
         cache.u = threshold / std::sqrt(m.noise_floor_var_v2);
         const double tau_p = pulse.pole_time_constant_ns();
-        cache.rate = std::exp(-0.5 * cache.u * cache.u) / (2.0 * kPi * tau_p);
+        cache.rate = rice_upcrossing_rate_per_ns(cache.u, tau_p);
         cache.device = id;
         cache.floor_var = m.noise_floor_var_v2;
         cache.shot_var = m.shot_var_per_v;
       }
       m.noise_at_threshold_v = cache.at_threshold;
-      m.false_alarm_rate_per_ns = cache.rate;
-      m.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
+      m.alarms.rate_per_ns = cache.rate;
+      m.alarms.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
     }
     m.fixed_delay_ns = c.fixed_delay_ns;
     m.tdc_bin_scale = c.tdc_bin_scale;
@@ -474,7 +471,7 @@ struct VirtualRangefinder::Impl {
         std::max(threshold - kLevelSpanSigma * sigma - level_wander_span_v, 0.05 * threshold);
     m.level_end_v = threshold + kLevelSpanSigma * sigma + level_wander_span_v;
     m.blanking_ns = config.discriminator.blanking_ns;
-    m.armed_ns = m.blanking_ns > 0.0 ? m.blanking_ns : armed_time_ns();
+    m.alarms.armed_ns = m.blanking_ns > 0.0 ? m.blanking_ns : armed_time_ns();
     if (!shapes) return Echo::kExact;
     // Fast path: one surface whose echo has a single peak, analytic mode.
     int surfaces = 0;
@@ -487,7 +484,7 @@ struct VirtualRangefinder::Impl {
     }
     const double crosstalk_v = crosstalk_at(c);
     if (surfaces == 0 && crosstalk_v <= 0.0) {
-      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
+      m.alarms.set_window(next_start_ns());  // armed until the next pulse's start
       return Echo::kNone;
     }
     // (No crosstalk, and the echo starts after any blanking.)
@@ -559,11 +556,11 @@ struct VirtualRangefinder::Impl {
     // below 2^-26 never fires: the window need not be worked out.
     const double longest_window_ns =
         pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns() - armed_time_ns();
-    if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
-      m.false_alarm_probability = 0.0;
+    if (m.alarms.rate_per_ns * longest_window_ns < 0x1p-26)
+      m.alarms.probability = 0.0;
     else
-      set_false_alarm_window(
-          m, m.level_begin_v <= m.peak_v ? rise_at(m, m.level_begin_v) : m.peak_time_ns);
+      m.alarms.set_window(m.level_begin_v <= m.peak_v ? rise_at(m, m.level_begin_v)
+                                                      : m.peak_time_ns);
   }
 
   /// The exact path: the composite echo of all surfaces (and the crosstalk)
@@ -577,7 +574,7 @@ struct VirtualRangefinder::Impl {
     components(target, c, comps);
     if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
-      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
+      m.alarms.set_window(next_start_ns());  // armed until the next pulse's start
       return;
     }
 
@@ -610,7 +607,7 @@ struct VirtualRangefinder::Impl {
                                 std::ceil((m.blanking_ns - m.grid_begin_ns) / kCompositeStepNs)))
               : 0;
     if (i_gate >= n) {
-      set_false_alarm_window(m, next_start_ns());  // everything blanked
+      m.alarms.set_window(next_start_ns());  // everything blanked
       m.composite.clear();
       return;
     }
@@ -733,7 +730,7 @@ struct VirtualRangefinder::Impl {
       m.noise_sigma.assign(n, 0.0);
       for (std::size_t i = i_lo; i < i_hi; ++i) m.noise_sigma[i] = noise_sigma_v(m, m.composite[i]);
     }
-    set_false_alarm_window(m, m.sampled ? m.record_begin_ns : first_rise);
+    m.alarms.set_window(m.sampled ? m.record_begin_ns : first_rise);
   }
 
   /// The fast path with its noise sampled (its edges are slower than the
@@ -745,7 +742,7 @@ struct VirtualRangefinder::Impl {
     set_record(m, rise_at(m, m.level_begin_v), rise_at(m, m.level_end_v),
                fall_at(m, m.level_begin_v));
     m.sampled = true;
-    set_false_alarm_window(m, m.record_begin_ns);
+    m.alarms.set_window(m.record_begin_ns);
   }
 
   /// The waveform record: from before the earliest rise of any comparator
@@ -795,26 +792,10 @@ struct VirtualRangefinder::Impl {
     crossings_at(m, threshold + half, rise_hi, fall_hi);
     if (threshold + half >= m.level_top_v) fall_hi = m.peak_time_ns;
     const double rise = rise_hi - rise_lo, fall = fall_lo - fall_hi;
-    static const double r_limit = chatter_ratio_limit();
+    static const double r_limit = chatter_ratio_limit(kChatterTolerance);
     // (NaN: a blanked edge, crossed by noise or not at all as the analytic levels give it.)
     return !(rise > r_limit * pulse.pole_time_constant_ns()) &&
            !(fall > r_limit * pulse.pole_time_constant_ns());
-  }
-
-  /// The jitter-over-correlation-time ratio r at which c(r) = r phi(1/r) -
-  /// Q(1/r) reaches kChatterTolerance (c grows with r; bisection).
-  static double chatter_ratio_limit() {
-    auto extra_crossings = [](double r) {
-      const double x = 1.0 / r;
-      return r * std::exp(-0.5 * x * x) / std::sqrt(2.0 * kPi) -
-             0.5 * std::erfc(x / std::sqrt(2.0));
-    };
-    double lo = 0.05, hi = 5.0;
-    for (int i = 0; i < 100; ++i) {
-      const double mid = 0.5 * (lo + hi);
-      (extra_crossings(mid) < kChatterTolerance ? lo : hi) = mid;
-    }
-    return lo;
   }
 
   /// The noise's correlation at the two crossings, and the fall's own share
@@ -839,12 +820,6 @@ struct VirtualRangefinder::Impl {
   /// The next pulse's start: the TDC restarts there.
   [[nodiscard]] double next_start_ns() const { return pulse_period_ns + armed_time_ns(); }
 
-  /// Noise crossings count from the comparator's arming to `end_ns`.
-  static void set_false_alarm_window(MeasurementSetup& m, double end_ns) {
-    m.false_alarm_window_ns = std::max(end_ns - m.armed_ns, 0.0);
-    m.false_alarm_probability = -std::expm1(-m.false_alarm_rate_per_ns * m.false_alarm_window_ns);
-  }
-
   [[nodiscard]] double turn_on_bias_ns(const MeasurementSetup& m, std::uint32_t shot) const {
     const auto& laser = config.link.laser;
     const double t_ms = m.turn_on_start_ms + 1e3 * static_cast<double>(shot) / laser.repetition_hz;
@@ -853,30 +828,17 @@ struct VirtualRangefinder::Impl {
     return 2.0 * bias_mm * 1e-3 / c_nominal_m_per_ns;
   }
 
-  /// Rising and falling comparator times of one shot (analytic mode): the
-  /// noise, band-limited like the echo, shifts the effective threshold; the
-  /// crossing is read off the noise-free echo (first order: jitter = sigma / slope).
-  /// Echo level at which the comparator fires when the noise, frozen over the
-  /// crossing at z standard deviations, scales with the signal (shot noise):
-  /// solves s + sqrt(sigma_0^2 + k s) z = V_th. Its mean sits k/2 above V_th,
-  /// the late bias that signal-modulated noise gives a rising edge.
-  [[nodiscard]] static double crossing_level(const MeasurementSetup& m, double threshold,
-                                             double z) {
-    const double k = m.shot_var_per_v;
-    if (k <= 0) return threshold - std::sqrt(m.noise_floor_var_v2) * z;
-    const double c = m.noise_floor_var_v2 + k * threshold;
-    const double q = 0.5 * (-k * z + std::sqrt(k * k * z * z + 4.0 * c));
-    return (q * q - m.noise_floor_var_v2) / k;
-  }
-
   /// The comparator's effective levels at the rising and the falling crossing
   /// for the noise z_rise there and z_fall_ind independent of it (the noise at
   /// the fall is correlated with the rise's through the receiver bandwidth).
+  /// Analytic mode: the noise, band-limited like the echo, shifts the effective
+  /// threshold (crossing_level_v); the crossing is read off the noise-free echo
+  /// (first order: jitter = sigma / slope).
   void analytic_levels(const MeasurementSetup& m, double threshold, double z_rise,
                        double z_fall_ind, double& level_rise, double& level_fall) const {
-    level_rise = crossing_level(m, threshold, z_rise);
+    level_rise = crossing_level_v(m.noise_floor_var_v2, m.shot_var_per_v, threshold, z_rise);
     const double z_fall = m.edge_correlation * z_rise + m.edge_independence * z_fall_ind;
-    level_fall = crossing_level(m, threshold, z_fall);
+    level_fall = crossing_level_v(m.noise_floor_var_v2, m.shot_var_per_v, threshold, z_fall);
   }
 
   /// The echo's crossings of those levels; false when the rising level is not crossed.
@@ -978,7 +940,7 @@ struct VirtualRangefinder::Impl {
           // A crossing before the comparator is armed (blanked, or before the
           // TDC's start) is not seen; a strong echo of a long pulse crosses
           // before the pulse's centre, t = 0, but after the light's onset.
-          above = rise >= m.armed_ns;
+          above = rise >= m.alarms.armed_ns;
         } else if (above) {
           if (amplifier_v > rx.saturation_v) {
             clipped = true;
@@ -1012,21 +974,6 @@ struct VirtualRangefinder::Impl {
     return offset;
   }
 
-  /// Noise alone firing the comparator before the echo (a false alarm) when
-  /// the shot's uniform u_false falls below the window's probability: its
-  /// first threshold upcrossing after the comparator is armed (armed_ns) is
-  /// exponential with Rice's rate, in both modes.
-  [[nodiscard]] static bool false_alarm(const MeasurementSetup& m, double u_false, double& rise,
-                                        double& fall) {
-    if (u_false >= m.false_alarm_probability) return false;
-    // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-    rise = m.armed_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
-    // Mean excursion length above the level: P(X > u) / nu.
-    fall =
-        rise + 0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
-    return true;
-  }
-
   /// One shot, returning false when no echo crossed the threshold. `r` is the
   /// shot's first draw, rng.draw(stream, index, 0).
   [[nodiscard]] bool shot(const MeasurementSetup& m, const std::array<std::uint32_t, 4>& r,
@@ -1035,7 +982,7 @@ struct VirtualRangefinder::Impl {
                           double& stop_fall_ns) const {
     double rise = 0, fall = 0;
     bool echo = false;
-    if (false_alarm(m, unit_open(r[3]), rise, fall)) {
+    if (m.alarms.first_crossing(unit_open(r[3]), rise, fall)) {
       echo = true;
     } else if (!m.sampled) {
       const auto z = normal_pair(r[0], r[1]);
@@ -1171,7 +1118,7 @@ struct VirtualRangefinder::Impl {
         double& rise = lanes.rise[k];
         double& fall = lanes.fall[k];
         const auto& r = lanes.shot_words;
-        if (false_alarm(m[k], unit_open(r[3][k]), rise, fall))
+        if (m[k].alarms.first_crossing(unit_open(r[3][k]), rise, fall))
           lanes.echo[k] = true;
         else if (!m[k].sampled)
           lanes.echo[k] =
