@@ -25,8 +25,11 @@ constexpr int kWanderLevels = SlowOffsets::kWanderLevels;
 /// Each knot is a pair of independent draws: [0] for the delay's wander,
 /// [1] for the comparator level's.
 using KnotPair = std::array<double, 2>;
-const std::array<KnotPair, 2>& wander_knots(const CounterRng& rng, std::uint64_t device, int level,
-                                            std::uint64_t j) {
+/// (Inlined into the wander's lanes: most calls only check the cache.)
+[[gnu::always_inline]] inline const std::array<KnotPair, 2>& wander_knots(const CounterRng& rng,
+                                                                          std::uint64_t device,
+                                                                          int level,
+                                                                          std::uint64_t j) {
   struct Knots {
     std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
     std::array<KnotPair, 2> g{};
@@ -97,8 +100,9 @@ const SlowOffsets::RunDraws& SlowOffsets::run_draws(std::uint64_t seed) const {
 /// The power-on offset plus the 1/f flicker (measurement.flicker_delay_ps)
 /// of n <= kMaxOutputs consecutive streams from stream0 (in stages over the
 /// streams: the octaves' sum vectorizes).
-void SlowOffsets::flicker_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
-                                     double* offsets) const {
+/// Also compiled for AVX2, as add_wander_ns.
+__attribute__((target_clones("avx2", "default"))) void SlowOffsets::flicker_offsets_ns(
+    const RunDraws& run, std::uint64_t stream0, std::size_t n, double* offsets) const {
   const auto& mc = measurement_;
   if (mc.flicker_delay_ps <= 0.0) {
     std::fill(offsets, offsets + n, run.offset_ns);
