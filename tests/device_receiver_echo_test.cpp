@@ -184,3 +184,92 @@ TEST(ReceiverEcho, StrideSearchStopsWhereThePlainStrideStops) {
     }
   }
 }
+
+namespace {
+
+/// First time at or after t0 where f crosses `level` upward (or downward),
+/// from a 1 ps scan refined by bisection; NaN when none before t_end.
+template <class F>
+double first_crossing(const F& f, double level, bool upward, double t0, double t_end) {
+  auto past = [&](double t) { return upward ? f(t) >= level : f(t) < level; };
+  double previous = t0;
+  bool before = past(t0);
+  for (double t = t0 + 1e-3; t < t_end; t += 1e-3) {
+    const bool now = past(t);
+    if (now && !before) {
+      double a = previous, b = t;
+      for (int i = 0; i < 60; ++i) (past(0.5 * (a + b)) ? b : a) = 0.5 * (a + b);
+      return 0.5 * (a + b);
+    }
+    before = now;
+    previous = t;
+  }
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+}  // namespace
+
+TEST(ReceiverEcho, SampledCrossingTablesMatchTheContinuousEcho) {
+  // A mixed pixel: two surfaces 1.5 ns apart (a dip between the echoes).
+  const auto p = paper_pulse();
+  auto echo = [&](double t) { return 1.0 * p(t - 10.0) + 0.6 * p(t - 11.5); };
+  constexpr double kStep = 0.01;
+  const double begin = 10.0 + p.begin_ns();
+  const auto n = static_cast<std::size_t>((11.5 + p.end_ns() - begin) / kStep) + 2;
+  std::vector<double> c(n, 0.0);
+  p.add_to(1.0, 10.0, begin, kStep, c.data(), n);
+  p.add_to(0.6, 11.5, begin, kStep, c.data(), n);
+  const std::size_t i_peak = device::first_peak_index(c, 0);
+  const double peak_t = begin + static_cast<double>(i_peak) * kStep;
+  const double end = begin + static_cast<double>(n - 1) * kStep;
+  constexpr std::size_t kLevels = 40;
+  const double lo = 0.02, step = (1.2 * c[i_peak] - lo) / (kLevels - 1);
+  std::vector<double> rise(kLevels), fall(kLevels);
+
+  // Ungated: the first upcrossing and the next downcrossing.
+  const double top =
+      device::sampled_crossing_times(c, begin, kStep, peak_t, lo, step, false, 0, 0.0, rise, fall);
+  EXPECT_LE(top, c[i_peak]);
+  EXPECT_GT(top, c[i_peak] - step);
+  for (std::size_t j = 0; j < kLevels; ++j) {
+    const double level = lo + static_cast<double>(j) * step;
+    SCOPED_TRACE("level " + std::to_string(level));
+    if (level > c[i_peak]) {  // never reached: the peak's time
+      EXPECT_EQ(rise[j], peak_t);
+      EXPECT_EQ(fall[j], peak_t);
+      continue;
+    }
+    if (level > 0.97 * c[i_peak]) continue;  // flat top: time ill-conditioned
+    const double r = first_crossing(echo, level, true, begin, end);
+    const double f = first_crossing(echo, level, false, r, end);
+    // Linear between 10 ps samples: within 2 ps on the edges.
+    EXPECT_NEAR(rise[j], r, 2e-3);
+    EXPECT_NEAR(fall[j], f, 2e-3);
+  }
+
+  // Gated: the comparator released at 10.3 ns, on the first echo's rise.
+  const double gate = 10.3;
+  const auto i_gate = static_cast<std::size_t>(std::ceil((gate - begin) / kStep));
+  int unreached = 0;  // levels exceeded at the release and never crossed again
+  const double gated_top = device::sampled_crossing_times(c, begin, kStep, peak_t, lo, step, true,
+                                                          i_gate, gate, rise, fall);
+  EXPECT_LE(gated_top, top);
+  for (std::size_t j = 0; j < kLevels; ++j) {
+    const double level = lo + static_cast<double>(j) * step;
+    SCOPED_TRACE("gated level " + std::to_string(level));
+    if (level > 0.97 * c[i_peak]) continue;
+    const double r = first_crossing(echo, level, true, gate, end);
+    if (std::isnan(r)) {
+      // Exceeded at the release and never crossed again: no rise; the fall
+      // is the first downcrossing after the release.
+      EXPECT_TRUE(std::isnan(rise[j]));
+      ++unreached;
+      EXPECT_NEAR(fall[j], first_crossing(echo, level, false, gate, end), 2e-3);
+      continue;
+    }
+    EXPECT_NEAR(rise[j], r, 2e-3);
+    EXPECT_GE(rise[j], gate);
+    EXPECT_NEAR(fall[j], first_crossing(echo, level, false, r, end), 2e-3);
+  }
+  EXPECT_GT(unreached, 0);  // the case is exercised
+}

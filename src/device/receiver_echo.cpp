@@ -81,6 +81,80 @@ std::size_t StrideSearch::fall_index(const std::vector<double>& c, std::size_t i
   return i;
 }
 
+double sampled_crossing_times(const std::vector<double>& c, double begin_ns, double step_ns,
+                              double peak_time_ns, double level_lo_v, double level_step_v,
+                              bool gated, std::size_t i_gate, double gate_ns,
+                              std::vector<double>& rise_ns, std::vector<double>& fall_ns) {
+  const std::size_t n = c.size(), levels = rise_ns.size();
+  double level_top_v = 0;
+  auto time_at = [&](std::size_t i, double frac) {
+    return begin_ns + (static_cast<double>(i) + frac) * step_ns;
+  };
+  if (gated) {
+    // Blanked: the first upcrossing after the blanking (NaN: none; a level
+    // already exceeded when the comparator is released is not a crossing),
+    // and the first downcrossing after it (or after the blanking).
+    // No level's upcrossing comes before the first sample at or above the
+    // lowest level after the gate: every search starts there.
+    std::size_t i_first = std::max<std::size_t>(i_gate, 1);
+    while (i_first < n && c[i_first] < level_lo_v) ++i_first;
+    for (std::size_t j = 0; j < levels; ++j) {
+      const double level = level_lo_v + static_cast<double>(j) * level_step_v;
+      double rise = std::numeric_limits<double>::quiet_NaN(), fall = peak_time_ns;
+      std::size_t i = i_first;
+      for (; i < n; ++i) {
+        const double a = c[i - 1], b = c[i];
+        if (a < level && b >= level) {
+          const double t = time_at(i - 1, (level - a) / (b - a));
+          if (t >= gate_ns) {
+            rise = t;
+            break;
+          }
+        }
+      }
+      std::size_t k = i < n ? i : std::max<std::size_t>(i_gate, 1);
+      for (; k < n; ++k) {
+        const double a = c[k - 1], b = c[k];
+        if (a >= level && b < level) {
+          fall = time_at(k - 1, (a - level) / (a - b));
+          break;
+        }
+      }
+      if (!std::isnan(rise)) {
+        level_top_v = level;
+        fall = std::max(fall, rise);
+      }
+      rise_ns[j] = rise;
+      fall_ns[j] = fall;
+    }
+  } else {
+    // The first upcrossing index never decreases with the level: one forward pointer.
+    // The downcrossing after it is found with a coarse stride (echo features span
+    // hundreds of grid steps), then refined step by step (StrideSearch).
+    thread_local StrideSearch falls;
+    falls.build(c);
+    std::size_t i_rise = 1;
+    for (std::size_t j = 0; j < levels; ++j) {
+      const double level = level_lo_v + static_cast<double>(j) * level_step_v;
+      double rise = peak_time_ns, fall = peak_time_ns;
+      while (i_rise < n && c[i_rise] < level) ++i_rise;
+      if (i_rise < n) {
+        level_top_v = level;
+        const double a = c[i_rise - 1], b = c[i_rise];
+        rise = time_at(i_rise - 1, (level - a) / (b - a));
+        const std::size_t i = falls.fall_index(c, i_rise, level);
+        if (i < n) {
+          const double c0 = c[i - 1], d = c[i];
+          fall = time_at(i - 1, (c0 - level) / (c0 - d));
+        }
+      }
+      rise_ns[j] = rise;
+      fall_ns[j] = std::max(fall, rise);
+    }
+  }
+  return level_top_v;
+}
+
 SpreadEchoTable::SpreadEchoTable(const physics::PulseTemplate& pulse) {
   const auto& nodes = footprint_nodes();
   // Spread step: a small fraction of the echo's half-maximum width.

@@ -630,72 +630,9 @@ struct VirtualRangefinder::Impl {
     m.inv_level_step = 1.0 / level_step;
     m.rise_ns.resize(kLevels);
     m.fall_ns.resize(kLevels);
-    m.level_top_v = 0;
-    auto time_at = [&](std::size_t i, double frac) {
-      return m.grid_begin_ns + (static_cast<double>(i) + frac) * kCompositeStepNs;
-    };
-    if (gated) {
-      // Blanked: the first upcrossing after the blanking (NaN: none; a level
-      // already exceeded when the comparator is released is not a crossing),
-      // and the first downcrossing after it (or after the blanking).
-      // No level's upcrossing comes before the first sample at or above the
-      // lowest level after the gate: every search starts there.
-      std::size_t i_first = std::max<std::size_t>(i_gate, 1);
-      while (i_first < n && m.composite[i_first] < level_lo) ++i_first;
-      for (std::size_t j = 0; j < kLevels; ++j) {
-        const double level = level_lo + static_cast<double>(j) * level_step;
-        double rise = std::numeric_limits<double>::quiet_NaN(), fall = m.peak_time_ns;
-        std::size_t i = i_first;
-        for (; i < n; ++i) {
-          const double a = m.composite[i - 1], b = m.composite[i];
-          if (a < level && b >= level) {
-            const double t = time_at(i - 1, (level - a) / (b - a));
-            if (t >= m.blanking_ns) {
-              rise = t;
-              break;
-            }
-          }
-        }
-        std::size_t k = i < n ? i : std::max<std::size_t>(i_gate, 1);
-        for (; k < n; ++k) {
-          const double a = m.composite[k - 1], b = m.composite[k];
-          if (a >= level && b < level) {
-            fall = time_at(k - 1, (a - level) / (a - b));
-            break;
-          }
-        }
-        if (!std::isnan(rise)) {
-          m.level_top_v = level;
-          fall = std::max(fall, rise);
-        }
-        m.rise_ns[j] = rise;
-        m.fall_ns[j] = fall;
-      }
-    } else {
-      // The first upcrossing index never decreases with the level: one forward pointer.
-      // The downcrossing after it is found with a coarse stride (echo features span
-      // hundreds of grid steps), then refined step by step (StrideSearch).
-      thread_local StrideSearch falls;
-      falls.build(m.composite);
-      std::size_t i_rise = 1;
-      for (std::size_t j = 0; j < kLevels; ++j) {
-        const double level = level_lo + static_cast<double>(j) * level_step;
-        double rise = m.peak_time_ns, fall = m.peak_time_ns;
-        while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
-        if (i_rise < n) {
-          m.level_top_v = level;
-          const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
-          rise = time_at(i_rise - 1, (level - a) / (b - a));
-          const std::size_t i = falls.fall_index(m.composite, i_rise, level);
-          if (i < n) {
-            const double c0 = m.composite[i - 1], d = m.composite[i];
-            fall = time_at(i - 1, (c0 - level) / (c0 - d));
-          }
-        }
-        m.rise_ns[j] = rise;
-        m.fall_ns[j] = std::max(fall, rise);
-      }
-    }
+    m.level_top_v = sampled_crossing_times(m.composite, m.grid_begin_ns, kCompositeStepNs,
+                                           m.peak_time_ns, level_lo, level_step, gated, i_gate,
+                                           m.blanking_ns, m.rise_ns, m.fall_ns);
     // Noise at the two crossings is correlated through the receiver bandwidth.
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
@@ -718,7 +655,9 @@ struct VirtualRangefinder::Impl {
     // Or the whole echo when gated (crosstalk or blanking may end the first
     // excursion before the echo).
     if (gated || crosstalk_v > 0.0)
-      m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
+      m.record_end_ns = std::max(
+          m.record_end_ns,
+          m.grid_begin_ns + static_cast<double>(n - 1) * kCompositeStepNs + m.recovery_ns + 4.0);
     m.sampled = mode == SimulationMode::kWaveform || !noise_frozen_at_edges(m);
     if (m.sampled) {
       // Over the record only (the sampler reads no further): the echo's

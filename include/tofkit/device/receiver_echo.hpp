@@ -4,7 +4,8 @@
 /// summed over a tilted footprint, tabulated once per pulse shape with its
 /// peak and its threshold-crossing times for every level (SpreadEchoTable);
 /// and the searches on a sampled composite echo (first_peak_index,
-/// StrideSearch) that the exact path's crossing tables use.
+/// StrideSearch) and the crossing tables of a sampled composite echo
+/// (sampled_crossing_times), the exact path's.
 
 #include <algorithm>
 #include <bit>
@@ -47,6 +48,24 @@ class StrideSearch {
   std::vector<double> minima_;  // [block * kStride + residue]
   bool has_nan_ = false;
 };
+
+/// The crossing tables of a sampled echo c (sample i at begin_ns + i step_ns,
+/// linear between samples): for each comparator level
+/// L_j = level_lo_v + j level_step_v (j < rise_ns.size(), fall_ns the same
+/// size), the first upcrossing and the following downcrossing (in ns; both at
+/// peak_time_ns for a level the echo never reaches; the fall never before the
+/// rise). The upcrossings' sample never decreases with the level (one forward
+/// pointer), and the downcrossings are found with StrideSearch.
+/// `gated`: the comparator is blanked before gate_ns and released at sample
+/// i_gate >= 1: an upcrossing counts only at or after gate_ns (NaN: none; a
+/// level already exceeded at the release is not crossed), the downcrossing is
+/// the first after it (or after the release). Returns the highest level
+/// crossed (0: none).
+[[nodiscard]] double sampled_crossing_times(const std::vector<double>& c, double begin_ns,
+                                            double step_ns, double peak_time_ns, double level_lo_v,
+                                            double level_step_v, bool gated, std::size_t i_gate,
+                                            double gate_ns, std::vector<double>& rise_ns,
+                                            std::vector<double>& fall_ns);
 
 /// The echo of one surface, tabulated once per pulse shape in normalized form.
 /// A surface at delay d, amplitude A and footprint spread h (ns of round trip
