@@ -20,6 +20,7 @@
 #include "random_draws.hpp"
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/discriminator.hpp"
+#include "tofkit/device/front_end.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/receiver_echo.hpp"
 #include "tofkit/device/slow_offsets.hpp"
@@ -151,9 +152,7 @@ struct ConditionState {
   double c_m_per_ns = 0;      // speed of light in air at the ambient temperature
   double volts_per_watt = 0;  // at the comparator, for this gain and laser power
   double fixed_delay_ns = 0, tdc_bin_scale = 1, temperature_reading_c = 0;
-  double floor_var_v2 = 0;     // noise floor without background light
-  double floor_var_per_w = 0;  // ... and its growth per watt of background
-  double shot_var_per_v = 0;   // signal shot noise variance per volt of signal
+  FrontEndNoise noise;  // at the comparator, for this gain
 };
 
 /// Working storage of measure_single_shots: kLanes measurements at a time.
@@ -227,10 +226,8 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] double comparator_level(const MeasurementSetup& m, std::uint32_t shot) const {
     const double threshold = config.discriminator.threshold_v + m.level_offset_v;
     if (!coupled) return threshold;
-    double offset = m.baseline_offset_v;
-    if (offset != 0.0 && shot > 0)
-      offset *= std::exp(-static_cast<double>(shot) / shots_per_time_constant);
-    return threshold + m.baseline_v + offset;
+    return threshold + m.baseline_v +
+           coupling_offset_v(m.baseline_offset_v, shot, shots_per_time_constant);
   }
 
   /// The coupling's settled baseline on this echo train: its capacitor charges
@@ -241,11 +238,9 @@ struct VirtualRangefinder::Impl {
   void set_baseline(MeasurementSetup& m, double amplitude_sum_v) const {
     if (!coupled) return;
     const auto& rx = config.link.receiver;
-    double charge_v_ns = amplitude_sum_v * pulse_area_ns;
-    if (m.peak_v > rx.saturation_v)
-      charge_v_ns = charge_v_ns * rx.saturation_v / m.peak_v + rx.saturation_v * m.recovery_ns;
-    m.baseline_v =
-        config.memory.coupling_share * charge_v_ns * config.link.laser.repetition_hz * 1e-9;
+    m.baseline_v = device::coupling_baseline_v(
+        amplitude_sum_v, pulse_area_ns, m.peak_v, rx.saturation_v, m.recovery_ns,
+        config.memory.coupling_share, config.link.laser.repetition_hz);
     const double threshold = config.discriminator.threshold_v;
     const double sigma = m.noise_at_threshold_v;
     const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);
@@ -299,32 +294,11 @@ struct VirtualRangefinder::Impl {
                        2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
     c.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
     c.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // Noise floor: amplifier, dark and background shot noise (Eq. 8 terms); the
-    // variances add, so the floor is linear in the background power.
-    const double z_ohm = rx.transimpedance_kohm * 1e3;
-    auto floor_var = [&](double background_w) {
-      const auto n = physics::noise_currents(rx, 0.0, background_w, c.gain);
-      return z_ohm * z_ohm *
-             (n.background_shot_a * n.background_shot_a + n.dark_shot_a * n.dark_shot_a +
-              n.thermal_a * n.thermal_a);
-    };
-    c.floor_var_v2 = floor_var(0.0);
-    c.floor_var_per_w = floor_var(1.0) - c.floor_var_v2;
-    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
-    c.shot_var_per_v = 2.0 * physics::kElementaryCharge_c * c.gain * rx.excess_noise_factor *
-                       rx.bandwidth_mhz * 1e6 * z_ohm;
+    c.noise = front_end_noise(rx, c.gain);
     cache.device = id;
     cache.ambient_c = cond.ambient_c;
     cache.minutes = minutes;
     return c;
-  }
-
-  /// The APD's space charge: a strong pulse's own carriers screen the
-  /// multiplication field, so the gain falls as the current grows,
-  /// A / (1 + A / A_sc), and no echo exceeds A_sc however strong the return.
-  [[nodiscard]] double space_charge_limited_v(double linear_v) const {
-    const double a_sc = config.link.receiver.space_charge_v;
-    return a_sc > 0.0 ? linear_v / (1.0 + linear_v / a_sc) : linear_v;
   }
 
   /// One surface's echo; false when it returns nothing.
@@ -339,7 +313,8 @@ struct VirtualRangefinder::Impl {
         s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
         physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
     if (power_w <= 0.0) return false;
-    out.amplitude_v = space_charge_limited_v(power_w * c.volts_per_watt);
+    out.amplitude_v =
+        space_charge_limited_v(power_w * c.volts_per_watt, link.receiver.space_charge_v);
     // The comparator is re-armed at every pulse: an echo later than the pulse
     // period arrives after a later pulse and is timed from that one (ambiguity).
     out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;
@@ -368,14 +343,6 @@ struct VirtualRangefinder::Impl {
       for (std::size_t k = 0; k < nodes.u.size(); ++k)
         out.push_back({e.amplitude_v * nodes.w[k], e.delay_ns + nodes.u[k] * e.spread_ns});
     }
-  }
-
-  /// Noise variance (V^2) at a signal level: amplifier/background/dark floor
-  /// plus signal shot noise proportional to the instantaneous signal (Eq. 8 terms).
-  [[nodiscard]] static double noise_variance(const ConditionState& c, double signal_v,
-                                             double background_w) {
-    return c.floor_var_v2 + c.floor_var_per_w * background_w +
-           c.shot_var_per_v * std::max(signal_v, 0.0);
   }
 
   /// Sunlight scattered by the surfaces into the receiver (paper Eq. 9).
@@ -434,8 +401,8 @@ struct VirtualRangefinder::Impl {
     const ConditionState& c = condition_state(cond);
     const double background_w = background_free ? 0.0 : background_power_w(target);
     const double threshold = config.discriminator.threshold_v;
-    m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
-    m.shot_var_per_v = c.shot_var_per_v;
+    m.noise_floor_var_v2 = c.noise.variance_v2(0.0, background_w);
+    m.shot_var_per_v = c.noise.shot_var_per_v;
     {
       // Noise at the threshold and Rice's rate, cached per thread on the noise
       // (the same for every target without background light).
@@ -519,8 +486,7 @@ struct VirtualRangefinder::Impl {
     m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
     m.level_top_v = m.peak_v;
     m.saturated = m.peak_v > rx.saturation_v;
-    m.recovery_ns =
-        m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    m.recovery_ns = clip_recovery_ns(m.peak_v, rx.saturation_v, rx.recovery_ns_per_neper);
     set_baseline(m, e.amplitude_v);
   }
 
@@ -615,10 +581,7 @@ struct VirtualRangefinder::Impl {
     m.peak_v = m.composite[i_peak];
     m.peak_time_ns = m.grid_begin_ns + static_cast<double>(i_peak) * kCompositeStepNs;
     m.saturated = m.peak_v > rx.saturation_v;
-    // Overdriven amplifiers stay clipped longer the harder they are driven
-    // (charge storage): recovery ~ tau ln(V_peak / V_sat).
-    m.recovery_ns =
-        m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    m.recovery_ns = clip_recovery_ns(m.peak_v, rx.saturation_v, rx.recovery_ns_per_neper);
     double amplitude_sum_v = 0;
     for (const auto& comp : comps) amplitude_sum_v += comp.amplitude_v;
     set_baseline(m, amplitude_sum_v);
