@@ -7,7 +7,9 @@
 //    exponential law they draw from (mean 1 / nu, truncated to the window),
 //  - a ramp through it: crossings per edge against 1 + 2 c(r), the count the
 //    chatter limit rests on;
-// and the crossing level against its defining equation and its mean bias.
+// the crossing level against its defining equation and its mean bias; and the
+// sampled comparator (waveform mode) against a noise-free echo's closed-form
+// crossings, its arming and clip recovery, and jitter = noise / slope.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -172,4 +174,102 @@ TEST(Discriminator, CrossingLevelSolvesItsEquationAndSitsHalfTheShotNoiseLate) {
     sum_z2 += z * z;
   }
   EXPECT_NEAR((sum / kN) / (0.5 * k * sum_z2 / kN), 1.0, 0.02);
+}
+
+namespace {
+
+device::SampledComparator comparator_for_tests() {
+  device::SampledComparator c;
+  c.threshold_v = 0.04;
+  c.step_ns = 0.05;
+  c.pole_time_constant_ns = 1.0;
+  c.record_begin_ns = 0.0;
+  c.record_end_ns = 30.0;
+  c.armed_ns = 0.0;
+  c.saturation_v = 4.0;
+  c.recovery_ns_per_neper = 2.0;
+  return c;
+}
+
+/// A smooth echo: a Gaussian of amplitude `peak_v` and sigma 1 ns at `at_ns`.
+double gaussian_echo(double t, double peak_v, double at_ns) {
+  const double x = (t - at_ns) / 1.0;
+  return peak_v * std::exp(-0.5 * x * x);
+}
+
+}  // namespace
+
+TEST(Discriminator, SampledComparatorWithoutNoiseFindsTheEchosCrossings) {
+  auto c = comparator_for_tests();
+  auto silent = [](std::size_t) { return 0.0; };
+  for (const double phase : {0.0, 0.37, 0.9}) {
+    SCOPED_TRACE("phase " + std::to_string(phase));
+    auto echo = [](double t, double) { return gaussian_echo(t, 1.0, 12.0); };
+    double rise = 0, fall = 0;
+    ASSERT_TRUE(c.crossings(phase, silent, echo, rise, fall));
+    // exp(-x^2 / 2) = 0.04: x = sqrt(2 ln 25).
+    const double half_width = std::sqrt(2.0 * std::log(25.0));
+    EXPECT_NEAR(rise, 12.0 - half_width, 1e-6);
+    EXPECT_NEAR(fall, 12.0 + half_width, 1e-6);
+    // With a baseline of 0.46 V the comparator sees the echo cross 0.5 V.
+    c.baseline_v = 0.46;
+    ASSERT_TRUE(c.crossings(phase, silent, echo, rise, fall));
+    EXPECT_NEAR(rise, 12.0 - std::sqrt(2.0 * std::log(2.0)), 1e-6);
+    c.baseline_v = 0.0;
+  }
+  // Below the threshold: nothing.
+  double rise = 0, fall = 0;
+  EXPECT_FALSE(c.crossings(
+      0.0, silent, [](double t, double) { return gaussian_echo(t, 0.039, 12.0); }, rise, fall));
+}
+
+TEST(Discriminator, SampledComparatorIgnoresCrossingsBeforeItsArmingAndRecoversAfterClipping) {
+  auto c = comparator_for_tests();
+  auto silent = [](std::size_t) { return 0.0; };
+  // An early echo (crosstalk at 3 ns) before the arming at 6 ns, then the echo at 15 ns.
+  auto two = [](double t, double) {
+    return gaussian_echo(t, 0.5, 3.0) + gaussian_echo(t, 0.5, 15.0);
+  };
+  const double x = std::sqrt(2.0 * std::log(0.5 / 0.04));
+  c.armed_ns = 6.0;
+  double rise = 0, fall = 0;
+  ASSERT_TRUE(c.crossings(0.2, silent, two, rise, fall));
+  EXPECT_NEAR(rise, 15.0 - x, 1e-6);
+  EXPECT_NEAR(fall, 15.0 + x, 1e-6);
+  c.armed_ns = 0.0;
+  ASSERT_TRUE(c.crossings(0.2, silent, two, rise, fall));
+  EXPECT_NEAR(rise, 3.0 - x, 1e-6);
+  // Overdriven 10x: the fall comes the recovery, 2 ns per neper, after the input's.
+  auto strong = [](double t, double) { return gaussian_echo(t, 40.0, 12.0); };
+  ASSERT_TRUE(c.crossings(0.0, silent, strong, rise, fall));
+  const double x_strong = std::sqrt(2.0 * std::log(40.0 / 0.04));
+  // (The clip's peak is the largest sample: within 0.05 ns of 12 ns, 40 V to 1e-3.)
+  EXPECT_NEAR(fall, 12.0 + x_strong + 2.0 * std::log(10.0), 2.0 * 2e-3);
+  EXPECT_NEAR(rise, 12.0 - x_strong, 1e-6);
+}
+
+TEST(Discriminator, SampledComparatorsJitterIsNoiseOverSlope) {
+  // A ramp through the threshold at 2 V/ns with 10 mV of noise: r = 0.005,
+  // no chatter; the rise's spread is sigma / slope = 5 ps.
+  auto c = comparator_for_tests();
+  c.pole_time_constant_ns = 1.0;
+  c.step_ns = 0.02;
+  std::mt19937_64 gen(31);
+  std::uniform_real_distribution<double> uniform(-0.5, 0.5);
+  auto white = [&](std::size_t) { return uniform(gen); };
+  constexpr double kSlope = 2.0, kSigma = 0.01, kCross = 10.0;
+  auto ramp = [&](double t, double z) {
+    return std::min(0.04 + kSlope * (t - kCross), 1.0) + kSigma * z;
+  };
+  constexpr int kShots = 3000;
+  double sum = 0, sum2 = 0;
+  for (int i = 0; i < kShots; ++i) {
+    double rise = 0, fall = 0;
+    ASSERT_TRUE(c.crossings((i % 97) / 97.0, white, ramp, rise, fall));
+    sum += rise - kCross;
+    sum2 += (rise - kCross) * (rise - kCross);
+  }
+  const double mean = sum / kShots, sd = std::sqrt(sum2 / kShots - mean * mean);
+  EXPECT_NEAR(sd / (kSigma / kSlope), 1.0, 0.06);  // 1.3 % sampling error
+  EXPECT_NEAR(mean, 0.0, 4.0 * kSigma / kSlope / std::sqrt(kShots) + 1e-4);
 }

@@ -756,43 +756,33 @@ struct VirtualRangefinder::Impl {
   }
 
   /// Waveform mode: band-limited noise added to the sampled echo, the amplifier
-  /// clips and recovers, the comparator's crossings are found on the samples.
+  /// clips and recovers, the comparator's crossings are found on the samples
+  /// (sampled_crossings). The white noise is the shot's draws from block 1 on.
   [[nodiscard]] bool crossings_waveform(const MeasurementSetup& m, const CounterRng& rng,
                                         std::uint64_t stream, std::uint32_t shot, double phase_u,
                                         double& rise, double& fall) const {
     if (!m.fast && m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
-    const double threshold = config.discriminator.threshold_v;
+    SampledComparator comparator;
+    comparator.threshold_v = config.discriminator.threshold_v;
     // The AC coupling's baseline at this shot: the comparator sees the
     // amplifier's output (which clips) minus it.
-    const double baseline = comparator_level(m, shot) - threshold;
-    const double dt = waveform_dt_ns;
-    const double tau = pulse.pole_time_constant_ns();
-    const double a = std::exp(-dt / tau);
-    // Two cascaded one-pole filters of white noise: var = (1-a)^4 (1+a^2) / (1-a^2)^3.
-    const double var_white = 1.0 / 12.0;  // uniform in (-0.5, 0.5)
-    const double filtered_var =
-        var_white * std::pow(1.0 - a, 4) * (1.0 + a * a) / std::pow(1.0 - a * a, 3);
-    const double norm = 1.0 / std::sqrt(filtered_var);
-    // Record from before the earliest possible rise to after the latest fall.
-    const double t_end = m.record_end_ns;
-    const double t0 = m.record_begin_ns + phase_u * dt;
-    const auto burn_in = static_cast<std::size_t>(std::ceil(6.0 * tau / dt));
-    const auto n = static_cast<std::size_t>((t_end - t0) / dt) + 1;
+    comparator.baseline_v = comparator_level(m, shot) - comparator.threshold_v;
+    comparator.step_ns = waveform_dt_ns;
+    comparator.pole_time_constant_ns = pulse.pole_time_constant_ns();
+    comparator.record_begin_ns = m.record_begin_ns;
+    comparator.record_end_ns = m.record_end_ns;
+    comparator.armed_ns = m.alarms.armed_ns;
+    comparator.saturation_v = rx.saturation_v;
+    comparator.recovery_ns_per_neper = rx.recovery_ns_per_neper;
     const double inv_grid = 1.0 / kCompositeStepNs;
     const auto grid_last = static_cast<double>(m.composite.size() - 1);
-
-    double y1 = 0, y2 = 0;
     std::array<std::uint32_t, 4> block{};
     std::uint32_t block_index = 0;
     auto white = [&](std::size_t k) {
       if ((k & 3u) == 0) block = rng.draw(stream, shot, 1u + block_index++);
       return unit_open(block[k & 3u]) - 0.5;
     };
-    for (std::size_t k = 0; k < burn_in; ++k) {
-      y1 = a * y1 + (1.0 - a) * white(k);
-      y2 = a * y2 + (1.0 - a) * y1;
-    }
     auto input_at = [&](double t, double unit_noise) {
       if (m.fast) {
         const double s = fast_signal_at(m, t);
@@ -805,64 +795,7 @@ struct VirtualRangefinder::Impl {
       const double sigma = m.noise_sigma[gi] + w * (m.noise_sigma[gi + 1] - m.noise_sigma[gi]);
       return s + sigma * unit_noise;
     };
-    // The sampled noise is band-limited (smooth over a sample period) and is
-    // interpolated linearly; the echo is known at any time. A crossing bracketed
-    // by two samples is refined on that continuous waveform (regula falsi).
-    auto refine = [&](double t_a, double t_b, double n_a, double n_b, double level) {
-      auto f = [&](double t) {
-        const double w = (t - t_a) / dt;
-        return input_at(t, n_a + w * (n_b - n_a)) - baseline - level;
-      };
-      double fa = f(t_a), fb = f(t_b);
-      for (int it = 0; it < 8 && t_b - t_a > 1e-6; ++it) {
-        const double t = t_a + (t_b - t_a) * fa / (fa - fb);
-        const double ft = f(t);
-        if ((ft < 0) == (fa < 0)) {
-          t_a = t;
-          fa = ft;
-        } else {
-          t_b = t;
-          fb = ft;
-        }
-      }
-      return t_a + (t_b - t_a) * fa / (fa - fb);
-    };
-    bool above = false, clipped = false;
-    double prev_v = 0, prev_t = 0, prev_n = 0, peak_v = 0;
-    for (std::size_t k = 0; k < n; ++k) {
-      y1 = a * y1 + (1.0 - a) * white(burn_in + k);
-      y2 = a * y2 + (1.0 - a) * y1;
-      const double t = t0 + static_cast<double>(k) * dt;
-      const double unit_noise = norm * y2;
-      const double amplifier_v = input_at(t, unit_noise);
-      const double v = amplifier_v - baseline;
-      if (k > 0) {
-        if (!above && prev_v < threshold && v >= threshold) {
-          rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          // A crossing before the comparator is armed (blanked, or before the
-          // TDC's start) is not seen; a strong echo of a long pulse crosses
-          // before the pulse's centre, t = 0, but after the light's onset.
-          above = rise >= m.alarms.armed_ns;
-        } else if (above) {
-          if (amplifier_v > rx.saturation_v) {
-            clipped = true;
-            peak_v = std::max(peak_v, amplifier_v);
-          }
-          if (prev_v >= threshold && v < threshold) {
-            fall = refine(prev_t, t, prev_n, unit_noise, threshold);
-            // After clipping, the output follows the input delayed by the recovery time.
-            if (clipped) fall += rx.recovery_ns_per_neper * std::log(peak_v / rx.saturation_v);
-            return true;
-          }
-        }
-      }
-      prev_v = v;
-      prev_t = t;
-      prev_n = unit_noise;
-    }
-    if (!above) return false;
-    fall = t0 + static_cast<double>(n - 1) * dt;
-    return true;
+    return comparator.crossings(phase_u, white, input_at, rise, fall);
   }
 
   /// Delay offset (ns) common to every shot of one measurement: the run's
