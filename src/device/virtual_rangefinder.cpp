@@ -21,6 +21,7 @@
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/discriminator.hpp"
 #include "tofkit/device/front_end.hpp"
+#include "tofkit/device/optics.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/receiver_echo.hpp"
 #include "tofkit/device/slow_offsets.hpp"
@@ -138,12 +139,6 @@ struct MeasurementSetup : MeasurementValues {
     rise_ns.clear();
     fall_ns.clear();
   }
-};
-
-/// One surface's echo: amplitude, delay and the round-trip spread over half the
-/// footprint's depth (0 when below 1e-4 ns: a point echo).
-struct SurfaceEcho {
-  double amplitude_v = 0, delay_ns = 0, spread_ns = 0;
 };
 
 /// Everything that depends on the operating conditions only.
@@ -301,33 +296,6 @@ struct VirtualRangefinder::Impl {
     return c;
   }
 
-  /// One surface's echo; false when it returns nothing.
-  [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
-                                  SurfaceEcho& out) const {
-    const auto& link = config.link;
-    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || !(s.cos_incidence > 0.0)) return false;
-    const double cos_phi = std::min(s.cos_incidence, 1.0);
-    // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-    // Biaxial optics: only the share of the footprint inside the receiver's field.
-    const double power_w =
-        s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-        physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
-    if (power_w <= 0.0) return false;
-    out.amplitude_v =
-        space_charge_limited_v(power_w * c.volts_per_watt, link.receiver.space_charge_v);
-    // The comparator is re-armed at every pulse: an echo later than the pulse
-    // period arrives after a later pulse and is timed from that one (ambiguity).
-    out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;
-    if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
-    // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
-    // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-    const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
-                                std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
-    out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
-    if (out.spread_ns < 1e-4) out.spread_ns = 0.0;
-    return true;
-  }
-
   /// All echo components: one per surface, or one per footprint node if spread.
   void components(const Target& target, const ConditionState& c,
                   std::vector<EchoComponent>& out) const {
@@ -335,7 +303,8 @@ struct VirtualRangefinder::Impl {
     out.clear();
     for (const auto& s : target.surfaces) {
       SurfaceEcho e;
-      if (!surface_echo(s, c, e)) continue;
+      if (!surface_echo(config.link, s, c.volts_per_watt, c.c_m_per_ns, pulse_period_ns, e))
+        continue;
       if (e.spread_ns == 0.0) {
         out.push_back({e.amplitude_v, e.delay_ns});
         continue;
@@ -343,16 +312,6 @@ struct VirtualRangefinder::Impl {
       for (std::size_t k = 0; k < nodes.u.size(); ++k)
         out.push_back({e.amplitude_v * nodes.w[k], e.delay_ns + nodes.u[k] * e.spread_ns});
     }
-  }
-
-  /// Sunlight scattered by the surfaces into the receiver (paper Eq. 9).
-  [[nodiscard]] double background_power_w(const Target& target) const {
-    double w = 0;
-    for (const auto& s : target.surfaces)
-      w += s.fraction *
-           physics::background_power_cos_w(config.link, s.reflectance,
-                                           std::max(s.cos_incidence, detail::kBackgroundCosFloor));
-    return w;
   }
 
   /// Crossing times of a comparator level (clamped to the tabulated span
@@ -399,7 +358,8 @@ struct VirtualRangefinder::Impl {
                                   SurfaceEcho& e) const {
     const auto& rx = config.link.receiver;
     const ConditionState& c = condition_state(cond);
-    const double background_w = background_free ? 0.0 : background_power_w(target);
+    const double background_w =
+        background_free ? 0.0 : device::background_power_w(config.link, target);
     const double threshold = config.discriminator.threshold_v;
     m.noise_floor_var_v2 = c.noise.variance_v2(0.0, background_w);
     m.shot_var_per_v = c.noise.shot_var_per_v;
@@ -444,7 +404,7 @@ struct VirtualRangefinder::Impl {
     int surfaces = 0;
     for (const auto& s : target.surfaces) {
       SurfaceEcho one;
-      if (surface_echo(s, c, one)) {
+      if (surface_echo(config.link, s, c.volts_per_watt, c.c_m_per_ns, pulse_period_ns, one)) {
         e = one;
         if (++surfaces > 1) return Echo::kExact;  // a mixed pixel
       }
