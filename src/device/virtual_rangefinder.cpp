@@ -20,6 +20,7 @@
 #include "random_draws.hpp"
 #include "tofkit/device/config_limits.hpp"
 #include "tofkit/device/discriminator.hpp"
+#include "tofkit/device/emitter.hpp"
 #include "tofkit/device/front_end.hpp"
 #include "tofkit/device/optics.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
@@ -682,14 +683,6 @@ struct VirtualRangefinder::Impl {
   /// The next pulse's start: the TDC restarts there.
   [[nodiscard]] double next_start_ns() const { return pulse_period_ns + armed_time_ns(); }
 
-  [[nodiscard]] double turn_on_bias_ns(const MeasurementSetup& m, std::uint32_t shot) const {
-    const auto& laser = config.link.laser;
-    const double t_ms = m.turn_on_start_ms + 1e3 * static_cast<double>(shot) / laser.repetition_hz;
-    if (t_ms > 30.0 * laser.turn_on_time_constant_ms) return 0.0;
-    const double bias_mm = laser.turn_on_bias_mm * std::exp(-t_ms / laser.turn_on_time_constant_ms);
-    return 2.0 * bias_mm * 1e-3 / c_nominal_m_per_ns;
-  }
-
   /// The comparator's effective levels at the rising and the falling crossing
   /// for the noise z_rise there and z_fall_ind independent of it (the noise at
   /// the fall is correlated with the rise's through the receiver bandwidth).
@@ -802,7 +795,9 @@ struct VirtualRangefinder::Impl {
     // so quantization and INL average out.
     const double phase =
         (config.tdc.laser_sync ? kSyncStartPhase : unit_open(r[2])) * tdc.period_ns();
-    const double delay = m.fixed_delay_ns + offset_ns + turn_on_bias_ns(m, index);
+    const double delay =
+        m.fixed_delay_ns + offset_ns +
+        turn_on_bias_ns(config.link.laser, m.turn_on_start_ms, index, c_nominal_m_per_ns);
     start_ns = tdc.quantize_ns(phase, m.tdc_bin_scale);
     stop_rise_ns = tdc.quantize_ns(phase + delay + rise, m.tdc_bin_scale);
     stop_fall_ns = tdc.quantize_ns(phase + delay + fall, m.tdc_bin_scale);
