@@ -22,6 +22,7 @@
 #include "tofkit/device/discriminator.hpp"
 #include "tofkit/device/emitter.hpp"
 #include "tofkit/device/front_end.hpp"
+#include "tofkit/device/operating_point.hpp"
 #include "tofkit/device/optics.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
 #include "tofkit/device/receiver_echo.hpp"
@@ -142,15 +143,6 @@ struct MeasurementSetup : MeasurementValues {
   }
 };
 
-/// Everything that depends on the operating conditions only.
-struct ConditionState {
-  double internal_c = 0, board_c = 0, gain = 0, power_scale = 0;
-  double c_m_per_ns = 0;      // speed of light in air at the ambient temperature
-  double volts_per_watt = 0;  // at the comparator, for this gain and laser power
-  double fixed_delay_ns = 0, tdc_bin_scale = 1, temperature_reading_c = 0;
-  FrontEndNoise noise;  // at the comparator, for this gain
-};
-
 /// Working storage of measure_single_shots: kLanes measurements at a time.
 constexpr std::size_t kLanes = 64;
 static_assert(kLanes <= SlowOffsets::kMaxOutputs);
@@ -248,11 +240,11 @@ struct VirtualRangefinder::Impl {
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
   /// or a batch has few distinct conditions).
-  [[nodiscard]] const ConditionState& condition_state(const Conditions& cond) const {
+  [[nodiscard]] const OperatingPoint& operating_point_at(const Conditions& cond) const {
     struct Cache {
       std::uint64_t device = 0;
       double ambient_c = 0, minutes = 0;
-      ConditionState state;
+      OperatingPoint state;
     };
     thread_local Cache cache;
     // Warmed up (every exp(-t / tau) of the thermal model underflows to 0):
@@ -265,40 +257,16 @@ struct VirtualRangefinder::Impl {
                                : cond.minutes_since_power_on;
     if (cache.device == id && cache.ambient_c == cond.ambient_c && cache.minutes == minutes)
       return cache.state;
-    const auto& th = config.thermal;
-    const auto& rx = config.link.receiver;
-    const auto& link = config.link;
-    ConditionState& c = cache.state;
-    c.internal_c = internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
-    // behind its heater; the APD's gain follows the board's temperature through
-    // the bias loop's residual.
-    c.board_c = timing_board_temperature_c(th, c.internal_c);
-    c.gain = physics::apd_gain_at(rx, c.board_c);
-    c.power_scale = std::max(
-        0.0, 1.0 + link.laser.power_temp_coeff_per_c * (c.internal_c - rx.nominal_temperature_c));
-    physics::AirConditions air{cond.ambient_c, link.environment.pressure_hpa,
-                               link.environment.relative_humidity_pct};
-    c.c_m_per_ns = physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
-    c.volts_per_watt = volts_per_watt_unity_gain * c.gain * c.power_scale;
-    // Delays: fixed chain delay plus the timing board's delay tempco and the
-    // unseen warm-up gradient, as extra round-trip time.
-    const double board_dt = c.board_c - rx.nominal_temperature_c;
-    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
-    c.fixed_delay_ns = config.measurement.fixed_delay_ns +
-                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
-                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
-    c.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
-    c.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    c.noise = front_end_noise(rx, c.gain);
+    cache.state = operating_point(config, cond.ambient_c, cond.minutes_since_power_on,
+                                  volts_per_watt_unity_gain, c_nominal_m_per_ns);
     cache.device = id;
     cache.ambient_c = cond.ambient_c;
     cache.minutes = minutes;
-    return c;
+    return cache.state;
   }
 
   /// All echo components: one per surface, or one per footprint node if spread.
-  void components(const Target& target, const ConditionState& c,
+  void components(const Target& target, const OperatingPoint& c,
                   std::vector<EchoComponent>& out) const {
     const auto& nodes = footprint_nodes();
     out.clear();
@@ -358,7 +326,7 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] Echo setup_common(const Target& target, const Conditions& cond, MeasurementSetup& m,
                                   SurfaceEcho& e) const {
     const auto& rx = config.link.receiver;
-    const ConditionState& c = condition_state(cond);
+    const OperatingPoint& c = operating_point_at(cond);
     const double background_w =
         background_free ? 0.0 : device::background_power_w(config.link, target);
     const double threshold = config.discriminator.threshold_v;
@@ -427,7 +395,7 @@ struct VirtualRangefinder::Impl {
   /// Optical crosstalk from the emitter into the receiver: a copy of the pulse
   /// at zero range (the same receive chain as the echoes); optical, so it
   /// follows the laser power and the APD gain.
-  [[nodiscard]] double crosstalk_at(const ConditionState& c) const {
+  [[nodiscard]] double crosstalk_at(const OperatingPoint& c) const {
     const auto& rx = config.link.receiver;
     return rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
   }
@@ -494,7 +462,7 @@ struct VirtualRangefinder::Impl {
   /// on a fine grid, and its crossing tables.
   void exact_echo(const Target& target, const Conditions& cond, MeasurementSetup& m) const {
     const auto& rx = config.link.receiver;
-    const ConditionState& c = condition_state(cond);
+    const OperatingPoint& c = operating_point_at(cond);
     const double threshold = config.discriminator.threshold_v;
     const double crosstalk_v = crosstalk_at(c);
     thread_local std::vector<EchoComponent> comps;
