@@ -17,9 +17,17 @@
 #include <type_traits>
 #include <vector>
 
+#include "pulsed_measurement.hpp"
 #include "random_draws.hpp"
 #include "tofkit/device/config_limits.hpp"
+#include "tofkit/device/discriminator.hpp"
+#include "tofkit/device/emitter.hpp"
+#include "tofkit/device/front_end.hpp"
+#include "tofkit/device/operating_point.hpp"
+#include "tofkit/device/optics.hpp"
 #include "tofkit/device/oscillator_loop.hpp"
+#include "tofkit/device/receiver_echo.hpp"
+#include "tofkit/device/slow_offsets.hpp"
 #include "tofkit/device/tdc.hpp"
 #include "tofkit/device/thermal.hpp"
 #include "tofkit/physics/air.hpp"
@@ -38,16 +46,7 @@ using physics::kPi;
 constexpr std::size_t kLevels = 129;       // entries of the level -> crossing-time tables
 constexpr double kLevelSpanSigma = 6.0;    // the tables cover threshold +- 6 sigma
 constexpr double kCompositeStepNs = 0.01;  // grid of the noise-free composite echo
-constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;   // per-measurement draws
-constexpr std::uint64_t kPowerOnStream = ~std::uint64_t{0};  // per-run (power-on) draws
-constexpr int kFlickerOctaves = 8;  // 1/f delay wander: octaves from kFlickerLowestHz
-constexpr double kFlickerLowestHz = 1e-3;
-// Random delay wander: kWanderLevels random processes whose correlation times
-// grow by kWanderLevelRatio (two octaves) from kWanderShortestS, equal power each.
-constexpr int kWanderLevels = 12;  // 1 ms ... 4^11 ms (70 min)
-constexpr double kWanderShortestS = 1e-3;
-constexpr double kWanderLevelRatio = 4.0;
-constexpr std::uint64_t kWanderStream = ~std::uint64_t{0} - 1;  // level k: kWanderStream - k
+constexpr std::uint32_t kMeasurementCounter = 0xFFFFFFFFu;  // per-measurement draws
 constexpr double kSyncStartPhase = 0.37;  // laser_sync: the start's fixed place in a coarse period
 // Analytic crossings need the noise frozen over each edge: at most this many
 // extra (chatter) crossings per edge on average, else the noise is sampled.
@@ -62,421 +61,11 @@ inline double table_at(const std::vector<double>& y, double x0, double inv_dx, d
   return y[i] + w * (y[i + 1] - y[i]);
 }
 
-/// Where std::max_element puts a sampled echo's peak over [begin, size): the
-/// first of the largest samples. Four running maxima (independent chains
-/// instead of one compare-and-branch per sample), then the first sample equal
-/// to their largest; with a NaN in the echo, std::max_element itself.
-std::size_t first_peak_index(const std::vector<double>& c, std::size_t begin) {
-  const std::size_t n = c.size();
-  double best[4] = {c[begin], c[begin], c[begin], c[begin]};
-  bool nan = false;
-  std::size_t i = begin;
-  for (; i + 4 <= n; i += 4) {
-    for (std::size_t k = 0; k < 4; ++k) {
-      const double v = c[i + k];
-      best[k] = best[k] > v ? best[k] : v;
-      nan |= v != v;
-    }
-  }
-  for (; i < n; ++i) {
-    best[0] = best[0] > c[i] ? best[0] : c[i];
-    nan |= c[i] != c[i];
-  }
-  if (nan)
-    return static_cast<std::size_t>(
-        std::max_element(c.begin() + static_cast<std::ptrdiff_t>(begin), c.end()) - c.begin());
-  const double peak = std::max(std::max(best[0], best[1]), std::max(best[2], best[3]));
-  i = begin;
-  while (c[i] != peak) ++i;
-  return i;
-}
-
-/// The downcrossing search of the exact path's crossing tables: from the
-/// rise's index i0, strides of kStride while the sample kStride ahead is at or
-/// above the level, then step by step. A saturated echo stays above the
-/// comparator's levels for thousands of grid steps, and each of the 129 levels
-/// strode over them. The smallest sample of each residue class (mod kStride)
-/// in aligned blocks of kBlock samples lets the search skip a block whose
-/// samples on its stride all stay at or above the level: the index the plain
-/// stride reaches, after far fewer reads.
-class StrideSearch {
- public:
-  static constexpr std::size_t kStride = 8, kBlock = 128;
-
-  void build(const std::vector<double>& c) {
-    const std::size_t n = c.size();
-    const std::size_t blocks = (n + kBlock - 1) / kBlock;
-    minima_.assign(blocks * kStride, std::numeric_limits<double>::infinity());
-    bool nan = false;
-    for (std::size_t b = 0; b < blocks; ++b) {
-      double* low = &minima_[b * kStride];
-      const std::size_t begin = b * kBlock, end = std::min(n, begin + kBlock);
-      std::size_t p = begin;
-      for (; p + kStride <= end; p += kStride) {  // a row of kStride residues: vectorized
-        for (std::size_t r = 0; r < kStride; ++r) {
-          low[r] = c[p + r] < low[r] ? c[p + r] : low[r];
-          nan |= c[p + r] != c[p + r];
-        }
-      }
-      for (; p < end; ++p) {
-        low[p % kStride] = c[p] < low[p % kStride] ? c[p] : low[p % kStride];
-        nan |= c[p] != c[p];
-      }
-    }
-    has_nan_ = nan;
-  }
-
-  /// The index where `while (i + kStride < n && c[i + kStride] >= level) i += kStride;
-  /// while (i < n && c[i] >= level) ++i;` from i = i0 stops.
-  [[nodiscard]] std::size_t fall_index(const std::vector<double>& c, std::size_t i0,
-                                       double level) const {
-    const std::size_t n = c.size();
-    std::size_t i = i0;
-    if (has_nan_) {
-      while (i + kStride < n && c[i + kStride] >= level) i += kStride;
-    } else {
-      // The first p = i0 + m kStride (m >= 1) at or past the end or below the level.
-      std::size_t p = i0 + kStride;
-      const std::size_t block_end = std::min(n, (p / kBlock + 1) * kBlock);
-      while (p < block_end && c[p] >= level) p += kStride;
-      if (p >= block_end && p < n) {
-        while (p < n && minima_[(p / kBlock) * kStride + p % kStride] >= level) p += kBlock;
-        while (p < n && c[p] >= level) p += kStride;
-      }
-      if (p >= n) p = i0 + kStride * ((n - i0 + kStride - 1) / kStride);
-      i = p - kStride;
-    }
-    while (i < n && c[i] >= level) ++i;
-    return i;
-  }
-
- private:
-  std::vector<double> minima_;  // [block * kStride + residue]
-  bool has_nan_ = false;
-};
-
-/// The echo of one surface, tabulated once per pulse shape in normalized form.
-/// A surface at delay d, amplitude A and footprint spread h (ns of round trip
-/// over the half depth) gives the echo A g_h(t - d) with
-/// g_h(t) = sum_k w_k p(t - u_k h), p the pulse template. Its crossings of a
-/// level L are d + rise_h(L / A) and d + fall_h(L / A). Rows hold g_h for
-/// h = 0, dh, 2 dh, ... as long as g_h has a single peak (then the first
-/// upcrossing and the next downcrossing are the two branches of its inverse);
-/// each row holds the peak P_h, its time and both branches over the level
-/// y = x / P_h: log-spaced below 1/2 (pseudo-log2 of the double's bits, 32
-/// per octave, down to 2^-32) and uniform in sqrt(1 - y) above (the peak is
-/// parabolic there). Between rows the times are interpolated linearly in h.
-class SpreadEchoTable {
- public:
-  static constexpr int kLowestExponent = -32;  // y below 2^-32: the first entry
-  static constexpr int kOctaves = 31;
-  static constexpr int kPerOctave = 32;
-  static constexpr std::size_t kLow = kOctaves * kPerOctave + 1;  // y in [2^-32, 1/2]
-  static constexpr std::size_t kHigh = 257;                       // y in [1/2, 1]
-  static constexpr std::size_t kRowSize = 2 * (kLow + kHigh);
-  static constexpr std::size_t kMaxRows = 256;
-  static constexpr double kSampleNs = 0.005;      // the template's own step
-  static constexpr double kMaxEvaluations = 3e7;  // pulse evaluations to build the rows
-
-  explicit SpreadEchoTable(const physics::PulseTemplate& pulse) {
-    const auto& nodes = footprint_nodes();
-    // Spread step: a small fraction of the echo's half-maximum width.
-    step_ns_ = pulse.width_at_level_ns(0.5) / 64.0;
-    inv_step_ = 1.0 / step_ns_;
-    const double sqrt_half = std::sqrt(0.5);
-    high_scale_ = static_cast<double>(kHigh - 1) / sqrt_half;
-    std::vector<double> g;
-    std::vector<double> levels(kLow + kHigh);
-    for (std::size_t j = 0; j < kLow; ++j) levels[j] = low_level(j);
-    for (std::size_t j = 0; j < kHigh; ++j) {
-      const double s = sqrt_half * (1.0 - static_cast<double>(j) / static_cast<double>(kHigh - 1));
-      levels[kLow + j] = j + 1 == kHigh ? 1.0 : 1.0 - s * s;
-    }
-    double evaluations = 0;  // build cost: long templates get fewer rows
-    for (std::size_t r = 0; r < kMaxRows && evaluations < kMaxEvaluations; ++r) {
-      const double h = static_cast<double>(r) * step_ns_;
-      const double t0 = pulse.begin_ns() - h - kSampleNs;
-      const auto n =
-          static_cast<std::size_t>((pulse.end_ns() + h + kSampleNs - t0) / kSampleNs) + 2;
-      g.assign(n, 0.0);
-      evaluations += static_cast<double>(n * nodes.u.size());
-      for (std::size_t i = 0; i < n; ++i) {
-        const double t = t0 + static_cast<double>(i) * kSampleNs;
-        double v = 0;
-        for (std::size_t k = 0; k < nodes.u.size(); ++k)
-          v += nodes.w[k] * pulse(t - (r == 0 ? 0.0 : nodes.u[k] * h));
-        g[i] = v;
-      }
-      const auto peak_i =
-          static_cast<std::size_t>(std::max_element(g.begin(), g.end()) - g.begin());
-      // One peak: non-decreasing before it, non-increasing after.
-      bool single = peak_i > 0 && peak_i + 1 < n;
-      for (std::size_t i = 1; single && i <= peak_i; ++i) single = g[i] >= g[i - 1];
-      for (std::size_t i = peak_i + 1; single && i < n; ++i) single = g[i] <= g[i - 1];
-      if (!single) break;
-      // Peak between samples: the parabola through the three around the largest.
-      const double a = g[peak_i - 1], b = g[peak_i], c = g[peak_i + 1];
-      const double den = a - 2.0 * b + c;
-      const double off = den < 0 ? std::clamp(0.5 * (a - c) / den, -0.5, 0.5) : 0.0;
-      const double peak = b - 0.25 * (a - c) * off;
-      const double peak_t = t0 + (static_cast<double>(peak_i) + off) * kSampleNs;
-      peaks_.push_back(peak);
-      peak_times_.push_back(peak_t);
-      const std::size_t base = times_.size();
-      times_.resize(base + kRowSize);
-      double* rise = &times_[base];
-      double* fall = rise + (kLow + kHigh);
-      std::size_t i_rise = 1, i_fall = n - 2;
-      for (std::size_t j = 0; j < kLow + kHigh; ++j) {
-        const double level = levels[j] * peak;
-        if (levels[j] >= 1.0) {
-          rise[j] = fall[j] = peak_t;
-          continue;
-        }
-        while (i_rise < peak_i && g[i_rise] < level) ++i_rise;
-        const double ra = g[i_rise - 1], rb = g[i_rise];
-        rise[j] =
-            rb > ra ? t0 + (static_cast<double>(i_rise - 1) + (level - ra) / (rb - ra)) * kSampleNs
-                    : t0 + static_cast<double>(i_rise) * kSampleNs;
-        while (i_fall > peak_i && g[i_fall] < level) --i_fall;
-        const double fa = g[i_fall], fb = g[i_fall + 1];
-        fall[j] = fa > fb
-                      ? t0 + (static_cast<double>(i_fall) + (fa - level) / (fa - fb)) * kSampleNs
-                      : t0 + static_cast<double>(i_fall) * kSampleNs;
-        rise[j] = std::min(rise[j], peak_t);
-        fall[j] = std::max(fall[j], peak_t);
-      }
-    }
-    max_spread_ns_ = static_cast<double>(peaks_.size() - 1) * step_ns_;
-  }
-
-  /// Largest spread covered (ns); beyond it the echo may have several peaks.
-  [[nodiscard]] double max_spread_ns() const { return max_spread_ns_; }
-
-  struct At {
-    std::size_t row = 0;
-    double w = 0;  // weight of row + 1
-  };
-  [[nodiscard]] At at(double spread_ns) const {
-    const double f = spread_ns * inv_step_;
-    At a;
-    a.row = std::min(static_cast<std::size_t>(f), peaks_.size() - 1);
-    a.w = a.row + 1 < peaks_.size() ? f - static_cast<double>(a.row) : 0.0;
-    return a;
-  }
-  [[nodiscard]] double peak(At a) const { return mix(a, peaks_); }
-  [[nodiscard]] double peak_time_ns(At a) const { return mix(a, peak_times_); }
-  /// Peak of a row (the level y of a row is x / row_peak).
-  [[nodiscard]] double row_peak(std::size_t row) const { return peaks_[row]; }
-  /// First upcrossing / following downcrossing of the levels y0 = x / P_row and
-  /// y1 = x / P_row+1 (x: level over amplitude), interpolated between the rows.
-  [[nodiscard]] double rise_ns(At a, double y0, double y1) const { return cross(a, y0, y1, 0); }
-  [[nodiscard]] double fall_ns(At a, double y0, double y1) const {
-    return cross(a, y0, y1, kLow + kHigh);
-  }
-  /// Both at the same level: rise_ns and fall_ns, sharing the level's place in the rows.
-  void rise_fall_ns(At a, double y0, double y1, double& rise, double& fall) const {
-    row_cross_both(a.row, y0, rise, fall);
-    if (a.w <= 0) return;
-    double rise1 = 0, fall1 = 0;
-    row_cross_both(a.row + 1, y1, rise1, fall1);
-    rise += a.w * (rise1 - rise);
-    fall += a.w * (fall1 - fall);
-  }
-
- private:
-  static double low_level(std::size_t j) {
-    const double pl = kLowestExponent + static_cast<double>(j) / kPerOctave;
-    const double e = std::floor(pl);
-    return std::ldexp(1.0 + (pl - e), static_cast<int>(e));
-  }
-  static double mix(At a, const std::vector<double>& v) {
-    return a.w > 0 ? v[a.row] + a.w * (v[a.row + 1] - v[a.row]) : v[a.row];
-  }
-  /// Where level y falls in a row: entry i and weight w of entry i + 1; false
-  /// at the peak (y >= 1).
-  [[nodiscard]] bool row_position(double y, std::size_t& i, double& w) const {
-    double f = 0;
-    if (y >= 0.5) {
-      if (y >= 1.0) return false;
-      f = static_cast<double>(kLow) + std::sqrt(0.5) * high_scale_ -
-          std::sqrt(1.0 - y) * high_scale_;
-    } else {
-      // (bits(y) - bits(2^-32)) / 2^52 is log2(y) + 32, piecewise linear in y.
-      constexpr auto kBase = std::bit_cast<std::int64_t>(0x1p-32);
-      const auto bits = std::bit_cast<std::int64_t>(y) - kBase;
-      if (bits <= 0) {
-        i = 0;
-        w = 0;
-        return true;
-      }
-      f = static_cast<double>(bits) * (kPerOctave * 0x1p-52);
-    }
-    i = std::min(static_cast<std::size_t>(f), kLow + kHigh - 2);
-    w = f - static_cast<double>(i);
-    return true;
-  }
-  /// Entry i of t moved w of the way to entry i + 1.
-  static double lerp_at(const double* t, std::size_t i, double w) {
-    return t[i] + w * (t[i + 1] - t[i]);
-  }
-  [[nodiscard]] double row_cross(std::size_t row, double y, std::size_t branch) const {
-    std::size_t i = 0;
-    double w = 0;
-    if (!row_position(y, i, w)) return peak_times_[row];
-    return lerp_at(&times_[row * kRowSize + branch], i, w);
-  }
-  /// Both crossings of one row at the same level.
-  void row_cross_both(std::size_t row, double y, double& rise, double& fall) const {
-    std::size_t i = 0;
-    double w = 0;
-    if (!row_position(y, i, w)) {
-      rise = fall = peak_times_[row];
-      return;
-    }
-    const double* r = &times_[row * kRowSize];
-    rise = lerp_at(r, i, w);
-    fall = lerp_at(r + (kLow + kHigh), i, w);
-  }
-  [[nodiscard]] double cross(At a, double y0, double y1, std::size_t branch) const {
-    const double t0 = row_cross(a.row, y0, branch);
-    if (a.w <= 0) return t0;
-    return t0 + a.w * (row_cross(a.row + 1, y1, branch) - t0);
-  }
-
-  double step_ns_ = 0, inv_step_ = 0, high_scale_ = 0, max_spread_ns_ = 0;
-  std::vector<double> peaks_, peak_times_, times_;
-};
-
-/// Tables shared by devices with the same pulse (a few kept; the key is exact).
-std::shared_ptr<const SpreadEchoTable> spread_table(const physics::PulseTemplate& pulse,
-                                                    double fwhm_ns, double bandwidth_mhz,
-                                                    double onset_ns) {
-  static std::mutex mutex;
-  static std::map<std::array<double, 3>, std::shared_ptr<const SpreadEchoTable>> cache;
-  const std::lock_guard lock(mutex);
-  const std::array key{fwhm_ns, bandwidth_mhz, onset_ns};
-  if (const auto it = cache.find(key); it != cache.end()) return it->second;
-  if (cache.size() >= 8) cache.clear();  // devices keep their own reference
-  auto table = std::make_shared<const SpreadEchoTable>(pulse);
-  cache.emplace(key, table);
-  return table;
-}
-
-/// One delayed, scaled copy of the pulse template in the receiver.
-struct EchoComponent {
-  double amplitude_v;
-  double delay_ns;
-};
-
-/// Everything that is the same for all shots of one measurement: its numbers
-/// (MeasurementValues), and on the exact path its sampled echo and tables.
-struct MeasurementValues {
-  double grid_begin_ns = 0;
-  double peak_v = 0;
-  double peak_time_ns = 0;
-  // Threshold-crossing tables over levels threshold +- 6 sigma (level-shift noise model).
-  double level_begin_v = 0, inv_level_step = 0;
-  double level_end_v = 0;
-  double level_top_v = 0;  // largest level that is crossed at all
-  // Fast path (one surface, analytic mode): the echo is A g_h(t - delay_ns)
-  // with g_h the device's tabulated normalized echo at spread h.
-  bool fast = false;
-  double delay_ns = 0;
-  double amplitude_v = 0, spread_ns = 0;  // the surface's echo (sampled noise reads it)
-  SpreadEchoTable::At spread{};
-  double inv_row_peak_v[2] = {0, 0};  // 1 / (amplitude x peak) of the two rows
-  double noise_at_threshold_v = 0;
-  double noise_floor_var_v2 = 0;  // noise variance without signal
-  double shot_var_per_v = 0;      // signal shot noise variance per volt of signal
-  double edge_correlation = 0;    // correlation of the noise at the two crossings
-  double edge_independence = 1;   // sqrt(1 - correlation^2): the fall's noise's own share
-  double recovery_ns = 0;         // extra clip time of an overdriven amplifier
-  bool saturated = false;
-  // AC-coupled receiver (memory.time_constant_ms > 0): the comparator's
-  // effective level is the threshold plus the coupling's baseline, settled on
-  // this echo train (baseline_v) plus an unrecovered offset that relaxes over
-  // the shots (comparator_level).
-  double baseline_v = 0, baseline_offset_v = 0;
-  // The comparator level's slow wander at this measurement's time (V;
-  // discriminator.level_wander_mv): the reference's and the amplifier's
-  // offset drift, the same for all its shots.
-  double level_offset_v = 0;
-  double fixed_delay_ns = 0;  // trigger + receive chain, incl. thermal drift
-  double tdc_bin_scale = 1;   // fine-bin width relative to nominal (timing board temperature)
-  double temperature_reading_c = 0;
-  double amplitude_noise_rel = 0;
-  double turn_on_start_ms = 0;
-  // Noise alone crossing the threshold before the echo (false alarms).
-  double false_alarm_rate_per_ns = 0;  // Rice: nu = exp(-u^2/2) / (2 pi tau_p), u = V_th / sigma_0
-  double threshold_over_noise = 0;     // u: sets the mean time above threshold of an excursion
-  // The noise is sampled on the waveform (waveform mode, or an analytic
-  // measurement whose edges are too slow for a frozen-noise crossing).
-  bool sampled = false;
-  double record_begin_ns = 0;          // waveform mode samples from here on
-  double blanking_ns = 0;              // comparator ignores crossings (and alarms) before this
-  double armed_ns = 0;                 // its stops count from here: the blanking's end, or the
-                                       // TDC's start (armed_time_ns)
-  double record_end_ns = 0;            // waveform mode samples up to here
-  double false_alarm_window_ns = 0;    // armed time before the explicitly modelled echo
-  double false_alarm_probability = 0;  // 1 - exp(-nu window)
-};
-
-struct MeasurementSetup : MeasurementValues {
-  // Noise-free linear echo on a fine grid (the sum of all components).
-  std::vector<double> composite;
-  std::vector<double> noise_sigma;  // sampled noise: 1 sigma along the composite (over the record)
-  std::vector<double> rise_ns, fall_ns;  // kLevels each, filled on the exact path only
-  /// Back to a fresh setup, keeping the vectors' storage.
-  void reset() {
-    // Copied 32 bytes at a time: a whole-struct copy becomes `rep stos`, whose
-    // start-up cost dominated the fast path's setup (a lane's reset took ~12 ns).
-    static constexpr MeasurementValues kFresh{};
-    static_assert(std::is_trivially_copyable_v<MeasurementValues>);
-    constexpr std::size_t kChunk = 32, kSize = sizeof(MeasurementValues);
-    auto* to = reinterpret_cast<unsigned char*>(static_cast<MeasurementValues*>(this));
-    const auto* from = reinterpret_cast<const unsigned char*>(&kFresh);
-    for (std::size_t i = 0; i + kChunk <= kSize; i += kChunk) {
-      unsigned char chunk[kChunk];
-      std::memcpy(chunk, from + i, kChunk);
-      std::memcpy(to + i, chunk, kChunk);
-    }
-    std::memcpy(to + kSize / kChunk * kChunk, from + kSize / kChunk * kChunk, kSize % kChunk);
-    composite.clear();
-    noise_sigma.clear();
-    rise_ns.clear();
-    fall_ns.clear();
-  }
-};
-
-/// One surface's echo: amplitude, delay and the round-trip spread over half the
-/// footprint's depth (0 when below 1e-4 ns: a point echo).
-struct SurfaceEcho {
-  double amplitude_v = 0, delay_ns = 0, spread_ns = 0;
-};
-
-/// Everything that depends on the operating conditions only.
-struct ConditionState {
-  double internal_c = 0, board_c = 0, gain = 0, power_scale = 0;
-  double c_m_per_ns = 0;      // speed of light in air at the ambient temperature
-  double volts_per_watt = 0;  // at the comparator, for this gain and laser power
-  double fixed_delay_ns = 0, tdc_bin_scale = 1, temperature_reading_c = 0;
-  double floor_var_v2 = 0;     // noise floor without background light
-  double floor_var_per_w = 0;  // ... and its growth per watt of background
-  double shot_var_per_v = 0;   // signal shot noise variance per volt of signal
-};
-
-/// Working storage of measure_single_shots: kLanes measurements at a time.
-constexpr std::size_t kLanes = 64;
-struct Lanes {
-  std::array<MeasurementSetup, kLanes> setups;
-  std::array<SurfaceEcho, kLanes> echoes;
-  std::array<std::size_t, kLanes> fast;  // the lanes on the fast path
-  std::array<std::array<std::uint32_t, kLanes>, 4> shot_words, extra_words;  // draws, word-major
-  std::array<std::array<double, 2>, kLanes> z, z_extra;
-  std::array<double, kLanes> lag, offsets, level_offsets, level_rise, level_fall, rise, fall;
-  std::array<bool, kLanes> echo;
-};
+using detail::EchoComponent;
+using detail::kLanes;
+using detail::Lanes;
+using detail::MeasurementSetup;
+using detail::MeasurementValues;
 
 std::atomic<std::uint64_t> next_device_id{1};
 
@@ -497,8 +86,8 @@ struct VirtualRangefinder::Impl {
   bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
   double shots_per_time_constant = 0;  // pulses per coupling time constant
   double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
-  bool wandering = false;              // delay or comparator-level wander (add_wander_ns)
   double level_wander_span_v = 0;      // the level tables' extra span for the level's wander
+  SlowOffsets slow;                    // timing: power-on offset, flicker, delay and level wander
 
   Impl(DeviceConfig cfg, SimulationMode m)
       : config(std::move(cfg)),
@@ -506,7 +95,8 @@ struct VirtualRangefinder::Impl {
         pulse(config.link.laser.pulse_width_ns, config.link.receiver.bandwidth_mhz, 5.0,
               config.link.laser.lasing_onset_ns),
         tdc(config.tdc),
-        id(next_device_id.fetch_add(1)) {
+        id(next_device_id.fetch_add(1)),
+        slow(config, id) {
     const auto& rx = config.link.receiver;
     volts_per_watt_unity_gain =
         rx.responsivity_a_per_w * rx.transimpedance_kohm * 1e3 * pulse.peak_gain();
@@ -524,8 +114,6 @@ struct VirtualRangefinder::Impl {
         config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
     for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
       pulse_area_ns += pulse(t) * kCompositeStepNs;
-    wandering =
-        config.measurement.delay_wander_ps > 0.0 || config.discriminator.level_wander_mv > 0.0;
     // 5 sigma of the level's wander (a sum of 12 bounded-variance normals).
     level_wander_span_v = 5.0 * config.discriminator.level_wander_mv * 1e-3;
   }
@@ -537,10 +125,8 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] double comparator_level(const MeasurementSetup& m, std::uint32_t shot) const {
     const double threshold = config.discriminator.threshold_v + m.level_offset_v;
     if (!coupled) return threshold;
-    double offset = m.baseline_offset_v;
-    if (offset != 0.0 && shot > 0)
-      offset *= std::exp(-static_cast<double>(shot) / shots_per_time_constant);
-    return threshold + m.baseline_v + offset;
+    return threshold + m.baseline_v +
+           coupling_offset_v(m.baseline_offset_v, shot, shots_per_time_constant);
   }
 
   /// The coupling's settled baseline on this echo train: its capacitor charges
@@ -551,11 +137,9 @@ struct VirtualRangefinder::Impl {
   void set_baseline(MeasurementSetup& m, double amplitude_sum_v) const {
     if (!coupled) return;
     const auto& rx = config.link.receiver;
-    double charge_v_ns = amplitude_sum_v * pulse_area_ns;
-    if (m.peak_v > rx.saturation_v)
-      charge_v_ns = charge_v_ns * rx.saturation_v / m.peak_v + rx.saturation_v * m.recovery_ns;
-    m.baseline_v =
-        config.memory.coupling_share * charge_v_ns * config.link.laser.repetition_hz * 1e-9;
+    m.baseline_v = device::coupling_baseline_v(
+        amplitude_sum_v, pulse_area_ns, m.peak_v, rx.saturation_v, m.recovery_ns,
+        config.memory.coupling_share, config.link.laser.repetition_hz);
     const double threshold = config.discriminator.threshold_v;
     const double sigma = m.noise_at_threshold_v;
     const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);
@@ -567,11 +151,11 @@ struct VirtualRangefinder::Impl {
 
   /// The conditions' share of a measurement's setup, cached per thread (a scan
   /// or a batch has few distinct conditions).
-  [[nodiscard]] const ConditionState& condition_state(const Conditions& cond) const {
+  [[nodiscard]] const OperatingPoint& operating_point_at(const Conditions& cond) const {
     struct Cache {
       std::uint64_t device = 0;
       double ambient_c = 0, minutes = 0;
-      ConditionState state;
+      OperatingPoint state;
     };
     thread_local Cache cache;
     // Warmed up (every exp(-t / tau) of the thermal model underflows to 0):
@@ -584,93 +168,23 @@ struct VirtualRangefinder::Impl {
                                : cond.minutes_since_power_on;
     if (cache.device == id && cache.ambient_c == cond.ambient_c && cache.minutes == minutes)
       return cache.state;
-    const auto& th = config.thermal;
-    const auto& rx = config.link.receiver;
-    const auto& link = config.link;
-    ConditionState& c = cache.state;
-    c.internal_c = internal_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // The front-end board (laser driver, APD, amplifier, comparator, TDC) sits
-    // behind its heater; the APD's gain follows the board's temperature through
-    // the bias loop's residual.
-    c.board_c = timing_board_temperature_c(th, c.internal_c);
-    c.gain = physics::apd_gain_at(rx, c.board_c);
-    c.power_scale = std::max(
-        0.0, 1.0 + link.laser.power_temp_coeff_per_c * (c.internal_c - rx.nominal_temperature_c));
-    physics::AirConditions air{cond.ambient_c, link.environment.pressure_hpa,
-                               link.environment.relative_humidity_pct};
-    c.c_m_per_ns = physics::speed_of_light_in_air_m_per_s(link.laser.wavelength_nm, air) * 1e-9;
-    c.volts_per_watt = volts_per_watt_unity_gain * c.gain * c.power_scale;
-    // Delays: fixed chain delay plus the timing board's delay tempco and the
-    // unseen warm-up gradient, as extra round-trip time.
-    const double board_dt = c.board_c - rx.nominal_temperature_c;
-    const double warmup_mm = warmup_drift_mm(th, cond.ambient_c, cond.minutes_since_power_on);
-    c.fixed_delay_ns = config.measurement.fixed_delay_ns +
-                       th.delay_tempco_ps_per_c * 1e-3 * board_dt +
-                       2.0 * warmup_mm * 1e-3 / c_nominal_m_per_ns;
-    c.tdc_bin_scale = 1.0 + config.tdc.bin_tempco_ppm_per_c * 1e-6 * board_dt;
-    c.temperature_reading_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
-    // Noise floor: amplifier, dark and background shot noise (Eq. 8 terms); the
-    // variances add, so the floor is linear in the background power.
-    const double z_ohm = rx.transimpedance_kohm * 1e3;
-    auto floor_var = [&](double background_w) {
-      const auto n = physics::noise_currents(rx, 0.0, background_w, c.gain);
-      return z_ohm * z_ohm *
-             (n.background_shot_a * n.background_shot_a + n.dark_shot_a * n.dark_shot_a +
-              n.thermal_a * n.thermal_a);
-    };
-    c.floor_var_v2 = floor_var(0.0);
-    c.floor_var_per_w = floor_var(1.0) - c.floor_var_v2;
-    // Signal shot noise: 2 q I_p M^2 F B with I_p = V / (Z M) -> 2 q M F B Z V.
-    c.shot_var_per_v = 2.0 * physics::kElementaryCharge_c * c.gain * rx.excess_noise_factor *
-                       rx.bandwidth_mhz * 1e6 * z_ohm;
+    cache.state = operating_point(config, cond.ambient_c, cond.minutes_since_power_on,
+                                  volts_per_watt_unity_gain, c_nominal_m_per_ns);
     cache.device = id;
     cache.ambient_c = cond.ambient_c;
     cache.minutes = minutes;
-    return c;
-  }
-
-  /// The APD's space charge: a strong pulse's own carriers screen the
-  /// multiplication field, so the gain falls as the current grows,
-  /// A / (1 + A / A_sc), and no echo exceeds A_sc however strong the return.
-  [[nodiscard]] double space_charge_limited_v(double linear_v) const {
-    const double a_sc = config.link.receiver.space_charge_v;
-    return a_sc > 0.0 ? linear_v / (1.0 + linear_v / a_sc) : linear_v;
-  }
-
-  /// One surface's echo; false when it returns nothing.
-  [[nodiscard]] bool surface_echo(const Surface& s, const ConditionState& c,
-                                  SurfaceEcho& out) const {
-    const auto& link = config.link;
-    if (s.fraction <= 0.0 || s.reflectance <= 0.0 || !(s.cos_incidence > 0.0)) return false;
-    const double cos_phi = std::min(s.cos_incidence, 1.0);
-    // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-    // Biaxial optics: only the share of the footprint inside the receiver's field.
-    const double power_w =
-        s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
-        physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
-    if (power_w <= 0.0) return false;
-    out.amplitude_v = space_charge_limited_v(power_w * c.volts_per_watt);
-    // The comparator is re-armed at every pulse: an echo later than the pulse
-    // period arrives after a later pulse and is timed from that one (ambiguity).
-    out.delay_ns = 2.0 * s.distance_m / c.c_m_per_ns;
-    if (out.delay_ns >= pulse_period_ns) out.delay_ns = std::fmod(out.delay_ns, pulse_period_ns);
-    // A tilted surface spreads the footprint over a depth D tan(phi): the echo is
-    // the sum over the footprint (uniform disk -> semicircle weights, Gauss-Chebyshev).
-    const double half_depth_m = 0.5 * physics::footprint_diameter_m(link.laser, s.distance_m) *
-                                std::sqrt(std::max(1.0 - cos_phi * cos_phi, 0.0)) / cos_phi;
-    out.spread_ns = 2.0 * half_depth_m / c.c_m_per_ns;
-    if (out.spread_ns < 1e-4) out.spread_ns = 0.0;
-    return true;
+    return cache.state;
   }
 
   /// All echo components: one per surface, or one per footprint node if spread.
-  void components(const Target& target, const ConditionState& c,
+  void components(const Target& target, const OperatingPoint& c,
                   std::vector<EchoComponent>& out) const {
     const auto& nodes = footprint_nodes();
     out.clear();
     for (const auto& s : target.surfaces) {
       SurfaceEcho e;
-      if (!surface_echo(s, c, e)) continue;
+      if (!surface_echo(config.link, s, c.volts_per_watt, c.c_m_per_ns, pulse_period_ns, e))
+        continue;
       if (e.spread_ns == 0.0) {
         out.push_back({e.amplitude_v, e.delay_ns});
         continue;
@@ -678,24 +192,6 @@ struct VirtualRangefinder::Impl {
       for (std::size_t k = 0; k < nodes.u.size(); ++k)
         out.push_back({e.amplitude_v * nodes.w[k], e.delay_ns + nodes.u[k] * e.spread_ns});
     }
-  }
-
-  /// Noise variance (V^2) at a signal level: amplifier/background/dark floor
-  /// plus signal shot noise proportional to the instantaneous signal (Eq. 8 terms).
-  [[nodiscard]] static double noise_variance(const ConditionState& c, double signal_v,
-                                             double background_w) {
-    return c.floor_var_v2 + c.floor_var_per_w * background_w +
-           c.shot_var_per_v * std::max(signal_v, 0.0);
-  }
-
-  /// Sunlight scattered by the surfaces into the receiver (paper Eq. 9).
-  [[nodiscard]] double background_power_w(const Target& target) const {
-    double w = 0;
-    for (const auto& s : target.surfaces)
-      w += s.fraction *
-           physics::background_power_cos_w(config.link, s.reflectance,
-                                           std::max(s.cos_incidence, detail::kBackgroundCosFloor));
-    return w;
   }
 
   /// Crossing times of a comparator level (clamped to the tabulated span
@@ -741,11 +237,12 @@ struct VirtualRangefinder::Impl {
   [[nodiscard]] Echo setup_common(const Target& target, const Conditions& cond, MeasurementSetup& m,
                                   SurfaceEcho& e) const {
     const auto& rx = config.link.receiver;
-    const ConditionState& c = condition_state(cond);
-    const double background_w = background_free ? 0.0 : background_power_w(target);
+    const OperatingPoint& c = operating_point_at(cond);
+    const double background_w =
+        background_free ? 0.0 : device::background_power_w(config.link, target);
     const double threshold = config.discriminator.threshold_v;
-    m.noise_floor_var_v2 = noise_variance(c, 0.0, background_w);
-    m.shot_var_per_v = c.shot_var_per_v;
+    m.noise_floor_var_v2 = c.noise.variance_v2(0.0, background_w);
+    m.shot_var_per_v = c.noise.shot_var_per_v;
     {
       // Noise at the threshold and Rice's rate, cached per thread on the noise
       // (the same for every target without background light).
@@ -757,18 +254,17 @@ struct VirtualRangefinder::Impl {
       if (cache.device != id || cache.floor_var != m.noise_floor_var_v2 ||
           cache.shot_var != m.shot_var_per_v) {
         cache.at_threshold = std::sqrt(m.noise_floor_var_v2 + m.shot_var_per_v * threshold);
-        // Rice's formula for the upcrossing rate of band-limited Gaussian noise with
-        // R(tau) = (1 + |tau|/tau_p) exp(-|tau|/tau_p), for which -R''(0) = 1 / tau_p^2.
+        // Rice's formula for the upcrossing rate of the receiver's noise.
         cache.u = threshold / std::sqrt(m.noise_floor_var_v2);
         const double tau_p = pulse.pole_time_constant_ns();
-        cache.rate = std::exp(-0.5 * cache.u * cache.u) / (2.0 * kPi * tau_p);
+        cache.rate = rice_upcrossing_rate_per_ns(cache.u, tau_p);
         cache.device = id;
         cache.floor_var = m.noise_floor_var_v2;
         cache.shot_var = m.shot_var_per_v;
       }
       m.noise_at_threshold_v = cache.at_threshold;
-      m.false_alarm_rate_per_ns = cache.rate;
-      m.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
+      m.alarms.rate_per_ns = cache.rate;
+      m.alarms.threshold_over_noise = cache.u;  // the excursion width is worked out when one occurs
     }
     m.fixed_delay_ns = c.fixed_delay_ns;
     m.tdc_bin_scale = c.tdc_bin_scale;
@@ -782,20 +278,20 @@ struct VirtualRangefinder::Impl {
         std::max(threshold - kLevelSpanSigma * sigma - level_wander_span_v, 0.05 * threshold);
     m.level_end_v = threshold + kLevelSpanSigma * sigma + level_wander_span_v;
     m.blanking_ns = config.discriminator.blanking_ns;
-    m.armed_ns = m.blanking_ns > 0.0 ? m.blanking_ns : armed_time_ns();
+    m.alarms.armed_ns = m.blanking_ns > 0.0 ? m.blanking_ns : armed_time_ns();
     if (!shapes) return Echo::kExact;
     // Fast path: one surface whose echo has a single peak, analytic mode.
     int surfaces = 0;
     for (const auto& s : target.surfaces) {
       SurfaceEcho one;
-      if (surface_echo(s, c, one)) {
+      if (surface_echo(config.link, s, c.volts_per_watt, c.c_m_per_ns, pulse_period_ns, one)) {
         e = one;
         if (++surfaces > 1) return Echo::kExact;  // a mixed pixel
       }
     }
     const double crosstalk_v = crosstalk_at(c);
     if (surfaces == 0 && crosstalk_v <= 0.0) {
-      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
+      m.alarms.set_window(next_start_ns());  // armed until the next pulse's start
       return Echo::kNone;
     }
     // (No crosstalk, and the echo starts after any blanking.)
@@ -810,7 +306,7 @@ struct VirtualRangefinder::Impl {
   /// Optical crosstalk from the emitter into the receiver: a copy of the pulse
   /// at zero range (the same receive chain as the echoes); optical, so it
   /// follows the laser power and the APD gain.
-  [[nodiscard]] double crosstalk_at(const ConditionState& c) const {
+  [[nodiscard]] double crosstalk_at(const OperatingPoint& c) const {
     const auto& rx = config.link.receiver;
     return rx.crosstalk_v * c.gain / rx.apd_gain * c.power_scale;
   }
@@ -830,8 +326,7 @@ struct VirtualRangefinder::Impl {
     m.peak_time_ns = e.delay_ns + shapes->peak_time_ns(m.spread);
     m.level_top_v = m.peak_v;
     m.saturated = m.peak_v > rx.saturation_v;
-    m.recovery_ns =
-        m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    m.recovery_ns = clip_recovery_ns(m.peak_v, rx.saturation_v, rx.recovery_ns_per_neper);
     set_baseline(m, e.amplitude_v);
   }
 
@@ -867,25 +362,25 @@ struct VirtualRangefinder::Impl {
     // below 2^-26 never fires: the window need not be worked out.
     const double longest_window_ns =
         pulse_period_ns + pulse.end_ns() + shapes->max_spread_ns() - armed_time_ns();
-    if (m.false_alarm_rate_per_ns * longest_window_ns < 0x1p-26)
-      m.false_alarm_probability = 0.0;
+    if (m.alarms.rate_per_ns * longest_window_ns < 0x1p-26)
+      m.alarms.probability = 0.0;
     else
-      set_false_alarm_window(
-          m, m.level_begin_v <= m.peak_v ? rise_at(m, m.level_begin_v) : m.peak_time_ns);
+      m.alarms.set_window(m.level_begin_v <= m.peak_v ? rise_at(m, m.level_begin_v)
+                                                      : m.peak_time_ns);
   }
 
   /// The exact path: the composite echo of all surfaces (and the crosstalk)
   /// on a fine grid, and its crossing tables.
   void exact_echo(const Target& target, const Conditions& cond, MeasurementSetup& m) const {
     const auto& rx = config.link.receiver;
-    const ConditionState& c = condition_state(cond);
+    const OperatingPoint& c = operating_point_at(cond);
     const double threshold = config.discriminator.threshold_v;
     const double crosstalk_v = crosstalk_at(c);
     thread_local std::vector<EchoComponent> comps;
     components(target, c, comps);
     if (crosstalk_v > 0.0) comps.push_back({crosstalk_v, 0.0});
     if (comps.empty()) {
-      set_false_alarm_window(m, next_start_ns());  // armed until the next pulse's start
+      m.alarms.set_window(next_start_ns());  // armed until the next pulse's start
       return;
     }
 
@@ -918,7 +413,7 @@ struct VirtualRangefinder::Impl {
                                 std::ceil((m.blanking_ns - m.grid_begin_ns) / kCompositeStepNs)))
               : 0;
     if (i_gate >= n) {
-      set_false_alarm_window(m, next_start_ns());  // everything blanked
+      m.alarms.set_window(next_start_ns());  // everything blanked
       m.composite.clear();
       return;
     }
@@ -926,10 +421,7 @@ struct VirtualRangefinder::Impl {
     m.peak_v = m.composite[i_peak];
     m.peak_time_ns = m.grid_begin_ns + static_cast<double>(i_peak) * kCompositeStepNs;
     m.saturated = m.peak_v > rx.saturation_v;
-    // Overdriven amplifiers stay clipped longer the harder they are driven
-    // (charge storage): recovery ~ tau ln(V_peak / V_sat).
-    m.recovery_ns =
-        m.saturated ? rx.recovery_ns_per_neper * std::log(m.peak_v / rx.saturation_v) : 0;
+    m.recovery_ns = clip_recovery_ns(m.peak_v, rx.saturation_v, rx.recovery_ns_per_neper);
     double amplitude_sum_v = 0;
     for (const auto& comp : comps) amplitude_sum_v += comp.amplitude_v;
     set_baseline(m, amplitude_sum_v);
@@ -941,72 +433,9 @@ struct VirtualRangefinder::Impl {
     m.inv_level_step = 1.0 / level_step;
     m.rise_ns.resize(kLevels);
     m.fall_ns.resize(kLevels);
-    m.level_top_v = 0;
-    auto time_at = [&](std::size_t i, double frac) {
-      return m.grid_begin_ns + (static_cast<double>(i) + frac) * kCompositeStepNs;
-    };
-    if (gated) {
-      // Blanked: the first upcrossing after the blanking (NaN: none; a level
-      // already exceeded when the comparator is released is not a crossing),
-      // and the first downcrossing after it (or after the blanking).
-      // No level's upcrossing comes before the first sample at or above the
-      // lowest level after the gate: every search starts there.
-      std::size_t i_first = std::max<std::size_t>(i_gate, 1);
-      while (i_first < n && m.composite[i_first] < level_lo) ++i_first;
-      for (std::size_t j = 0; j < kLevels; ++j) {
-        const double level = level_lo + static_cast<double>(j) * level_step;
-        double rise = std::numeric_limits<double>::quiet_NaN(), fall = m.peak_time_ns;
-        std::size_t i = i_first;
-        for (; i < n; ++i) {
-          const double a = m.composite[i - 1], b = m.composite[i];
-          if (a < level && b >= level) {
-            const double t = time_at(i - 1, (level - a) / (b - a));
-            if (t >= m.blanking_ns) {
-              rise = t;
-              break;
-            }
-          }
-        }
-        std::size_t k = i < n ? i : std::max<std::size_t>(i_gate, 1);
-        for (; k < n; ++k) {
-          const double a = m.composite[k - 1], b = m.composite[k];
-          if (a >= level && b < level) {
-            fall = time_at(k - 1, (a - level) / (a - b));
-            break;
-          }
-        }
-        if (!std::isnan(rise)) {
-          m.level_top_v = level;
-          fall = std::max(fall, rise);
-        }
-        m.rise_ns[j] = rise;
-        m.fall_ns[j] = fall;
-      }
-    } else {
-      // The first upcrossing index never decreases with the level: one forward pointer.
-      // The downcrossing after it is found with a coarse stride (echo features span
-      // hundreds of grid steps), then refined step by step (StrideSearch).
-      thread_local StrideSearch falls;
-      falls.build(m.composite);
-      std::size_t i_rise = 1;
-      for (std::size_t j = 0; j < kLevels; ++j) {
-        const double level = level_lo + static_cast<double>(j) * level_step;
-        double rise = m.peak_time_ns, fall = m.peak_time_ns;
-        while (i_rise < n && m.composite[i_rise] < level) ++i_rise;
-        if (i_rise < n) {
-          m.level_top_v = level;
-          const double a = m.composite[i_rise - 1], b = m.composite[i_rise];
-          rise = time_at(i_rise - 1, (level - a) / (b - a));
-          const std::size_t i = falls.fall_index(m.composite, i_rise, level);
-          if (i < n) {
-            const double c0 = m.composite[i - 1], d = m.composite[i];
-            fall = time_at(i - 1, (c0 - level) / (c0 - d));
-          }
-        }
-        m.rise_ns[j] = rise;
-        m.fall_ns[j] = std::max(fall, rise);
-      }
-    }
+    m.level_top_v = sampled_crossing_times(m.composite, m.grid_begin_ns, kCompositeStepNs,
+                                           m.peak_time_ns, level_lo, level_step, gated, i_gate,
+                                           m.blanking_ns, m.rise_ns, m.fall_ns);
     // Noise at the two crossings is correlated through the receiver bandwidth.
     const double rise0 = table_at(m.rise_ns, m.level_begin_v, m.inv_level_step, threshold);
     const double fall0 = table_at(m.fall_ns, m.level_begin_v, m.inv_level_step, threshold);
@@ -1029,7 +458,9 @@ struct VirtualRangefinder::Impl {
     // Or the whole echo when gated (crosstalk or blanking may end the first
     // excursion before the echo).
     if (gated || crosstalk_v > 0.0)
-      m.record_end_ns = std::max(m.record_end_ns, time_at(n - 1, 0.0) + m.recovery_ns + 4.0);
+      m.record_end_ns = std::max(
+          m.record_end_ns,
+          m.grid_begin_ns + static_cast<double>(n - 1) * kCompositeStepNs + m.recovery_ns + 4.0);
     m.sampled = mode == SimulationMode::kWaveform || !noise_frozen_at_edges(m);
     if (m.sampled) {
       // Over the record only (the sampler reads no further): the echo's
@@ -1041,7 +472,7 @@ struct VirtualRangefinder::Impl {
       m.noise_sigma.assign(n, 0.0);
       for (std::size_t i = i_lo; i < i_hi; ++i) m.noise_sigma[i] = noise_sigma_v(m, m.composite[i]);
     }
-    set_false_alarm_window(m, m.sampled ? m.record_begin_ns : first_rise);
+    m.alarms.set_window(m.sampled ? m.record_begin_ns : first_rise);
   }
 
   /// The fast path with its noise sampled (its edges are slower than the
@@ -1053,7 +484,7 @@ struct VirtualRangefinder::Impl {
     set_record(m, rise_at(m, m.level_begin_v), rise_at(m, m.level_end_v),
                fall_at(m, m.level_begin_v));
     m.sampled = true;
-    set_false_alarm_window(m, m.record_begin_ns);
+    m.alarms.set_window(m.record_begin_ns);
   }
 
   /// The waveform record: from before the earliest rise of any comparator
@@ -1103,26 +534,10 @@ struct VirtualRangefinder::Impl {
     crossings_at(m, threshold + half, rise_hi, fall_hi);
     if (threshold + half >= m.level_top_v) fall_hi = m.peak_time_ns;
     const double rise = rise_hi - rise_lo, fall = fall_lo - fall_hi;
-    static const double r_limit = chatter_ratio_limit();
+    static const double r_limit = chatter_ratio_limit(kChatterTolerance);
     // (NaN: a blanked edge, crossed by noise or not at all as the analytic levels give it.)
     return !(rise > r_limit * pulse.pole_time_constant_ns()) &&
            !(fall > r_limit * pulse.pole_time_constant_ns());
-  }
-
-  /// The jitter-over-correlation-time ratio r at which c(r) = r phi(1/r) -
-  /// Q(1/r) reaches kChatterTolerance (c grows with r; bisection).
-  static double chatter_ratio_limit() {
-    auto extra_crossings = [](double r) {
-      const double x = 1.0 / r;
-      return r * std::exp(-0.5 * x * x) / std::sqrt(2.0 * kPi) -
-             0.5 * std::erfc(x / std::sqrt(2.0));
-    };
-    double lo = 0.05, hi = 5.0;
-    for (int i = 0; i < 100; ++i) {
-      const double mid = 0.5 * (lo + hi);
-      (extra_crossings(mid) < kChatterTolerance ? lo : hi) = mid;
-    }
-    return lo;
   }
 
   /// The noise's correlation at the two crossings, and the fall's own share
@@ -1147,44 +562,17 @@ struct VirtualRangefinder::Impl {
   /// The next pulse's start: the TDC restarts there.
   [[nodiscard]] double next_start_ns() const { return pulse_period_ns + armed_time_ns(); }
 
-  /// Noise crossings count from the comparator's arming to `end_ns`.
-  static void set_false_alarm_window(MeasurementSetup& m, double end_ns) {
-    m.false_alarm_window_ns = std::max(end_ns - m.armed_ns, 0.0);
-    m.false_alarm_probability = -std::expm1(-m.false_alarm_rate_per_ns * m.false_alarm_window_ns);
-  }
-
-  [[nodiscard]] double turn_on_bias_ns(const MeasurementSetup& m, std::uint32_t shot) const {
-    const auto& laser = config.link.laser;
-    const double t_ms = m.turn_on_start_ms + 1e3 * static_cast<double>(shot) / laser.repetition_hz;
-    if (t_ms > 30.0 * laser.turn_on_time_constant_ms) return 0.0;
-    const double bias_mm = laser.turn_on_bias_mm * std::exp(-t_ms / laser.turn_on_time_constant_ms);
-    return 2.0 * bias_mm * 1e-3 / c_nominal_m_per_ns;
-  }
-
-  /// Rising and falling comparator times of one shot (analytic mode): the
-  /// noise, band-limited like the echo, shifts the effective threshold; the
-  /// crossing is read off the noise-free echo (first order: jitter = sigma / slope).
-  /// Echo level at which the comparator fires when the noise, frozen over the
-  /// crossing at z standard deviations, scales with the signal (shot noise):
-  /// solves s + sqrt(sigma_0^2 + k s) z = V_th. Its mean sits k/2 above V_th,
-  /// the late bias that signal-modulated noise gives a rising edge.
-  [[nodiscard]] static double crossing_level(const MeasurementSetup& m, double threshold,
-                                             double z) {
-    const double k = m.shot_var_per_v;
-    if (k <= 0) return threshold - std::sqrt(m.noise_floor_var_v2) * z;
-    const double c = m.noise_floor_var_v2 + k * threshold;
-    const double q = 0.5 * (-k * z + std::sqrt(k * k * z * z + 4.0 * c));
-    return (q * q - m.noise_floor_var_v2) / k;
-  }
-
   /// The comparator's effective levels at the rising and the falling crossing
   /// for the noise z_rise there and z_fall_ind independent of it (the noise at
   /// the fall is correlated with the rise's through the receiver bandwidth).
+  /// Analytic mode: the noise, band-limited like the echo, shifts the effective
+  /// threshold (crossing_level_v); the crossing is read off the noise-free echo
+  /// (first order: jitter = sigma / slope).
   void analytic_levels(const MeasurementSetup& m, double threshold, double z_rise,
                        double z_fall_ind, double& level_rise, double& level_fall) const {
-    level_rise = crossing_level(m, threshold, z_rise);
+    level_rise = crossing_level_v(m.noise_floor_var_v2, m.shot_var_per_v, threshold, z_rise);
     const double z_fall = m.edge_correlation * z_rise + m.edge_independence * z_fall_ind;
-    level_fall = crossing_level(m, threshold, z_fall);
+    level_fall = crossing_level_v(m.noise_floor_var_v2, m.shot_var_per_v, threshold, z_fall);
   }
 
   /// The echo's crossings of those levels; false when the rising level is not crossed.
@@ -1200,43 +588,33 @@ struct VirtualRangefinder::Impl {
   }
 
   /// Waveform mode: band-limited noise added to the sampled echo, the amplifier
-  /// clips and recovers, the comparator's crossings are found on the samples.
+  /// clips and recovers, the comparator's crossings are found on the samples
+  /// (sampled_crossings). The white noise is the shot's draws from block 1 on.
   [[nodiscard]] bool crossings_waveform(const MeasurementSetup& m, const CounterRng& rng,
                                         std::uint64_t stream, std::uint32_t shot, double phase_u,
                                         double& rise, double& fall) const {
     if (!m.fast && m.composite.empty()) return false;
     const auto& rx = config.link.receiver;
-    const double threshold = config.discriminator.threshold_v;
+    SampledComparator comparator;
+    comparator.threshold_v = config.discriminator.threshold_v;
     // The AC coupling's baseline at this shot: the comparator sees the
     // amplifier's output (which clips) minus it.
-    const double baseline = comparator_level(m, shot) - threshold;
-    const double dt = waveform_dt_ns;
-    const double tau = pulse.pole_time_constant_ns();
-    const double a = std::exp(-dt / tau);
-    // Two cascaded one-pole filters of white noise: var = (1-a)^4 (1+a^2) / (1-a^2)^3.
-    const double var_white = 1.0 / 12.0;  // uniform in (-0.5, 0.5)
-    const double filtered_var =
-        var_white * std::pow(1.0 - a, 4) * (1.0 + a * a) / std::pow(1.0 - a * a, 3);
-    const double norm = 1.0 / std::sqrt(filtered_var);
-    // Record from before the earliest possible rise to after the latest fall.
-    const double t_end = m.record_end_ns;
-    const double t0 = m.record_begin_ns + phase_u * dt;
-    const auto burn_in = static_cast<std::size_t>(std::ceil(6.0 * tau / dt));
-    const auto n = static_cast<std::size_t>((t_end - t0) / dt) + 1;
+    comparator.baseline_v = comparator_level(m, shot) - comparator.threshold_v;
+    comparator.step_ns = waveform_dt_ns;
+    comparator.pole_time_constant_ns = pulse.pole_time_constant_ns();
+    comparator.record_begin_ns = m.record_begin_ns;
+    comparator.record_end_ns = m.record_end_ns;
+    comparator.armed_ns = m.alarms.armed_ns;
+    comparator.saturation_v = rx.saturation_v;
+    comparator.recovery_ns_per_neper = rx.recovery_ns_per_neper;
     const double inv_grid = 1.0 / kCompositeStepNs;
     const auto grid_last = static_cast<double>(m.composite.size() - 1);
-
-    double y1 = 0, y2 = 0;
     std::array<std::uint32_t, 4> block{};
     std::uint32_t block_index = 0;
     auto white = [&](std::size_t k) {
       if ((k & 3u) == 0) block = rng.draw(stream, shot, 1u + block_index++);
       return unit_open(block[k & 3u]) - 0.5;
     };
-    for (std::size_t k = 0; k < burn_in; ++k) {
-      y1 = a * y1 + (1.0 - a) * white(k);
-      y2 = a * y2 + (1.0 - a) * y1;
-    }
     auto input_at = [&](double t, double unit_noise) {
       if (m.fast) {
         const double s = fast_signal_at(m, t);
@@ -1249,278 +627,18 @@ struct VirtualRangefinder::Impl {
       const double sigma = m.noise_sigma[gi] + w * (m.noise_sigma[gi + 1] - m.noise_sigma[gi]);
       return s + sigma * unit_noise;
     };
-    // The sampled noise is band-limited (smooth over a sample period) and is
-    // interpolated linearly; the echo is known at any time. A crossing bracketed
-    // by two samples is refined on that continuous waveform (regula falsi).
-    auto refine = [&](double t_a, double t_b, double n_a, double n_b, double level) {
-      auto f = [&](double t) {
-        const double w = (t - t_a) / dt;
-        return input_at(t, n_a + w * (n_b - n_a)) - baseline - level;
-      };
-      double fa = f(t_a), fb = f(t_b);
-      for (int it = 0; it < 8 && t_b - t_a > 1e-6; ++it) {
-        const double t = t_a + (t_b - t_a) * fa / (fa - fb);
-        const double ft = f(t);
-        if ((ft < 0) == (fa < 0)) {
-          t_a = t;
-          fa = ft;
-        } else {
-          t_b = t;
-          fb = ft;
-        }
-      }
-      return t_a + (t_b - t_a) * fa / (fa - fb);
-    };
-    bool above = false, clipped = false;
-    double prev_v = 0, prev_t = 0, prev_n = 0, peak_v = 0;
-    for (std::size_t k = 0; k < n; ++k) {
-      y1 = a * y1 + (1.0 - a) * white(burn_in + k);
-      y2 = a * y2 + (1.0 - a) * y1;
-      const double t = t0 + static_cast<double>(k) * dt;
-      const double unit_noise = norm * y2;
-      const double amplifier_v = input_at(t, unit_noise);
-      const double v = amplifier_v - baseline;
-      if (k > 0) {
-        if (!above && prev_v < threshold && v >= threshold) {
-          rise = refine(prev_t, t, prev_n, unit_noise, threshold);
-          // A crossing before the comparator is armed (blanked, or before the
-          // TDC's start) is not seen; a strong echo of a long pulse crosses
-          // before the pulse's centre, t = 0, but after the light's onset.
-          above = rise >= m.armed_ns;
-        } else if (above) {
-          if (amplifier_v > rx.saturation_v) {
-            clipped = true;
-            peak_v = std::max(peak_v, amplifier_v);
-          }
-          if (prev_v >= threshold && v < threshold) {
-            fall = refine(prev_t, t, prev_n, unit_noise, threshold);
-            // After clipping, the output follows the input delayed by the recovery time.
-            if (clipped) fall += rx.recovery_ns_per_neper * std::log(peak_v / rx.saturation_v);
-            return true;
-          }
-        }
-      }
-      prev_v = v;
-      prev_t = t;
-      prev_n = unit_noise;
-    }
-    if (!above) return false;
-    fall = t0 + static_cast<double>(n - 1) * dt;
-    return true;
-  }
-
-  /// The run's draws (power-on offset, the phases of the 1/f wander's
-  /// octaves): they depend on the seed only, so they are worked out once per
-  /// thread and seed.
-  struct RunDraws {
-    std::uint64_t device = 0, seed = 0;
-    double offset = 0;
-    std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
-  };
-  [[nodiscard]] const RunDraws& run_draws(const CounterRng& rng) const {
-    const auto& mc = config.measurement;
-    thread_local RunDraws run;
-    if (run.device != id || run.seed != rng.seed()) {
-      const auto power_on = rng.draw(kPowerOnStream, 0, 0);
-      run.offset = mc.power_on_offset_ps * 1e-3 * normal_pair(power_on[0], power_on[1])[0];
-      for (int k = 0; k < kFlickerOctaves; k += 4) {
-        const auto r = rng.draw(kPowerOnStream, 1, static_cast<std::uint32_t>(k));
-        for (int j = 0; j < 4 && k + j < kFlickerOctaves; ++j) {
-          const auto o = static_cast<std::size_t>(k + j);
-          ::sincos(2.0 * kPi * unit_open(r[static_cast<std::size_t>(j)]), &run.sin_phase[o],
-                   &run.cos_phase[o]);
-        }
-      }
-      run.device = id;
-      run.seed = rng.seed();
-    }
-    return run;
+    return comparator.crossings(phase_u, white, input_at, rise, fall);
   }
 
   /// Delay offset (ns) common to every shot of one measurement: the run's
   /// power-on offset plus the slow 1/f flicker and the random wander at the
-  /// measurement's time (stream i starts i measurement periods after power-on).
-  [[nodiscard]] double slow_offset_ns(const CounterRng& rng, const RunDraws& run,
-                                      std::uint64_t stream, const Conditions& cond,
-                                      MeasurementSetup& m) const {
+  /// measurement's time (stream i starts i measurement periods after power-on);
+  /// the comparator level's wander into m.
+  [[nodiscard]] double slow_offset_ns(std::uint64_t seed, std::uint64_t stream,
+                                      const Conditions& cond, MeasurementSetup& m) const {
     double offset = 0;
-    slow_offsets_ns(rng, run, stream, 1, &cond, &offset, &m.level_offset_v);
+    slow.offsets_ns(seed, slow.run_draws(seed), stream, 1, &cond, &offset, &m.level_offset_v);
     return offset;
-  }
-
-  /// Knot j of wander level k: a unit-variance draw of the run (seed), level and
-  /// knot only, so any output reads the same knots on any thread or grouping.
-  /// The last two knots of each level are kept per thread (consecutive outputs
-  /// share them).
-  /// Each knot is a pair of independent draws: [0] for the delay's wander,
-  /// [1] for the comparator level's.
-  using KnotPair = std::array<double, 2>;
-  [[nodiscard]] static const std::array<KnotPair, 2>& wander_knots(const CounterRng& rng,
-                                                                   std::uint64_t device, int level,
-                                                                   std::uint64_t j) {
-    struct Knots {
-      std::uint64_t device = 0, seed = 0, j = ~std::uint64_t{0};
-      std::array<KnotPair, 2> g{};
-    };
-    thread_local std::array<Knots, kWanderLevels> cache;
-    auto& c = cache[static_cast<std::size_t>(level)];
-    if (c.device != device || c.seed != rng.seed() || c.j != j) {
-      auto knot = [&](std::uint64_t index) {
-        const auto r =
-            rng.draw(kWanderStream - static_cast<std::uint64_t>(level),
-                     static_cast<std::uint32_t>(index), static_cast<std::uint32_t>(index >> 32));
-        // Two uniforms each (triangular, unit variance): one draw, no
-        // logarithm; an output sums 24 knots, normal by the central limit.
-        constexpr double kUnitTriangle = 2.449489742783178;  // sqrt(6)
-        return KnotPair{kUnitTriangle * (unit_open(r[0]) + unit_open(r[1]) - 1.0),
-                        kUnitTriangle * (unit_open(r[2]) + unit_open(r[3]) - 1.0)};
-      };
-      // A step of one knot reuses the shared one.
-      c.g = c.device == device && c.seed == rng.seed() && c.j + 1 == j
-                ? std::array<KnotPair, 2>{c.g[1], knot(j + 1)}
-                : std::array<KnotPair, 2>{knot(j), knot(j + 1)};
-      c.device = device;
-      c.seed = rng.seed();
-      c.j = j;
-    }
-    return c.g;
-  }
-
-  /// cos(pi w / 2) for w in [0, 1] (Taylor to w^10: within 5e-7).
-  static double cos_quarter_turn(double w) {
-    constexpr double h = kPi / 2;
-    const double x = h * h * w * w;
-    return 1.0 + x * (-1.0 / 2 +
-                      x * (1.0 / 24 + x * (-1.0 / 720 + x * (1.0 / 40320 + x * (-1.0 / 3628800)))));
-  }
-
-  /// The power-on offset plus the 1/f flicker (measurement.flicker_delay_ps)
-  /// of n <= kLanes consecutive streams from stream0 (in stages over the
-  /// streams: the octaves' sum vectorizes).
-  void flicker_offsets_ns(const RunDraws& run, std::uint64_t stream0, std::size_t n,
-                          double* offsets) const {
-    const auto& mc = config.measurement;
-    if (mc.flicker_delay_ps <= 0.0) {
-      std::fill(offsets, offsets + n, run.offset);
-      return;
-    }
-    // 1/f noise has equal power per octave: one sinusoid of random phase per
-    // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
-    // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
-    const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
-    std::array<double, kLanes> sin_a, cos_a;
-    for (std::size_t i = 0; i < n; ++i) {
-      const double t_s =
-          static_cast<double>(stream0 + i) * mc.shots / config.link.laser.repetition_hz;
-      // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
-      const double cycles = kFlickerLowestHz * t_s;
-      const auto phase = static_cast<std::uint32_t>(
-          static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
-      sincos_of_phase(phase, sin_a[i], cos_a[i]);
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      double s = sin_a[i], c = cos_a[i], wander = 0;
-      for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
-        wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
-        const double s2 = 2.0 * s * c;
-        c = (c - s) * (c + s);
-        s = s2;
-      }
-      offsets[i] = run.offset + amplitude * wander;
-    }
-  }
-
-  /// Adds the random delay wander (measurement.delay_wander_ps) of n <= kLanes
-  /// consecutive streams from stream0 to offsets: a sum of kWanderLevels
-  /// processes of equal power whose
-  /// correlation times s_k grow by kWanderLevelRatio (two octaves) from
-  /// kWanderShortestS: level k passes from one independent normal knot to the
-  /// next over s_k as cos(pi w / 2) g_j + sin(pi w / 2) g_j+1 (its variance
-  /// stays 1 at every w, and it decorrelates after s_k). Equal power per two
-  /// octaves: a 1/f spectrum from 1 / s_max to 1 / s_0, so averaging over
-  /// longer runs stops helping. Each output's value depends on its time and
-  /// the seed only; its time is its place in the run (stream x output period)
-  /// plus its conditions' session time (a protocol that waits between points,
-  /// e.g. for a plate swap or a climate chamber, says so there).
-  /// The comparator level's wander (discriminator.level_wander_mv) is a
-  /// second, independent process on the same levels and knot times, added to
-  /// level_offsets (V).
-  /// Also compiled for AVX2, as measure_single_shots (the interpolation vectorizes).
-  __attribute__((target_clones("avx2", "default"))) void add_wander_ns(
-      const CounterRng& rng, std::uint64_t stream0, std::size_t n, const Conditions* conds,
-      double* offsets, double* level_offsets) const {
-    const auto& mc = config.measurement;
-    const double norm = 1.0 / std::sqrt(static_cast<double>(kWanderLevels));
-    const double amplitude = mc.delay_wander_ps * 1e-3 * norm;
-    const double level_amplitude = config.discriminator.level_wander_mv * 1e-3 * norm;
-    const double period_s = static_cast<double>(mc.shots) / config.link.laser.repetition_hz;
-    std::array<double, kLanes> t_s, wander, level_wander;
-    for (std::size_t i = 0; i < n; ++i) {
-      t_s[i] = static_cast<double>(stream0 + i) * period_s + conds[i].session_time_s;
-      wander[i] = 0.0;
-      level_wander[i] = 0.0;
-    }
-    // Per level: the knots in a scalar pass (a lookup only where the knot
-    // index changes from the previous lane), then the interpolation over the
-    // lanes in a pass that vectorizes.
-    std::array<double, kLanes> w, g0, g1, h0, h1;
-    double inv_scale = 1.0 / kWanderShortestS;
-    for (int level = 0; level < kWanderLevels; ++level) {
-      std::uint64_t j_prev = ~std::uint64_t{0};
-      const std::array<KnotPair, 2>* g = nullptr;
-      for (std::size_t i = 0; i < n; ++i) {
-        const double u = t_s[i] * inv_scale;
-        const double floor_u = std::floor(u);
-        w[i] = u - floor_u;
-        const auto j = static_cast<std::uint64_t>(floor_u);
-        if (g == nullptr || j != j_prev) {
-          g = &wander_knots(rng, id, level, j);
-          j_prev = j;
-        }
-        g0[i] = (*g)[0][0];
-        g1[i] = (*g)[1][0];
-        h0[i] = (*g)[0][1];
-        h1[i] = (*g)[1][1];
-      }
-      for (std::size_t i = 0; i < n; ++i) {
-        const double c0 = cos_quarter_turn(w[i]), c1 = cos_quarter_turn(1.0 - w[i]);
-        wander[i] += c0 * g0[i] + c1 * g1[i];
-        level_wander[i] += c0 * h0[i] + c1 * h1[i];
-      }
-      inv_scale /= kWanderLevelRatio;
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      offsets[i] += amplitude * wander[i];
-      level_offsets[i] = level_amplitude * level_wander[i];
-    }
-  }
-
-  /// The offsets of n <= kLanes consecutive streams from stream0: power-on
-  /// offset, 1/f flicker, random wander.
-  /// level_offsets: the comparator level's wander (V), 0 without wander.
-  void slow_offsets_ns(const CounterRng& rng, const RunDraws& run, std::uint64_t stream0,
-                       std::size_t n, const Conditions* conds, double* offsets,
-                       double* level_offsets) const {
-    flicker_offsets_ns(run, stream0, n, offsets);
-    if (wandering)
-      add_wander_ns(rng, stream0, n, conds, offsets, level_offsets);
-    else
-      std::fill(level_offsets, level_offsets + n, 0.0);
-  }
-
-  /// Noise alone firing the comparator before the echo (a false alarm) when
-  /// the shot's uniform u_false falls below the window's probability: its
-  /// first threshold upcrossing after the comparator is armed (armed_ns) is
-  /// exponential with Rice's rate, in both modes.
-  [[nodiscard]] static bool false_alarm(const MeasurementSetup& m, double u_false, double& rise,
-                                        double& fall) {
-    if (u_false >= m.false_alarm_probability) return false;
-    // Inverse CDF of the exponential first-upcrossing time, given it falls in the window.
-    rise = m.armed_ns - std::log1p(-u_false) / m.false_alarm_rate_per_ns;
-    // Mean excursion length above the level: P(X > u) / nu.
-    fall =
-        rise + 0.5 * std::erfc(m.threshold_over_noise / std::sqrt(2.0)) / m.false_alarm_rate_per_ns;
-    return true;
   }
 
   /// One shot, returning false when no echo crossed the threshold. `r` is the
@@ -1531,7 +649,7 @@ struct VirtualRangefinder::Impl {
                           double& stop_fall_ns) const {
     double rise = 0, fall = 0;
     bool echo = false;
-    if (false_alarm(m, unit_open(r[3]), rise, fall)) {
+    if (m.alarms.first_crossing(unit_open(r[3]), rise, fall)) {
       echo = true;
     } else if (!m.sampled) {
       const auto z = normal_pair(r[0], r[1]);
@@ -1556,7 +674,9 @@ struct VirtualRangefinder::Impl {
     // so quantization and INL average out.
     const double phase =
         (config.tdc.laser_sync ? kSyncStartPhase : unit_open(r[2])) * tdc.period_ns();
-    const double delay = m.fixed_delay_ns + offset_ns + turn_on_bias_ns(m, index);
+    const double delay =
+        m.fixed_delay_ns + offset_ns +
+        turn_on_bias_ns(config.link.laser, m.turn_on_start_ms, index, c_nominal_m_per_ns);
     start_ns = tdc.quantize_ns(phase, m.tdc_bin_scale);
     stop_rise_ns = tdc.quantize_ns(phase + delay + rise, m.tdc_bin_scale);
     stop_fall_ns = tdc.quantize_ns(phase + delay + fall, m.tdc_bin_scale);
@@ -1573,7 +693,7 @@ struct VirtualRangefinder::Impl {
     }
     const CounterRng rng(seed);
     auto m = setup(target, cond);
-    const double offset_ns = slow_offset_ns(rng, run_draws(rng), stream, cond, m);
+    const double offset_ns = slow_offset_ns(seed, stream, cond, m);
     // The firmware keeps each shot's stop, then rejects false stops before
     // averaging: stops farther than measurement.stop_gate_ns from the median
     // stop (range gate around the median). Rejected stops lower shots_valid.
@@ -1630,7 +750,7 @@ struct VirtualRangefinder::Impl {
       std::span<const Target> targets, std::span<const Conditions> conds, std::uint64_t seed,
       std::uint64_t first_stream, std::span<ranging::RawMeasurement> out) const {
     const CounterRng rng(seed);
-    const RunDraws& run = run_draws(rng);
+    const SlowOffsets::RunDraws& run = slow.run_draws(seed);
     thread_local Lanes lanes;
     auto& m = lanes.setups;
     for (std::size_t begin = 0; begin < targets.size(); begin += kLanes) {
@@ -1660,7 +780,7 @@ struct VirtualRangefinder::Impl {
       }
       rng.draw_streams(stream0, 0, 0, n, lanes.shot_words);
       rng.draw_streams(stream0, kMeasurementCounter, 0, n, lanes.extra_words);
-      slow_offsets_ns(rng, run, stream0, n, conds.data() + begin, lanes.offsets.data(),
+      slow.offsets_ns(seed, run, stream0, n, conds.data() + begin, lanes.offsets.data(),
                       lanes.level_offsets.data());
       for (std::size_t k = 0; k < n; ++k) m[k].level_offset_v = lanes.level_offsets[k];
       for (std::size_t k = 0; k < n; ++k) {
@@ -1676,7 +796,7 @@ struct VirtualRangefinder::Impl {
         double& rise = lanes.rise[k];
         double& fall = lanes.fall[k];
         const auto& r = lanes.shot_words;
-        if (false_alarm(m[k], unit_open(r[3][k]), rise, fall))
+        if (m[k].alarms.first_crossing(unit_open(r[3][k]), rise, fall))
           lanes.echo[k] = true;
         else if (!m[k].sampled)
           lanes.echo[k] =
@@ -1794,7 +914,7 @@ Shot VirtualRangefinder::shoot(const Target& target, const Conditions& condition
   if (oscillator_) return oscillator_->shoot(target, conditions, seed, stream, shot);
   const CounterRng rng(seed);
   auto m = impl_->setup(target, conditions);
-  const double offset_ns = impl_->slow_offset_ns(rng, impl_->run_draws(rng), stream, conditions, m);
+  const double offset_ns = impl_->slow_offset_ns(seed, stream, conditions, m);
   Shot s;
   double start = 0, rise = 0, fall = 0;
   s.echo =
