@@ -367,16 +367,23 @@ struct Calibrated {
   double calibration_start_s = 0;
 };
 
-/// The protocol's steps measured as `tofkit plan` prints them, fitted as its
-/// fit line does; `power_on` moves the calibration's power-on (seed 1 as
-/// printed) and its repeats' (seeds 2...) to other draws.
-Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline,
-                     std::uint64_t power_on = 1) {
+/// The field the held-out devices are tested over (issue 34): 0.7-7.4 m,
+/// reflectance 0.06-0.85.
+calib::CalibrationPlanOptions field_domain() {
   calib::CalibrationPlanOptions field;
   field.range_min_m = 0.7;
   field.range_max_m = 7.4;
   field.reflectance_min = 0.06;
   field.reflectance_max = 0.85;
+  return field;
+}
+
+/// The protocol's steps measured as `tofkit plan` prints them, fitted as its
+/// fit line does; `power_on` moves the calibration's power-on (seed 1 as
+/// printed) and its repeats' (seeds 2...) to other draws.
+Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline,
+                     std::uint64_t power_on = 1) {
+  const calib::CalibrationPlanOptions field = field_domain();
   experiments::ProtocolOptions po;
   po.complete = complete;
   const experiments::Protocol protocol = experiments::plan_protocol(device, field, po);
@@ -881,11 +888,7 @@ TEST(UncertaintyBudget, DriftAfterCalibrationIsRandomPerPowerOn) {
   if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "a full calibration: Release only";
   const device::VirtualRangefinder device(held_out_device(1, false, 0));
   const Calibrated c = calibrate(device, true, false);
-  calib::CalibrationPlanOptions field;
-  field.range_min_m = 0.7;
-  field.range_max_m = 7.4;
-  field.reflectance_min = 0.06;
-  field.reflectance_max = 0.85;
+  const calib::CalibrationPlanOptions field = field_domain();
   const experiments::Protocol protocol = experiments::plan_protocol(device, field, {});
   experiments::PlateGrid one = protocol.steps.front().grid;  // the stability record's plate
   ASSERT_EQ(protocol.steps.front().role, experiments::StepRole::stability);
@@ -1509,11 +1512,7 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_NonlinearityLeftByThePeriodicStep) {
 TEST(UncertaintyBudgetDiagnosis, DISABLED_DriftTermOverRecordsAgainstTheEnsemble) {
   const device::VirtualRangefinder device(held_out_device(1, false, 0));
   const Calibrated c = calibrate(device, true, false);
-  calib::CalibrationPlanOptions field;
-  field.range_min_m = 0.7;
-  field.range_max_m = 7.4;
-  field.reflectance_min = 0.06;
-  field.reflectance_max = 0.85;
+  const calib::CalibrationPlanOptions field = field_domain();
   const experiments::Protocol protocol = experiments::plan_protocol(device, field, {});
   const experiments::ProtocolStep& stability = protocol.steps.front();
   ASSERT_EQ(stability.role, experiments::StepRole::stability);
@@ -1609,11 +1608,7 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_WeakEchoes) {
   double amin = 1e9, pmin = 1e9, pmax = 0;
   std::vector<ranging::Record> cal;
   {
-    calib::CalibrationPlanOptions field;
-    field.range_min_m = 0.7;
-    field.range_max_m = 7.4;
-    field.reflectance_min = 0.06;
-    field.reflectance_max = 0.85;
+    const calib::CalibrationPlanOptions field = field_domain();
     experiments::ProtocolOptions po;
     const auto protocol = experiments::plan_protocol(device, field, po);
     for (const auto& step : protocol.steps) {
