@@ -9,7 +9,8 @@
 //    chatter limit rests on;
 // the crossing level against its defining equation and its mean bias; and the
 // sampled comparator (waveform mode) against a noise-free echo's closed-form
-// crossings, its arming and clip recovery, and jitter = noise / slope.
+// crossings, its arming and clip recovery, jitter = noise / slope, and its
+// noise alone firing at Rice's rate at the waveform mode's step (tau_p / 6).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -255,8 +256,8 @@ TEST(Discriminator, SampledComparatorsJitterIsNoiseOverSlope) {
   c.pole_time_constant_ns = 1.0;
   c.step_ns = 0.02;
   std::mt19937_64 gen(31);
-  std::uniform_real_distribution<double> uniform(-0.5, 0.5);
-  auto white = [&](std::size_t) { return uniform(gen); };
+  std::normal_distribution<double> normal;
+  auto white = [&](std::size_t) { return normal(gen); };
   constexpr double kSlope = 2.0, kSigma = 0.01, kCross = 10.0;
   auto ramp = [&](double t, double z) {
     return std::min(0.04 + kSlope * (t - kCross), 1.0) + kSigma * z;
@@ -272,4 +273,55 @@ TEST(Discriminator, SampledComparatorsJitterIsNoiseOverSlope) {
   const double mean = sum / kShots, sd = std::sqrt(sum2 / kShots - mean * mean);
   EXPECT_NEAR(sd / (kSigma / kSlope), 1.0, 0.06);  // 1.3 % sampling error
   EXPECT_NEAR(mean, 0.0, 4.0 * kSigma / kSlope / std::sqrt(kShots) + 1e-4);
+}
+
+TEST(Discriminator, SampledComparatorsNoiseAloneFiresAsTheContinuousNoiseDoes) {
+  // No echo: the comparator's first rise is the noise's first upcrossing after
+  // the arming; a shot fires with probability p over a record of T. Oracle:
+  // the same first passage of the noise simulated 4x finer (tau_p / 25, the
+  // TwoPoleNoise above), nearly the continuous process. Rice's nu counts every
+  // upcrossing; a first passage misses the ones that follow within the same
+  // excursion, so -ln(1 - p) / T sits a few % below nu at these levels (7-9 %
+  // at u = 2.5-3). The white draws must be Gaussian: uniform ones make the
+  // band-limited noise's tails short (15 % fewer upcrossings at u = 3).
+  auto c = comparator_for_tests();
+  c.pole_time_constant_ns = kTau;
+  c.step_ns = kTau / 6.0;  // the waveform mode's step, kWaveformSamplesPerPole
+  c.record_begin_ns = 0.0;
+  c.saturation_v = 1e9;
+  auto noise_only = [](double, double z) { return z; };  // unit noise, no echo
+  std::mt19937_64 gen(97);
+  std::normal_distribution<double> normal;
+  auto white = [&](std::size_t) { return normal(gen); };
+  constexpr double kFineStep = kTau / 25.0;
+  TwoPoleNoise fine(kTau, kFineStep, 23);
+  constexpr int kShots = 20000;
+  for (const double u : {2.5, 3.0}) {
+    SCOPED_TRACE("u = " + std::to_string(u));
+    const double nu = device::rice_upcrossing_rate_per_ns(u, kTau);
+    c.threshold_v = u;
+    c.record_end_ns = 0.7 / nu;  // p ~ 0.5
+    const double span_ns = c.record_end_ns - c.record_begin_ns - c.step_ns;
+    const auto fine_steps = static_cast<long>(span_ns / kFineStep);
+    int fired = 0, fired_fine = 0;
+    for (int i = 0; i < kShots; ++i) {
+      double rise = 0, fall = 0;
+      fired += c.crossings((i % 89) / 89.0, white, noise_only, rise, fall);
+      double previous = fine.next();
+      bool up = false;
+      for (long k = 0; k < fine_steps; ++k) {
+        const double x = fine.next();
+        up = up || (previous < u && x >= u);
+        previous = x;
+      }
+      fired_fine += up;
+    }
+    auto rate = [&](int n) { return -std::log1p(-static_cast<double>(n) / kShots) / span_ns; };
+    // Binomial error of -ln(1 - p), relative: sqrt(p / ((1 - p) N)) / -ln(1 - p), ~1.0 %.
+    const double p = static_cast<double>(fired_fine) / kShots;
+    const double rel = std::sqrt(p / ((1.0 - p) * kShots)) / -std::log1p(-p);
+    EXPECT_NEAR(rate(fired) / rate(fired_fine), 1.0, 3.0 * std::sqrt(2.0) * rel + 0.02);
+    EXPECT_LT(rate(fired_fine), nu * (1.0 + 3.0 * rel));
+    EXPECT_GT(rate(fired_fine), 0.85 * nu);
+  }
 }

@@ -609,11 +609,16 @@ struct VirtualRangefinder::Impl {
     comparator.recovery_ns_per_neper = rx.recovery_ns_per_neper;
     const double inv_grid = 1.0 / kCompositeStepNs;
     const auto grid_last = static_cast<double>(m.composite.size() - 1);
-    std::array<std::uint32_t, 4> block{};
+    // Standard normal white samples, four per counter block (two Box-Muller pairs).
+    std::array<double, 4> normals{};
     std::uint32_t block_index = 0;
     auto white = [&](std::size_t k) {
-      if ((k & 3u) == 0) block = rng.draw(stream, shot, 1u + block_index++);
-      return unit_open(block[k & 3u]) - 0.5;
+      if ((k & 3u) == 0) {
+        const auto block = rng.draw(stream, shot, 1u + block_index++);
+        const auto lo = normal_pair(block[0], block[1]), hi = normal_pair(block[2], block[3]);
+        normals = {lo[0], lo[1], hi[0], hi[1]};
+      }
+      return normals[k & 3u];
     };
     auto input_at = [&](double t, double unit_noise) {
       if (m.fast) {
