@@ -67,24 +67,30 @@ TEST(FrontEnd, CouplingBaselineIsTheEchoTrainsMeanCharge) {
   for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += 1e-3)
     area_ns += 0.5 * (pulse(t) + pulse(t + 1e-3)) * 1e-3;
   const double f_rep = 1e6, share = 0.5, sat = 4.0;
+  const device::ClippedChargeShare clipped(pulse);
   // Linear: share x amplitude x area x f_rep.
   const double a = 0.8;
-  EXPECT_NEAR(device::coupling_baseline_v(a, area_ns, a, sat, 0.0, share, f_rep),
+  EXPECT_EQ(clipped(a / sat), 1.0);
+  EXPECT_NEAR(device::coupling_baseline_v(a, area_ns, clipped(a / sat), sat, 0.0, share, f_rep),
               share * a * area_ns * 1e-9 * f_rep, 1e-15);
-  // Clipped: the echo as the amplifier passes it, a sampled oracle: the
-  // linear echo clipped at sat; the recovery holds sat for its duration.
-  const double peak = 40.0, recovery = device::clip_recovery_ns(peak, sat, 2.0);
-  double clipped_area = 0;
-  for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += 1e-3)
-    clipped_area += std::min(peak * pulse(t), sat) * 1e-3;
-  const double model =
-      device::coupling_baseline_v(peak, area_ns, peak, sat, recovery, share, f_rep);
-  const double sampled = share * (clipped_area + sat * recovery) * f_rep * 1e-9;
-  // The model scales the linear charge by sat / peak and adds the recovery:
-  // bounded by the echo just at the clip (more overdrive never charges less)
-  // and by the sampled clipped echo plus the recovery (it takes no more).
-  EXPECT_GT(model, device::coupling_baseline_v(sat, area_ns, sat, sat, 0.0, share, f_rep));
-  EXPECT_LE(model, sampled);
+  // Clipped: the echo as the amplifier passes it, a sampled oracle on a 0.1 ps
+  // grid: the linear echo clipped at sat, and the recovery holding sat for
+  // its duration. 1.5x, 10x (where scaling the charge by sat / peak took 0.71
+  // of it) and 1000x overdrive.
+  double previous = 0;
+  for (const double peak : {1.5 * sat, 10.0 * sat, 1000.0 * sat}) {
+    SCOPED_TRACE("peak " + std::to_string(peak));
+    const double recovery = device::clip_recovery_ns(peak, sat, 2.0);
+    double clipped_area = 0;
+    for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += 1e-4)
+      clipped_area += std::min(peak * pulse(t), sat) * 1e-4;
+    const double model = device::coupling_baseline_v(peak, area_ns, clipped(peak / sat), sat,
+                                                     recovery, share, f_rep);
+    const double sampled = share * (clipped_area + sat * recovery) * f_rep * 1e-9;
+    EXPECT_NEAR(model / sampled, 1.0, 2e-3);
+    EXPECT_GT(model, previous);  // more overdrive never charges less
+    previous = model;
+  }
   // No coupling share: no baseline.
   EXPECT_EQ(device::coupling_baseline_v(a, area_ns, a, sat, 0.0, 0.0, f_rep), 0.0);
 }

@@ -22,4 +22,32 @@ FrontEndNoise front_end_noise(const physics::ReceiverConfig& rx, double apd_gain
   return noise;
 }
 
+ClippedChargeShare::ClippedChargeShare(const physics::PulseTemplate& pulse) {
+  // The template on a 1 ps grid (its own step is 5 ps; the linear
+  // interpolation between its samples is what the cores see too).
+  constexpr double kDt = 1e-3;
+  std::vector<double> p;
+  for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kDt) p.push_back(pulse(t));
+  double area = 0;
+  for (const double v : p) area += v;
+  const int n = static_cast<int>(std::ceil(std::log(1e6) / kLnStep)) + 1;
+  share_.resize(static_cast<std::size_t>(n));
+  for (int k = 0; k < n; ++k) {
+    const double x = std::exp(k * kLnStep);
+    double passed = 0;
+    for (const double v : p) passed += std::min(x * v, 1.0);
+    share_[static_cast<std::size_t>(k)] = passed / (x * area);
+  }
+}
+
+double ClippedChargeShare::operator()(double overdrive) const {
+  if (!(overdrive > 1.0) || share_.empty()) return 1.0;
+  const double g = std::log(overdrive) / kLnStep;
+  const auto last = static_cast<double>(share_.size() - 1);
+  if (g >= last) return share_.back() * std::exp(last * kLnStep) / overdrive;
+  const auto i = static_cast<std::size_t>(g);
+  const double w = g - static_cast<double>(i);
+  return share_[i] + w * (share_[i + 1] - share_[i]);
+}
+
 }  // namespace tofkit::device

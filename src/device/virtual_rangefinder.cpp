@@ -86,6 +86,7 @@ struct VirtualRangefinder::Impl {
   bool coupled = false;          // AC coupling before the comparator (memory.time_constant_ms)
   double shots_per_time_constant = 0;  // pulses per coupling time constant
   double pulse_area_ns = 0;            // integral of the pulse template (V ns per V of amplitude)
+  ClippedChargeShare clipped_share;    // coupled: the share of an echo's charge past the clip
   double level_wander_span_v = 0;      // the level tables' extra span for the level's wander
   SlowOffsets slow;                    // timing: power-on offset, flicker, delay and level wander
 
@@ -114,6 +115,7 @@ struct VirtualRangefinder::Impl {
         config.memory.time_constant_ms * 1e-3 * config.link.laser.repetition_hz;
     for (double t = pulse.begin_ns(); t < pulse.end_ns(); t += kCompositeStepNs)
       pulse_area_ns += pulse(t) * kCompositeStepNs;
+    if (coupled) clipped_share = ClippedChargeShare(pulse);
     // 5 sigma of the level's wander (a sum of 12 bounded-variance normals).
     level_wander_span_v = 5.0 * config.discriminator.level_wander_mv * 1e-3;
   }
@@ -137,9 +139,11 @@ struct VirtualRangefinder::Impl {
   void set_baseline(MeasurementSetup& m, double amplitude_sum_v) const {
     if (!coupled) return;
     const auto& rx = config.link.receiver;
+    // The echo's clipped share as the template's at the echo's overdrive (a
+    // mixed echo, wider than the template, is clipped as one of its peak).
     m.baseline_v = device::coupling_baseline_v(
-        amplitude_sum_v, pulse_area_ns, m.peak_v, rx.saturation_v, m.recovery_ns,
-        config.memory.coupling_share, config.link.laser.repetition_hz);
+        amplitude_sum_v, pulse_area_ns, clipped_share(m.peak_v / rx.saturation_v), rx.saturation_v,
+        m.recovery_ns, config.memory.coupling_share, config.link.laser.repetition_hz);
     const double threshold = config.discriminator.threshold_v;
     const double sigma = m.noise_at_threshold_v;
     const double lo = m.baseline_v + std::min(m.baseline_offset_v, 0.0);

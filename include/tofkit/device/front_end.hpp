@@ -8,7 +8,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <vector>
 
+#include "tofkit/physics/pulse_template.hpp"
 #include "tofkit/physics/receiver.hpp"
 
 namespace tofkit::device {
@@ -47,18 +49,35 @@ struct FrontEndNoise {
   return peak_v > saturation_v ? recovery_ns_per_neper * std::log(peak_v / saturation_v) : 0;
 }
 
+/// The share of an echo's charge that the amplifier passes when it clips:
+/// integral of min(x p(t), 1) over x integral of p(t), for the pulse template
+/// p (peak 1) overdriven x = peak / saturation times. 1 up to the clip; past
+/// it the clipped top is flat, about 1 / x for a narrow pulse and larger for
+/// one with long flanks (the flanks below the clip pass whole). Tabulated in
+/// ln x from 1 to 1e6 at construction (interpolated; 1 / x beyond).
+class ClippedChargeShare {
+ public:
+  ClippedChargeShare() = default;  ///< no table: share 1 (never clipped)
+  explicit ClippedChargeShare(const physics::PulseTemplate& pulse);
+  [[nodiscard]] double operator()(double overdrive) const;
+
+ private:
+  static constexpr double kLnStep = 0.05;
+  std::vector<double> share_;  ///< at ln x = k kLnStep
+};
+
 /// The AC coupling's settled baseline on an echo train (V): its capacitor
 /// charges to the train's mean, the charge of one echo as the amplifier
-/// passes it (amplitude_sum_v x pulse_area_ns while linear; clipped at
-/// saturation_v and stretched by the recovery above it) times the repetition
-/// rate, times the coupling's share.
+/// passes it (amplitude_sum_v x pulse_area_ns while linear; its clipped
+/// share, `clipped_share` < 1, when overdriven, plus the recovery's
+/// recovery_ns at saturation_v) times the repetition rate, times the
+/// coupling's share.
 [[nodiscard]] inline double coupling_baseline_v(double amplitude_sum_v, double pulse_area_ns,
-                                                double peak_v, double saturation_v,
+                                                double clipped_share, double saturation_v,
                                                 double recovery_ns, double coupling_share,
                                                 double repetition_hz) {
-  double charge_v_ns = amplitude_sum_v * pulse_area_ns;
-  if (peak_v > saturation_v)
-    charge_v_ns = charge_v_ns * saturation_v / peak_v + saturation_v * recovery_ns;
+  double charge_v_ns = amplitude_sum_v * pulse_area_ns * clipped_share;
+  if (clipped_share < 1.0) charge_v_ns += saturation_v * recovery_ns;
   return coupling_share * charge_v_ns * repetition_hz * 1e-9;
 }
 
