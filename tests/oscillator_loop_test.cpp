@@ -10,6 +10,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -201,28 +202,35 @@ TEST(OscillatorLoop, KeysAreValidatedByName) {
 TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
   // oscillator.duty_wander moves the AC-coupled baseline by d x swing on both
   // edges: the period moves by d swing (1 / rise slope - 1 / fall slope), so the
-  // range (c/4 of the period) by that much. Oracle: that closed form from the
-  // noise-free state's slopes, for small d, against the spread of outputs taken
-  // seconds apart; outputs of one acquisition (one session time) share the draw.
+  // range (c/4 of the period) by that much. The draw is a switch-on's and
+  // settles over the laser's turn-on transient: an output of window W starting
+  // at the switch-on carries d (1 - exp(-W / tau)) / (W / tau). Oracle: that
+  // closed form from the noise-free state's slopes, for small d, against the
+  // spread of outputs taken at switch-ons seconds apart; outputs of one
+  // switch-on (one session time) share the draw.
   auto c = device::accurange_preset();
   c.oscillator.duty_wander = 0.01;
   c.oscillator.flicker_delay_ps = 0;
+  c.link.laser.turn_on_bias_mm = 0;  // the transient's bias is the same for every point
   const device::OscillatorLoop loop(c);
   const double c4 = 0.25 * c_air_m_per_ns(c, c.measurement.reference_temperature_c);
   const int shots = 4096;  // counts finer than 3 um: the wander dominates
+  const double x = 1e3 * shots / c.link.laser.repetition_hz / c.link.laser.turn_on_time_constant_ms;
+  const double settle = (1.0 - std::exp(-x)) / x;  // 0.85 for a 13 ms window, tau 40 ms
   std::vector<double> sd_of;
   for (const int grey : {255, 153, 0}) {
     const auto target = device::Target::plate(0.4826, experiments::grey_reflectance(grey));
     const auto s = loop.state(target, {});
     ASSERT_TRUE(s.oscillates) << grey;
     const double expected_sd_m =
-        c4 * c.oscillator.duty_wander * s.swing_v *
+        c4 * c.oscillator.duty_wander * settle * s.swing_v *
         std::abs(1.0 / s.rise_slope_v_per_ns - 1.0 / s.fall_slope_v_per_ns);
     double sum = 0, sum2 = 0;
     const int n = 400;
     for (int i = 0; i < n; ++i) {
       device::Conditions cond;
       cond.session_time_s = 2.0 * i;  // points seconds apart
+      cond.ms_since_laser_on = 0.0;   // the laser switched on at each point
       const double r =
           loop.measure(target, cond, 5, static_cast<std::uint64_t>(i), shots).distance_raw_m;
       sum += r;
@@ -237,6 +245,7 @@ TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
     // the count and jitter alone.
     device::Conditions same;
     same.session_time_s = 7.0;
+    same.ms_since_laser_on = 0.0;
     const double a = loop.measure(target, same, 5, 1000, shots).distance_raw_m;
     const double b = loop.measure(target, same, 5, 1001, shots).distance_raw_m;
     EXPECT_LT(std::abs(a - b), std::max(0.2 * expected_sd_m, 50e-6)) << grey;
@@ -245,6 +254,92 @@ TEST(OscillatorLoop, DutyWanderIsNoiseThatGrowsOnWeakReturns) {
   // differ by more than their sampling error (400 outputs: +-7 %).
   const auto [lo, hi] = std::minmax_element(sd_of.begin(), sd_of.end());
   EXPECT_GT(*hi, 1.5 * *lo);
+}
+
+TEST(OscillatorLoop, DutyWanderIsASwitchOnsAndSettlesOverTheTurnOnTransient) {
+  // The duty a switch-on starts with settles as the laser's junction heats
+  // (laser.turn_on_time_constant_ms): its mean over a window W starting t0 after
+  // the switch-on is the draw times exp(-t0 / tau) (1 - exp(-W / tau)) / (W / tau).
+  // Oracle: that closed form against the offset at t0 = 0 and W -> 0; a
+  // continuous acquisition (thesis Fig. 4.4, past the transient) shows none of
+  // it, so its outputs taken seconds apart agree within the count's noise.
+  const auto c = device::accurange_preset();
+  ASSERT_GT(c.oscillator.duty_wander, 0.0);
+  const device::OscillatorLoop loop(c);
+  const double tau = c.link.laser.turn_on_time_constant_ms;
+  int nonzero = 0;
+  for (int i = 0; i < 50; ++i) {
+    device::Conditions at_on;
+    at_on.session_time_s = 2.0 * i;
+    at_on.ms_since_laser_on = 0.0;
+    const double d0 = loop.duty_offset(at_on, 11);
+    EXPECT_LE(std::abs(d0), 2.5 * c.oscillator.duty_wander + 1e-15);
+    nonzero += d0 != 0.0;
+    for (const double t0 : {0.0, 10.0, 40.0}) {
+      for (const double w : {1.0, 20.0}) {
+        device::Conditions cond = at_on;
+        cond.ms_since_laser_on = t0;
+        const double expected = d0 * std::exp(-t0 / tau) * (1.0 - std::exp(-w / tau)) / (w / tau);
+        EXPECT_NEAR(loop.duty_offset(cond, 11, w), expected, 1e-12) << i << " " << t0 << " " << w;
+      }
+    }
+    device::Conditions settled;  // the default: past the transient
+    settled.session_time_s = at_on.session_time_s;
+    EXPECT_EQ(loop.duty_offset(settled, 11), 0.0);
+  }
+  EXPECT_EQ(nonzero, 50);
+  // Outputs taken seconds apart (each its own draw) on grey 255 (black, whose slow
+  // rise turns the duty into the most time): at switch-on they scatter by the
+  // draws; in a continuous acquisition only by the loop delay's own wander
+  // (oscillator.flicker_delay_ps: c/4 x 2 x 2.2 ps = 0.33 mm rms) and the count
+  // (4096 shots: 3 um).
+  const auto target = device::Target::plate(0.4826, experiments::grey_reflectance(255));
+  auto spread = [&](double ms_since_laser_on) {
+    double sum = 0, sum2 = 0;
+    const int n = 200;
+    for (int i = 0; i < n; ++i) {
+      device::Conditions cond;
+      cond.session_time_s = 2.0 * i;
+      cond.ms_since_laser_on = ms_since_laser_on;
+      const double r =
+          loop.measure(target, cond, 11, static_cast<std::uint64_t>(i), 4096).distance_raw_m;
+      sum += r;
+      sum2 += r * r;
+    }
+    return std::sqrt(sum2 / n - (sum / n) * (sum / n));
+  };
+  const double flicker_m = 0.25 * c_air_m_per_ns(c, c.measurement.reference_temperature_c) * 2.0 *
+                           c.oscillator.flicker_delay_ps * 1e-3;
+  const double continuous = spread(1e9), switched_on = spread(0.0);
+  EXPECT_NEAR(continuous, flicker_m, 0.15 * flicker_m);  // 200 outputs: +-5 % sampling
+  EXPECT_GT(switched_on, 5.0 * continuous);
+}
+
+TEST(OscillatorLoop, ChipColdShareIsThePeriodicHeatingsMean) {
+  // Oracle for OscillatorLoop::chip_cold_share: step the chip's heat share h
+  // through many gate / pause cycles (h -> 1 over a gate, -> 0 over a pause,
+  // with tau) in small time steps until periodic, and average 1 - h over a gate.
+  // Limits: 1/2 for gates far shorter than tau (equal pause), tau / gate for far
+  // longer ones.
+  for (const auto [gate, off, tau] : {std::array{0.05, 0.05, 0.21}, std::array{0.4, 0.4, 0.21},
+                                      std::array{3.3, 3.3, 0.21}, std::array{0.4, 1.2, 0.3}}) {
+    const int steps = 20000;
+    const double dt_on = gate / steps;
+    double h = 0, sum = 0;
+    for (int cycle = 0; cycle < 200; ++cycle) {
+      sum = 0;
+      for (int i = 0; i < steps; ++i) {
+        const double h_next = 1.0 - (1.0 - h) * std::exp(-dt_on / tau);
+        sum += 1.0 - 0.5 * (h + h_next);
+        h = h_next;
+      }
+      h *= std::exp(-off / tau);
+    }
+    EXPECT_NEAR(device::OscillatorLoop::chip_cold_share(gate, off, tau), sum / steps, 1e-6)
+        << gate << " " << off << " " << tau;
+  }
+  EXPECT_NEAR(device::OscillatorLoop::chip_cold_share(1e-6, 1e-6, 0.21), 0.5, 1e-5);
+  EXPECT_NEAR(device::OscillatorLoop::chip_cold_share(100.0, 100.0, 0.21), 0.21 / 100.0, 1e-9);
 }
 
 TEST(OscillatorLoop, IntensityIsTheSwingAboveTheCoupledBaseline) {

@@ -173,9 +173,10 @@ DeviceConfig accurange_preset() {
   // The vendor zero (the half period read as range 0) is set so that the mean over
   // the six greys at 20 in, 20 C, warmed up and in the turn-on transient of a
   // point-by-point scan (laser.turn_on_bias_mm), reads about 1.04 in short, while
-  // Fig. 4.4's light grey at 20 in, past the transient, reads about 19.8 in
-  // (thesis: 19.64-20.16 in).
-  osc.zero_half_period_ns = 8.20;
+  // Fig. 4.4's light grey at 20 in, past the transient, reads 19.5-19.9 in (the
+  // laser chip's heating in the board's gate, oscillator.chip_*; thesis:
+  // 19.64-19.90 in from 19,531 samples/s down).
+  osc.zero_half_period_ns = 8.167;
   osc.count_clock_mhz = 80.0;  // thesis: 80 MHz timing clock on the interface board
   // Assumption: the board counts during half of each output period (and transfers
   // during the other half). Then one count is c/4 x 12.5 ns x T / gate = 1.71 mm at
@@ -191,15 +192,35 @@ DeviceConfig accurange_preset() {
   // average over 152-4883 samples/s, where the 80 MHz count's quantization no
   // longer dominates.
   osc.flicker_delay_ps = 2.2;
-  // Assumption: the laser driver's turn-on and turn-off delays wander apart by a
-  // share of the period (13 % rms, held for about a second), moving the AC-coupled
-  // baseline: each chart point (seconds apart) gets its own error, largest on the
-  // weakest and the saturated returns, that no surface over (range, intensity) can
-  // remove. Thesis Fig. 4.18: its corrections leave 0.036-0.10 in^2 of variance
-  // at 19 in, although a point's own sample noise is only ~1e-4 in^2 (Fig. 4.4);
-  // and Fig. 4.4's mean moves by +-0.26 in from one setting's acquisition to the
-  // next (19.64-20.16 in) with no trend in the sampling rate.
+  // Assumption: at each switch-on of the laser its driver's turn-on and turn-off
+  // delays start apart by a share of the period (13 % rms, one draw per switch-on)
+  // and settle together as the junction heats (laser.turn_on_time_constant_ms),
+  // moving the AC-coupled baseline: each point of a point-by-point chart (the
+  // laser switched on at every point) gets its own error, largest on the weakest
+  // and the saturated returns, that no surface over (range, intensity) can remove.
+  // Thesis Fig. 4.18: its corrections leave 0.036-0.10 in^2 of variance at 19 in,
+  // although a point's own sample noise is only ~1e-4 in^2 (Fig. 4.4), whose
+  // continuous acquisitions on one spot (past the transient) show none of it.
+  // (Not the chart's texture: the loop's walk is 0.1-0.17 in per neper of
+  // reflectance, Fig. 4.18's greys at 19 in, so a 0.25 in point scatter would need
+  // the reflectance over a 3 mm footprint to vary by e^1.5; paper and halftone
+  // vary by a few %, and speckle through a 63.5 mm aperture averages ~10^5 grains.)
   osc.duty_wander = 0.13;
+  // Assumption: the board gates the laser with its counting window (on while it
+  // counts, off while it transfers and reads the ambient channel), so the laser
+  // chip heats in each gate and cools between with its thermal time constant; a
+  // cold chip's lower threshold current shortens the turn-on delay and the loop
+  // reads short. Short gates keep the chip half warm, long ones let it reach hot
+  // early: the mean rises as the sampling rate falls. Thesis Fig. 4.4: 19.64 in at
+  // 4883 samples/s to 19.90 in at 153 samples/s; the periodic heating's closed
+  // form (OscillatorLoop::chip_cold_share) fitted to its eight settings from
+  // 19,531 samples/s down gives tau = 0.21 ms (a chip's, against the package's
+  // 40 ms of laser.turn_on_time_constant_ms) and -14 mm cold against hot, within
+  // 0.017 in rms. (A count offset, bias ~ resolution, would put 19,531 samples/s
+  // 0.23 in above 9,766; the thesis has 0.045 in. Its 20.16 in at 39 kHz has no
+  // cause here.)
+  osc.chip_bias_mm = -14.0;
+  osc.chip_time_constant_us = 210.0;
   // Assumption: the comparator's hysteresis. Where a baseline left high by a
   // stronger return brings the level within a few noise sigmas of a weak swing's
   // top, the noise adds edges (reads short) or delays rises (reads long)

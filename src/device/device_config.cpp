@@ -268,8 +268,14 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
       field("oscillator.flicker_delay_ps", &config.oscillator.flicker_delay_ps, 0, 1e6,
             "rms of the loop delay's slow wander, drawn per output (averaging floor)"),
       field("oscillator.duty_wander", &config.oscillator.duty_wander, 0, 0.5,
-            "rms of the loop duty's slow wander per output (share); the AC-coupled baseline "
-            "follows it, and the edges' slopes turn it into time (grows on weak returns)"),
+            "rms of the loop duty's unbalance at a laser switch-on (share), settling over the "
+            "turn-on transient; the AC-coupled baseline follows it, and the edges' slopes turn "
+            "it into time (grows on weak returns)"),
+      field("oscillator.chip_bias_mm", &config.oscillator.chip_bias_mm, -1e3, 1e3,
+            "range bias of a cold laser chip against a hot one (its turn-on delay), with the "
+            "laser gated by the counting window: the mean over a gate depends on its length"),
+      field("oscillator.chip_time_constant_us", &config.oscillator.chip_time_constant_us, 0, 1e6,
+            "the laser chip's thermal time constant (heats in each gate, cools between)"),
       field("oscillator.comparator_hysteresis_mv", &config.oscillator.comparator_hysteresis_mv, 0,
             1e4,
             "comparator hysteresis: noise near a weak swing's top adds an edge only by "

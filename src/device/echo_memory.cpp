@@ -210,9 +210,11 @@ void EchoMemory::measure_sequence(std::span<const SequenceItem> items, std::uint
       stretches.clear();
       double settled_sum = 0, offset_sum = 0, stall_sum = 0, strength_sum = 0;
       bool factor_unclean = false;
-      // The loop's duty at this output's time (oscillator.duty_wander) sets the
-      // share of the swing the baseline settles at.
-      const double item_duty = duty + loop_->duty_offset(item.conditions, seed);
+      // The loop's duty in this output's window (oscillator.duty_wander: a
+      // switch-on's unbalance, settling over the turn-on transient) sets the share
+      // of the swing the baseline settles at.
+      const double item_duty =
+          duty + loop_->duty_offset(item.conditions, seed, window_s(shots) * 1e3);
       for (int k = 0; k < k_count; ++k) {
         const Target& target = item.path[static_cast<std::size_t>(k)];
         // The baseline this target's square wave would settle at (a miss or a

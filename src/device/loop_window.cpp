@@ -38,7 +38,7 @@ ranging::RawMeasurement count_loop_window(const OscillatorLoop& loop,
     // stretch's mean period with the noise of that many periods. A stretch
     // outside the gate still reads the temperature sensor.
     const int sub_shots = std::max(1, static_cast<int>(std::lround(shots * locked_ns / gate_ns)));
-    const auto m = loop.measure(s.target, s.conditions, seed, stream + k, sub_shots);
+    const auto m = loop.measure(s.target, s.conditions, seed, stream + k, sub_shots, shots);
     if (std::isfinite(m.temperature_c)) {
       temp += m.temperature_c;
       ++temp_n;

@@ -19,9 +19,9 @@ namespace {
 using physics::kPi;
 // Salt that keeps the loop's draws apart from the pulsed core's blocks.
 constexpr std::uint32_t kLoopBlock = 0x4F534331u;  // "OSC1"
-// The duty's slow wander holds for about a second: consecutive outputs of one
-// acquisition (Fig. 4.4's samples; an acquisition not given its time in the
-// session shares one draw) share it, points of a scan taken seconds apart do not.
+// The duty a switch-on starts with is drawn once per second of session time:
+// a point-by-point scan switches the laser on at every point (seconds apart),
+// and the outputs of one switch-on share its draw.
 constexpr double kDutyWanderCorrelationS = 1.0;
 
 /// The pulsed core's counter-based draws (Random123 Philox4x32-10).
@@ -242,19 +242,41 @@ double OscillatorLoop::resolution_m(const Target& target, const Conditions& cond
   return 0.25 * c_nominal_m_per_ns_ * clock_ns * s.period_ns / gate_ns;
 }
 
-double OscillatorLoop::duty_offset(const Conditions& cond, std::uint64_t seed) const {
+double OscillatorLoop::chip_cold_share(double gate_ms, double off_ms, double tau_ms) {
+  if (!(tau_ms > 0) || !(gate_ms > 0)) return 0.5;
+  const double a = gate_ms / tau_ms, b = std::max(off_ms, 0.0) / tau_ms;
+  // Heat share h at the gate's start in the periodic state: heating
+  // h -> 1 - (1 - h) e^-a over the gate, cooling h -> h e^-b over the pause.
+  const double ea = -std::expm1(-a);  // 1 - e^-a
+  const double denominator = -std::expm1(-a - b);
+  const double h0 = denominator > 0 ? ea * std::exp(-b) / denominator : 0.0;
+  // The cold share 1 - h decays as (1 - h0) e^-t/tau over the gate: its mean.
+  return (1.0 - h0) * (a < 1e-9 ? 1.0 : ea / a);
+}
+
+double OscillatorLoop::duty_offset(const Conditions& cond, std::uint64_t seed,
+                                   double window_ms) const {
   const double wander = config_.oscillator.duty_wander;
-  if (!(wander > 0)) return 0.0;
-  // One draw per correlation time of the session (the run's seed fixes them).
+  const auto& laser = config_.link.laser;
+  const double tau = laser.turn_on_time_constant_ms;
+  if (!(wander > 0) || !(tau > 0)) return 0.0;
+  // A switch-on's unbalance settles as the junction heats (the laser's turn-on
+  // time constant): past the transient the loop runs at its settled duty, so a
+  // continuous acquisition (thesis Fig. 4.4) shows none of it.
+  const double t0 = std::max(cond.ms_since_laser_on, 0.0);
+  if (!(t0 < 30.0 * tau)) return 0.0;
+  const double x = std::max(window_ms, 0.0) / tau;
+  const double settle = x < 1e-9 ? std::exp(-t0 / tau) : std::exp(-t0 / tau) * -std::expm1(-x) / x;
+  // One draw per switch-on (per second of the session, the run's seed fixes them).
   const double bucket = std::floor(cond.session_time_s / kDutyWanderCorrelationS);
   const auto p = philox(seed, static_cast<std::uint64_t>(std::max(bucket, 0.0)), 0, kLoopBlock + 3);
   // The delays' asymmetry has a finite range: the draw stops at 2.5 rms.
-  return wander * std::clamp(normal_pair(p[0], p[1])[0], -2.5, 2.5);
+  return wander * std::clamp(normal_pair(p[0], p[1])[0], -2.5, 2.5) * settle;
 }
 
 ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Conditions& cond,
-                                                std::uint64_t seed, std::uint64_t stream,
-                                                int shots) const {
+                                                std::uint64_t seed, std::uint64_t stream, int shots,
+                                                int gate_shots) const {
   const auto& cfg = config_;
   const auto& osc = cfg.oscillator;
   const auto& laser = cfg.link.laser;
@@ -266,10 +288,12 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   const auto r2 = philox(seed, stream, 0, kLoopBlock + 1);
   const auto z1 = normal_pair(r1[2], r1[3]);
   const auto z2 = normal_pair(r2[0], r2[1]);
-  // The duty's slow wander at this output's time in its session moves the
-  // AC-coupled baseline, so the comparator's level, on both edges: the rise comes
-  // later by about dv / rise slope, the fall earlier by dv / fall slope.
-  const auto s = state(target, cond, duty_offset(cond, seed));
+  // The duty this switch-on started with (oscillator.duty_wander), settling over
+  // the laser's turn-on transient, moves the AC-coupled baseline, so the
+  // comparator's level, on both edges: the rise comes later by about
+  // dv / rise slope, the fall earlier by dv / fall slope (its mean over the
+  // window, as the turn-on bias below).
+  const auto s = state(target, cond, duty_offset(cond, seed, window_ms));
 
   ranging::RawMeasurement out;
   const double internal_c = sensor_temperature_c(th, cond.ambient_c, cond.minutes_since_power_on);
@@ -295,6 +319,17 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
           x < 1e-9 ? std::exp(-t0 / tau) : std::exp(-t0 / tau) * (-std::expm1(-x)) / x;
       turn_on_ns = 2.0 * laser.turn_on_bias_mm * mean * 1e-3 / c_nominal_m_per_ns_;
     }
+  }
+  // The laser gated by the counting window: the chip's cold share over the gate
+  // shortens the turn-on delay (oscillator.chip_bias_mm, as extra round trip).
+  // An output that averages several of the board's samples (a point of the
+  // thesis's chart: 20 samples) is counted here as one gate of all its shots.
+  if (osc.chip_bias_mm != 0 && osc.chip_time_constant_us > 0) {
+    const double output_ms = gate_shots > 0 ? 1e3 * gate_shots / laser.repetition_hz : window_ms;
+    const double share =
+        chip_cold_share(osc.gate_fraction * output_ms, (1.0 - osc.gate_fraction) * output_ms,
+                        osc.chip_time_constant_us * 1e-3);
+    turn_on_ns += 2.0 * osc.chip_bias_mm * share * 1e-3 / c_nominal_m_per_ns_;
   }
   // The loop delay's slow wander (1/f: its mean over a window hardly averages).
   const double period = s.period_ns + 2.0 * (turn_on_ns + osc.flicker_delay_ps * 1e-3 * z2[1]);

@@ -157,10 +157,17 @@ struct OscillatorConfig {
   double coupling_duty = 0.5;        ///< AC-coupled baseline as a share of the swing (duty)
   double overdrive_jitter_ps_per_neper = 0.0;  ///< extra edge jitter per neper of overdrive
   double flicker_delay_ps = 0.0;               ///< rms of the loop delay's slow wander per output
-  /// rms of the slow wander of the loop's duty per output (share): the AC-coupled
-  /// baseline, at the duty share of the swing, moves with it, and both edges turn
-  /// that into time through their slopes (a weak return's slow rise the most)
+  /// rms of the loop's duty unbalance at a laser switch-on (share), settling over
+  /// the laser's turn-on transient: the AC-coupled baseline, at the duty share of
+  /// the swing, moves with it, and both edges turn that into time through their
+  /// slopes (a weak return's slow rise the most)
   double duty_wander = 0.0;
+  /// The laser gated by the board's counting window (on while it counts, off for
+  /// the rest of the output period): the laser chip heats in each gate and cools
+  /// between with chip_time_constant_us; a cold chip's shorter turn-on delay
+  /// reads chip_bias_mm against a hot one (0: no gating effect)
+  double chip_bias_mm = 0.0;
+  double chip_time_constant_us = 0.0;  ///< the laser chip's thermal time constant
   /// comparator hysteresis: once high, the comparator goes low only below the
   /// level minus this, so noise near a weak swing's top adds fewer edges
   /// (device/oscillator_loop.hpp, near_top_edges)

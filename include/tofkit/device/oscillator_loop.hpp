@@ -25,8 +25,11 @@
 ///    crossing; each period's jitter is independent, so the mean period of M
 ///    periods carries sigma_T / sqrt(M); a slow wander of the loop delay
 ///    (oscillator.flicker_delay_ps) does not average within an output, nor does
-///    a slow wander of the loop's duty (oscillator.duty_wander: the laser
-///    driver's turn-on and turn-off delays drift apart and back): the AC-coupled
+///    the loop's duty unbalanced at each switch-on of the laser
+///    (oscillator.duty_wander: the driver's turn-on and turn-off delays start
+///    apart by a draw per switch-on and settle together as the junction heats,
+///    laser.turn_on_time_constant_ms; a point-by-point scan switches the laser on
+///    at every point, a continuous acquisition runs settled): the AC-coupled
 ///    baseline sits at the duty share of the swing, so it moves the comparator's
 ///    level on both edges by dv = d_duty x swing, delaying the rise by dv / rise
 ///    slope and advancing the fall by dv / fall slope. A weak return (slow rise,
@@ -38,6 +41,15 @@
 ///    of the output period measurement.shots / laser.repetition_hz
 ///    (312,500 / 2^N samples/s): resolution = c/4 x t_clk x T / gate, so it
 ///    trades against the sampling rate (thesis Fig. 4.4);
+///  - the laser is gated by the counting window (Assumption: on while the
+///    board counts, off while it transfers and reads the unit's ambient-light
+///    channel): the laser chip heats in each gate and cools in each pause with
+///    its thermal time constant (oscillator.chip_time_constant_us), and a cold
+///    chip's lower threshold current shortens its turn-on delay, so the loop runs
+///    fast (oscillator.chip_bias_mm of range, cold against hot). Short gates keep
+///    the chip half warm, long ones let it reach hot early in each gate: the mean
+///    rises with the gate's length, i.e. falls with the sampling rate (thesis
+///    Fig. 4.4: 19.64 in at 4883 samples/s rising to 19.90 in at 153);
 ///  - the intensity output is a peak detector on the linear stage (clipping at
 ///    receiver.amplitude_clip_v) behind the same AC coupling: on a still target it
 ///    reads the step amplitude; a baseline left high by a stronger return
@@ -127,15 +139,29 @@ class OscillatorLoop {
   [[nodiscard]] Shot shoot(const Target& target, const Conditions& conditions, std::uint64_t seed,
                            std::uint64_t stream, std::uint32_t shot) const;
 
-  /// The loop's duty offset (oscillator.duty_wander) at conditions.session_time_s:
-  /// one draw per second of the session, from the run's seed (0 without wander).
-  [[nodiscard]] double duty_offset(const Conditions& conditions, std::uint64_t seed) const;
+  /// The loop's duty offset (oscillator.duty_wander) a switch-on starts with,
+  /// averaged over an output window of window_ms starting conditions.ms_since_laser_on
+  /// after it: the draw (one per second of conditions.session_time_s, from the run's
+  /// seed) times exp(-t0 / tau) (1 - exp(-W / tau)) / (W / tau), tau =
+  /// laser.turn_on_time_constant_ms; 0 without wander or past the transient.
+  [[nodiscard]] double duty_offset(const Conditions& conditions, std::uint64_t seed,
+                                   double window_ms = 0.0) const;
 
   /// One output: the board counts the loop over a gate of gate_fraction x
-  /// shots / laser.repetition_hz (shots = 0: measurement.shots).
+  /// shots / laser.repetition_hz (shots = 0: measurement.shots). gate_shots > 0:
+  /// this is a stretch of a longer output of gate_shots (device/loop_window.hpp),
+  /// whose gate sets the laser chip's heating (oscillator.chip_*).
   [[nodiscard]] ranging::RawMeasurement measure(const Target& target, const Conditions& conditions,
                                                 std::uint64_t seed, std::uint64_t stream,
-                                                int shots = 0) const;
+                                                int shots = 0, int gate_shots = 0) const;
+
+  /// The laser chip's cold share averaged over a gate (oscillator.chip_*): in the
+  /// periodic state of a gate of gate_ms (laser on, the chip heating toward hot
+  /// with tau) and a pause of off_ms (cooling toward cold with tau),
+  ///   (1 - h0) (1 - exp(-a)) / a,  h0 = (1 - exp(-a)) exp(-b) / (1 - exp(-a - b)),
+  /// a = gate / tau, b = off / tau (equal gate and pause: tanh(a / 2) / a);
+  /// 1/2 for gates far shorter than tau, tau / gate for far longer ones.
+  [[nodiscard]] static double chip_cold_share(double gate_ms, double off_ms, double tau_ms);
 
   /// Range step of one clock count for an output of `shots` (0: the config's)
   /// on a target: c/4 x t_clk x T / gate (thesis Fig. 4.4's resolution column).
