@@ -91,3 +91,44 @@ TEST(Optics, BackgroundIsEachSurfacesShareOfTheSunlight) {
   link.environment.solar_irradiance_w_per_m2_um = 0.0;
   EXPECT_EQ(device::background_power_w(link, t), 0.0);
 }
+
+// Thin-lens oracle for a receiver focused at a finite distance, written out
+// here: blur beta = D |1/R - 1/R_focus|, footprint alpha = (exit + R div) / R,
+// a Gaussian spot of width^2 = alpha^2 + beta^2 through a circular stop:
+// share = 1 - exp(-theta^2 / (alpha^2 + beta^2)).
+TEST(Optics, FieldStopPassesADefocusedNearTargetsShare) {
+  auto link = device::preset("paper").link;
+  link.receiver.space_charge_v = 0.0;
+  link.receiver.axis_offset_mm = 0.0;  // coaxial: no biaxial blind zone in the way
+  // Off (the far-field budget): every ray passes.
+  ASSERT_EQ(link.receiver.focus_distance_m, 0.0);
+  EXPECT_EQ(physics::field_stop_share(link.laser, link.receiver, 0.3), 1.0);
+  link.receiver.aperture_diameter_mm = 60.0;
+  link.receiver.field_of_view_rad = 0.04;
+  link.receiver.focus_distance_m = 1.0;
+  auto oracle = [&](double r) {
+    const double beta = 0.060 * std::abs(1.0 / r - 1.0);
+    const double alpha =
+        (link.laser.exit_beam_diameter_mm * 1e-3 + r * link.laser.beam_divergence_mrad * 1e-3) / r;
+    return 1.0 - std::exp(-0.04 * 0.04 / (alpha * alpha + beta * beta));
+  };
+  for (const double r : {0.2, 0.3, 0.5, 0.7, 1.0, 3.0, 50.0}) {
+    EXPECT_NEAR(physics::field_stop_share(link.laser, link.receiver, r), oracle(r), 1e-12) << r;
+  }
+  // In focus, a footprint much smaller than the stop passes whole; far out of
+  // focus the share is the stop's over the blur's area, theta^2 / beta^2.
+  EXPECT_GT(physics::field_stop_share(link.laser, link.receiver, 1.0), 1.0 - 1e-9);
+  const double beta_far = 0.060 * (1.0 / 0.05 - 1.0);
+  EXPECT_NEAR(physics::field_stop_share(link.laser, link.receiver, 0.05),
+              0.04 * 0.04 / (beta_far * beta_far), 0.02 * 0.04 * 0.04 / (beta_far * beta_far));
+  // The echo carries the share: far inside the focus the R^2 of the share
+  // cancels Eq. 6's 1 / R^2, so a defocused near target's echo rises with range
+  // (the near-field overlap of a coaxial receiver) instead of falling as 1 / R^2.
+  const double e02 = echo_of(link, 0.2, 0.2).amplitude_v;
+  const double e03 = echo_of(link, 0.3, 0.2).amplitude_v;
+  EXPECT_NEAR(e03 / e02, oracle(0.3) / oracle(0.2) * (0.2 * 0.2) / (0.3 * 0.3), 1e-9);
+  EXPECT_GT(e03, e02);
+  link.receiver.focus_distance_m = 0.0;
+  EXPECT_NEAR(echo_of(link, 0.3, 0.2).amplitude_v / echo_of(link, 0.2, 0.2).amplitude_v,
+              (0.2 * 0.2) / (0.3 * 0.3), 1e-12);
+}

@@ -15,11 +15,13 @@
 #include <cstdint>
 #include <cstring>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "tofkit/device/accurange_preset.hpp"
 #include "tofkit/experiments/thesis_grey_chart.hpp"
 #include "tofkit/physics/air.hpp"
+#include "tofkit/physics/link_budget.hpp"
 
 using namespace tofkit;
 
@@ -479,4 +481,37 @@ TEST(OscillatorLoop, NearTopEdgesHaveTheirSignsAndVanishFarFromTheTop) {
   EXPECT_EQ(clean.missed_wait_ns, 0.0);
   EXPECT_TRUE(std::isinf(
       device::near_top_edges(-device::kNearTopSigmas * sigma, sigma, b, high).missed_wait_ns));
+}
+
+// Thesis Fig. 4.9: over 10-30 in the chart's range grows more slowly than the
+// truth (slope 0.9804) while dark targets read long. A receiver focused at a
+// finite distance (here 1.1 m, a 37 mrad stop) passes a growing share of a
+// nearer chart's light, so black's echo rises with range from 10 to 19 in
+// (Eq. 6's 1 / R^2 times the share) and its walk makes the near chart read
+// long; in the far-field view (the preset's) the near chart reads short.
+TEST(OscillatorLoop, FocusedReceiverMakesTheNearChartReadLong) {
+  const auto preset = device::accurange_preset();
+  ASSERT_EQ(preset.link.receiver.focus_distance_m, 0.0);
+  auto focused = preset;
+  focused.link.receiver.focus_distance_m = 1.1;
+  focused.link.receiver.field_of_view_rad = 0.037;
+  focused.link.receiver.transimpedance_kohm = 48.9;  // black at 19 in as before (share 0.22)
+  const double rho = experiments::grey_reflectance(255);
+  const double near_m = 10 * 0.0254, far_m = 19 * 0.0254;
+  auto latency = [&](const device::DeviceConfig& c, double r) {
+    const auto s = device::OscillatorLoop(c).state(device::Target::plate(r, rho), {});
+    EXPECT_TRUE(s.oscillates) << r;
+    EXPECT_FALSE(s.saturated) << r;
+    return std::pair{s.amplitude_v, s.on_detect_ns + s.off_detect_ns - 4.0 * r / 0.2997};
+  };
+  const auto [a_near, l_near] = latency(focused, near_m);
+  const auto [a_far, l_far] = latency(focused, far_m);
+  const auto& rx = focused.link.receiver;
+  const double share_ratio = physics::field_stop_share(focused.link.laser, rx, near_m) /
+                             physics::field_stop_share(focused.link.laser, rx, far_m);
+  EXPECT_LT(share_ratio, 0.25);
+  EXPECT_NEAR(a_near / a_far, share_ratio * (far_m * far_m) / (near_m * near_m), 1e-9);
+  EXPECT_LT(a_near, a_far);
+  EXPECT_GT(l_near, l_far);  // the weaker near echo crosses later: reads long
+  EXPECT_LT(latency(preset, near_m).second, latency(preset, far_m).second);
 }

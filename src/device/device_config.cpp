@@ -148,6 +148,10 @@ std::vector<ConfigField> config_fields(DeviceConfig& config) {
             "range; follows laser power and APD gain). 0: none"),
       field("receiver.axis_offset_mm", &rx.axis_offset_mm, 0, 1000,
             "emitter-receiver axis offset (biaxial optics; sets the near blind zone). Assumption"),
+      field_or_off("receiver.focus_distance_m", &rx.focus_distance_m, 1e-3, 1e6,
+                   "the receiver's field stop sits in the image of a target at this distance; "
+                   "nearer targets are defocused and pass only part of their light. 0: "
+                   "far field (every returned ray passes)"),
 
       // environment: sunlight, atmosphere, air
       field("environment.solar_irradiance_w_per_m2_um", &env.solar_irradiance_w_per_m2_um, 0, 3000,

@@ -134,6 +134,7 @@ LoopState OscillatorLoop::state(const Target& target, const Conditions& cond,
                             link, surf.reflectance, std::max(cos_phi, detail::kBackgroundCosFloor));
     const double power_w =
         surf.fraction * physics::overlap_fraction(link.laser, rx, surf.distance_m) *
+        physics::field_stop_share(link.laser, rx, surf.distance_m) *
         physics::received_power_extended_cos_w(link, surf.distance_m, surf.reflectance, cos_phi);
     if (power_w <= 0.0) continue;
     const double amplitude = power_w * volts_per_watt;

@@ -33,9 +33,11 @@ struct SurfaceEcho {
   if (s.fraction <= 0.0 || s.reflectance <= 0.0 || !(s.cos_incidence > 0.0)) return false;
   const double cos_phi = std::min(s.cos_incidence, 1.0);
   // Extended Lambertian target, paper Eq. 6, scaled by the share of the footprint.
-  // Biaxial optics: only the share of the footprint inside the receiver's field.
+  // Biaxial optics: only the share of the footprint inside the receiver's field;
+  // a receiver focused at a finite distance: only the share its field stop passes.
   const double power_w =
       s.fraction * physics::overlap_fraction(link.laser, link.receiver, s.distance_m) *
+      physics::field_stop_share(link.laser, link.receiver, s.distance_m) *
       physics::received_power_extended_cos_w(link, s.distance_m, s.reflectance, cos_phi);
   if (power_w <= 0.0) return false;
   out.amplitude_v = space_charge_limited_v(power_w * volts_per_watt, link.receiver.space_charge_v);

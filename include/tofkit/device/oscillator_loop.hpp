@@ -11,7 +11,8 @@
 /// about 17 ns at zero range and 284 ns at 20 m with the accurange preset
 /// (thesis: ~20 ns and 280 ns). Causes, each from a key:
 ///  - the return is a step of optical power (link budget, as the pulsed core,
-///    without the short pulse's bandwidth loss), through a single-pole receiver
+///    without the short pulse's bandwidth loss; a receiver focused at a finite
+///    distance passes physics::field_stop_share of it), through a single-pole receiver
 ///    (receiver.bandwidth_mhz) whose state clips at receiver.saturation_v;
 ///  - the receiver is AC-coupled: on the loop's square wave its baseline sits at
 ///    oscillator.coupling_duty of the swing, and the comparator

@@ -4,7 +4,10 @@
 /// (thesis: r = 0.9804 T - 0.6732 in); dark targets read long (their weak
 /// echoes cross the threshold late: walk), very bright ones saturate and read
 /// short. Thesis RMS at 20 in: 0.2281 in for grey >= 102 (its numbering, 0 =
-/// white: the four darker greys, below saturation), 1.0693 in over all.
+/// white: the four darker greys, below saturation), 1.0693 in over all. The
+/// RMS is about the truth, as the thesis's other RMS figures: Fig. 4.4's rms
+/// column is |20 in - mean| (with the variance), Fig. 4.18's raw rms is
+/// sqrt(bias^2 + variance).
 
 #include <cstdint>
 #include <string>

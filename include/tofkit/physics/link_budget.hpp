@@ -100,6 +100,31 @@ namespace detail {
   return detail::overlap_lens_fraction(a, b, d);
 }
 
+/// Share of the light returned from distance R that passes the receiver's field
+/// stop when the receiver is focused at receiver.focus_distance_m (1 when that
+/// is 0: the far-field budget). Thin lens: a point at R images off the stop's
+/// plane, its rays spread over a blur of angular width beta = D |1/R - 1/R_focus|
+/// (D the aperture; object-space angle); the beam footprint subtends
+/// alpha = footprint / R. The footprint's image on the stop is the two
+/// convolved; taken as a Gaussian spot whose widths add in quadrature,
+/// w^2 = alpha^2 + beta^2, a circular stop of full angle theta
+/// (field_of_view_rad) passes 1 - exp(-theta^2 / w^2) of it (the power of a
+/// Gaussian spot inside a circle): theta^2 / w^2 far out of focus, all of it
+/// in focus, with no kink between. Far inside the focus (beta >> alpha) the
+/// share grows as R^2, cancelling Eq. 6's 1 / R^2: a defocused near target's
+/// received power hardly depends on range (the near-field overlap of coaxial
+/// rangefinders).
+[[nodiscard]] inline double field_stop_share(const LaserConfig& laser,
+                                             const ReceiverConfig& receiver, double distance_m) {
+  if (!(receiver.focus_distance_m > 0.0) || !(distance_m > 0.0)) return 1.0;
+  const double beta = receiver.aperture_diameter_mm * 1e-3 *
+                      std::abs(1.0 / distance_m - 1.0 / receiver.focus_distance_m);
+  const double alpha = footprint_diameter_m(laser, distance_m) / distance_m;
+  const double w2 = alpha * alpha + beta * beta;
+  const double theta = receiver.field_of_view_rad;
+  return -std::expm1(-theta * theta / w2);
+}
+
 /// Noise currents at the APD output (multiplied), paper Eq. 8.
 struct NoiseCurrents {
   double signal_shot_a = 0;      ///< sqrt(2 q I_p M^2 F B), I_p = R0 Pr

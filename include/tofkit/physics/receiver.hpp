@@ -53,6 +53,13 @@ struct ReceiverConfig {
   /// walk and the recovery's stretch) is bounded. 0: none (the paper device:
   /// its Fig. 6 plates reach 7.5 ns; 20 V would stop them at 6.7 ns).
   double space_charge_v = 0.0;
+  /// Receiver focus: the field stop (full angle field_of_view_rad) sits in the
+  /// image plane of a target at this distance. Nearer targets image behind it,
+  /// defocused, and only part of their light passes the stop
+  /// (physics::field_stop_share): a coaxial short-range unit's near-field
+  /// signal rises with range. 0: the far-field view, the stop passes every
+  /// returned ray (the paper's budget, Eq. 6).
+  double focus_distance_m = 0.0;
 };
 
 }  // namespace tofkit::physics
