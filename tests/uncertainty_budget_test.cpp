@@ -18,6 +18,7 @@
 #include <numbers>
 #include <ostream>
 #include <random>
+#include <set>
 #include <span>
 #include <string>
 #include <tuple>
@@ -378,11 +379,19 @@ calib::CalibrationPlanOptions field_domain() {
   return field;
 }
 
-/// The protocol's steps measured as `tofkit plan` prints them, fitted as its
-/// fit line does; `power_on` moves the calibration's power-on (seed 1 as
-/// printed) and its repeats' (seeds 2...) to other draws.
-Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline,
-                     std::uint64_t power_on = 1) {
+/// The rows of a protocol's steps.
+struct ProtocolRows {
+  std::vector<ranging::Record> calibration;
+  calib::ProtocolSteps steps;
+  double calibration_start_s = 0;
+  double tdc_period_ns = 0;
+};
+
+/// The protocol's steps measured as `tofkit plan` prints them; `power_on`
+/// moves the calibration's power-on (seed 1 as printed) and its repeats'
+/// (seeds 2...) to other draws.
+ProtocolRows protocol_rows(const device::VirtualRangefinder& device, bool complete,
+                           std::uint64_t power_on = 1) {
   const calib::CalibrationPlanOptions field = field_domain();
   experiments::ProtocolOptions po;
   po.complete = complete;
@@ -408,6 +417,13 @@ Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bo
   }
   steps.stability = stability;
   steps.tdc_period_ns = protocol.tdc_period_ns;
+  return {std::move(calibration), std::move(steps), protocol.calibration_start_s,
+          protocol.tdc_period_ns};
+}
+
+/// The fit line's options for the protocol's rows.
+calib::ModelFitOptions fit_options(const device::VirtualRangefinder& device, bool complete,
+                                   bool bspline, double tdc_period_ns) {
   calib::ModelFitOptions options;
   options.time_to_distance = device::nominal_time_to_distance(device.config());
   // The planner's fit line corrects the walk with the physical walk model (it
@@ -415,13 +431,20 @@ Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bo
   // interpolates linearly); the paper's protocol keeps the paper's chain.
   options.chain = calib::parse_chain_steps(complete ? "offset,walk,temperature"
                                                     : "offset,grayvalue,temperature");
-  if (complete) options.tdc_period_ns = protocol.tdc_period_ns;
+  if (complete) options.tdc_period_ns = tdc_period_ns;
   if (bspline) options.surface = calib::parse_surface_spec("bspline");
   options.extrapolation_refit = true;  // as fit --budget asks for it
+  return options;
+}
+
+/// The protocol's steps measured and fitted as its fit line does.
+Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bool bspline,
+                     std::uint64_t power_on = 1) {
+  const ProtocolRows p = protocol_rows(device, complete, power_on);
   Calibrated c;
-  c.fit = calib::fit_model(calibration, options);
-  c.budget = calib::fit_model_budget(calibration, c.fit, steps, {});
-  c.calibration_start_s = protocol.calibration_start_s;
+  c.fit = calib::fit_model(p.calibration, fit_options(device, complete, bspline, p.tdc_period_ns));
+  c.budget = calib::fit_model_budget(p.calibration, c.fit, p.steps, {});
+  c.calibration_start_s = p.calibration_start_s;
   return c;
 }
 
@@ -1501,6 +1524,140 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_NonlinearityLeftByThePeriodicStep) {
     for (const auto& [k, m] : by_rho) std::printf(" rho %.2f alone %.2f", k, series_left(h, k));
     std::printf(" mm\n");
   }
+}
+
+// Where the periodic step's residual comes from (issue 34), held-out case 0,
+// planner's protocol (chain), power-on 1. The device as drawn (a) and without
+// INL (b, the same seeds draw the same noise) measure the calibration's rows
+// and the field's at 0 min; the main correction M (the fitted pipeline less
+// its periodic step) applied to both gives what the INL does to each
+// corrected row, C = M(a) - M(b): through the time of flight (the rising
+// edge's stop) and through the pulse width the walk reads (the falling
+// edge's stop less the rising one's). Models of C, each fitted to C's values
+// on the calibration's rows (noise-free: the truth known from the twin), or
+// to the calibration's actual residual (with its noise and what M took), and
+// scored on the field rows' C:
+// - "tof": a Fourier series in the time of flight modulo the TDC period;
+// - "two edges": one series I(phase) for the TDC's error at a stop, entering
+//   the corrected range as (1 + s) I(rise) - s I(fall), s = d rise / d width
+//   of the fitted walk at the row's width.
+TEST(UncertaintyBudgetDiagnosis, DISABLED_PeriodicStepAgainstTheTruth) {
+  const device::DeviceConfig config = held_out_device(1, false, 0);
+  device::DeviceConfig linear = config;
+  set_key(linear, "tdc.inl_lsb", 0.0);
+  const device::VirtualRangefinder device(config), ideal(linear);
+  const ProtocolRows pa = protocol_rows(device, true), pb = protocol_rows(ideal, true);
+  const calib::ModelFitResult fit = calib::fit_model(
+      pa.calibration,
+      fit_options(device, true, std::getenv("TOFKIT_BSPLINE") != nullptr, pa.tdc_period_ns));
+  std::printf("%s", fit.report.c_str());
+  ranging::Pipeline main(fit.pipeline.time_to_distance());
+  const ranging::Step* periodic = nullptr;
+  const ranging::Step* walk = nullptr;
+  for (const auto& step : fit.pipeline.steps()) {
+    if (step.kind == ranging::StepKind::kPeriodic)
+      periodic = &step;
+    else
+      main.add_step(step);
+    if (step.kind == ranging::StepKind::kWalk) walk = &step;
+  }
+  ASSERT_NE(periodic, nullptr);
+  ASSERT_NE(walk, nullptr);
+  const double period = pa.tdc_period_ns;
+  experiments::PlateGrid grid;
+  grid.distances_m = {0.7, 1.3, 1.9, 2.6, 3.3, 4.1, 4.9, 5.8, 6.6, 7.4};
+  grid.reflectances = {0.06, 0.15, 0.35, 0.85};
+  grid.ambient_c = {8, 17, 27, 37};
+  grid.count = 3;
+  const auto plan = experiments::plate_grid_plan(grid);
+  const auto fa = experiments::run(device, plan, 1, {pa.calibration_start_s, 0});
+  const auto fb = experiments::run(ideal, plan, 1, {pa.calibration_start_s, 0});
+  struct Set {
+    std::vector<double> rise, fall, slope, effect, residual, tof_effect, width_effect, left;
+    std::vector<double> rho, distance;
+  };
+  const auto collect = [&](const std::vector<ranging::Record>& a,
+                           const std::vector<ranging::Record>& b) {
+    std::vector<ranging::Range> ra(a.size()), rb(b.size()), full(a.size());
+    main.apply(ranging::RawColumns::of(a), ra);
+    main.apply(ranging::RawColumns::of(b), rb);
+    fit.pipeline.apply(ranging::RawColumns::of(a), full);
+    Set s;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      const double effect = ra[i].distance_m - rb[i].distance_m;
+      if (!std::isfinite(effect) || (ra[i].correction_flags & ranging::kCorrOutOfDomain) != 0)
+        continue;
+      const double w = a[i].raw.pulse_width_ns;
+      s.rise.push_back(2 * std::numbers::pi * std::fmod(a[i].raw.tof_ns, period) / period);
+      s.fall.push_back(2 * std::numbers::pi * std::fmod(a[i].raw.tof_ns + w, period) / period);
+      s.slope.push_back(
+          (walk->walk->relative_rise_ns(w + 1e-3) - walk->walk->relative_rise_ns(w - 1e-3)) / 2e-3);
+      s.effect.push_back(effect);
+      s.left.push_back(full[i].distance_m - rb[i].distance_m);
+      s.residual.push_back(ra[i].distance_m - a[i].truth.distance_m);
+      s.tof_effect.push_back(device.tof_to_distance_m(a[i].raw.tof_ns - b[i].raw.tof_ns));
+      s.width_effect.push_back(a[i].raw.pulse_width_ns - b[i].raw.pulse_width_ns);
+      s.rho.push_back(a[i].truth.reflectance);
+      s.distance.push_back(a[i].truth.distance_m);
+    }
+    return s;
+  };
+  const Set cal = collect(pa.calibration, pb.calibration), field = collect(fa, fb);
+  const auto design = [](const Set& s, int harmonics, bool two_edges) {
+    const auto n = static_cast<Eigen::Index>(s.rise.size());
+    Eigen::MatrixXd x(n, 1 + 2 * harmonics);
+    for (Eigen::Index r = 0; r < n; ++r) {
+      const auto i = static_cast<std::size_t>(r);
+      x(r, 0) = 1;
+      const double k = two_edges ? 1 + s.slope[i] : 1.0, l = two_edges ? -s.slope[i] : 0.0;
+      for (int h = 1; h <= harmonics; ++h) {
+        x(r, 2 * h - 1) = k * std::cos(h * s.rise[i]) + l * std::cos(h * s.fall[i]);
+        x(r, 2 * h) = k * std::sin(h * s.rise[i]) + l * std::sin(h * s.fall[i]);
+      }
+    }
+    return x;
+  };
+  const auto rms_centred = [](const Eigen::VectorXd& v) {
+    return std::sqrt((v.array() - v.mean()).square().mean()) * 1e3;
+  };
+  const Eigen::Map<const Eigen::VectorXd> field_c(field.effect.data(),
+                                                  static_cast<Eigen::Index>(field.effect.size()));
+  const Eigen::Map<const Eigen::VectorXd> cal_c(cal.effect.data(),
+                                                static_cast<Eigen::Index>(cal.effect.size()));
+  const Eigen::Map<const Eigen::VectorXd> cal_r(cal.residual.data(),
+                                                static_cast<Eigen::Index>(cal.residual.size()));
+  const Eigen::Map<const Eigen::VectorXd> left(field.left.data(), field_c.size());
+  std::printf(
+      "field rows: the INL moves M's range %.2f mm rms (tof alone %.2f mm); the fitted step "
+      "leaves %.2f mm\n",
+      rms_centred(field_c),
+      rms_centred(Eigen::Map<const Eigen::VectorXd>(field.tof_effect.data(), field_c.size())),
+      rms_centred(left));
+  {
+    double ws = 0;
+    for (double w : field.width_effect) ws += w * w;
+    std::printf("width's INL effect rms %.1f ps; walk slope d rise / d width %.2f .. %.2f\n",
+                std::sqrt(ws / field.width_effect.size()) * 1e3,
+                *std::min_element(field.slope.begin(), field.slope.end()),
+                *std::max_element(field.slope.begin(), field.slope.end()));
+  }
+  std::set<long> phases;
+  for (double p : cal.rise) phases.insert(std::lround(p / (2 * std::numbers::pi) * 1000));
+  std::printf("calibration rows: %zu, distinct rise phases (0.001 period) %zu\n", cal.rise.size(),
+              phases.size());
+  for (const bool two : {false, true})
+    for (const int h : {4, 8, 12, 16, 24}) {
+      const Eigen::MatrixXd xf = design(field, h, two), xc = design(cal, h, two);
+      const Eigen::VectorXd oracle = xf.colPivHouseholderQr().solve(field_c.eval());
+      const Eigen::VectorXd truth = xc.colPivHouseholderQr().solve(cal_c.eval());
+      const Eigen::VectorXd noisy = xc.colPivHouseholderQr().solve(cal_r.eval());
+      std::printf(
+          "%-9s %2d harmonics: fitted to the field's C leaves %.2f mm; to the calibration's C "
+          "%.2f mm (there %.2f); to its residual %.2f mm\n",
+          two ? "two edges" : "tof", h, rms_centred(field_c - xf * oracle),
+          rms_centred(field_c - xf * truth), rms_centred(cal_c - xc * truth),
+          rms_centred(field_c - xf * noisy));
+    }
 }
 
 // Diagnosis of the drift term against the ensemble (issue 34), held-out case
