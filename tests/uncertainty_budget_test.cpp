@@ -379,12 +379,18 @@ calib::CalibrationPlanOptions field_domain() {
   return field;
 }
 
-/// The rows of a protocol's steps.
+/// The rows of a protocol's steps (steps() views the stability record this
+/// keeps: it lives as long as the rows).
 struct ProtocolRows {
-  std::vector<ranging::Record> calibration;
-  calib::ProtocolSteps steps;
+  std::vector<ranging::Record> calibration, stability;
+  calib::ProtocolSteps other;  ///< its stability record unset
   double calibration_start_s = 0;
   double tdc_period_ns = 0;
+  [[nodiscard]] calib::ProtocolSteps steps() const {
+    calib::ProtocolSteps s = other;
+    s.stability = stability;
+    return s;
+  }
 };
 
 /// The protocol's steps measured as `tofkit plan` prints them; `power_on`
@@ -415,10 +421,9 @@ ProtocolRows protocol_rows(const device::VirtualRangefinder& device, bool comple
         break;
     }
   }
-  steps.stability = stability;
   steps.tdc_period_ns = protocol.tdc_period_ns;
-  return {std::move(calibration), std::move(steps), protocol.calibration_start_s,
-          protocol.tdc_period_ns};
+  return {std::move(calibration), std::move(stability), std::move(steps),
+          protocol.calibration_start_s, protocol.tdc_period_ns};
 }
 
 /// The fit line's options for the protocol's rows.
@@ -443,7 +448,7 @@ Calibrated calibrate(const device::VirtualRangefinder& device, bool complete, bo
   const ProtocolRows p = protocol_rows(device, complete, power_on);
   Calibrated c;
   c.fit = calib::fit_model(p.calibration, fit_options(device, complete, bspline, p.tdc_period_ns));
-  c.budget = calib::fit_model_budget(p.calibration, c.fit, p.steps, {});
+  c.budget = calib::fit_model_budget(p.calibration, c.fit, p.steps(), {});
   c.calibration_start_s = p.calibration_start_s;
   return c;
 }
