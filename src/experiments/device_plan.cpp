@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numeric>
 #include <stdexcept>
 #include <string>
 
@@ -217,28 +216,15 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
       s.bench_minutes = 2.0 * static_cast<double>(g.reflectances.size());
       add(s);
     }
-    // The rail: N positions at N distinct phases of the TDC's period, evenly
-    // spread, over the field's p whole periods (at least one): a step of p / N
-    // periods with N = rail_steps_per_period p + 1 (coprime with p), so that
-    // position k sits at phase k p / N modulo one period, every multiple of
-    // 1 / N once. A step of a whole fraction of the period (1/8) gave 8
-    // phases only, and their 8 harmonics rested on the walk's spread of the
-    // stops alone. Centred on the field; longer than it (p rounded up), from
-    // its near end.
+    // The rail: at least one TDC period, steps that resolve its harmonics.
     ProtocolStep s;
     s.file = "rail.csv";
     s.observes = "errors periodic in the time of flight (TDC nonlinearity, period " +
                  std::to_string(protocol.tdc_period_m).substr(0, 5) + " m)";
-    const double span = field.range_max_m - field.range_min_m;
-    const long periods = std::max(1L, std::lround(span / protocol.tdc_period_m));
-    long positions = std::lround(o.rail_steps_per_period * static_cast<double>(periods)) + 1;
-    while (std::gcd(positions, periods) != 1) ++positions;
-    const double step =
-        protocol.tdc_period_m * static_cast<double>(periods) / static_cast<double>(positions);
-    const double length = step * static_cast<double>(positions - 1);
-    const double first = field.range_min_m + std::max(0.0, 0.5 * (span - length));
-    for (long k = 0; k < positions; ++k)
-      s.grid.distances_m.push_back(rounded4(first + step * static_cast<double>(k)));
+    const double step = protocol.tdc_period_m / o.rail_steps_per_period;
+    const double last = std::max(field.range_max_m, field.range_min_m + protocol.tdc_period_m);
+    for (double d = field.range_min_m; d <= last + 1e-9; d += step)
+      s.grid.distances_m.push_back(rounded4(d));
     s.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
     s.grid.count = o.count;
     s.bench_minutes = 0.5 * static_cast<double>(s.grid.distances_m.size());

@@ -88,8 +88,9 @@ struct ProtocolOptions {
   /// run); true: every cause (plates at two distances, a rail over the TDC's
   /// period, the temperature run, a stability record, other power-ons).
   bool complete = true;
-  /// rail positions per TDC period, each at its own phase of the period (8
-  /// over 9 periods: 73 phases, up to 36 harmonics)
+  /// rail distances per TDC period: as many phases of the period; the echo's
+  /// walk along the rail spreads the stops between them (held-out case 0: 240
+  /// distinct phases of 1000 among the calibration's rows, 11 harmonics chosen)
   double rail_steps_per_period = 8;
   double stability_minutes = 60;  ///< the stability record's length
   double stability_every_s = 15;  ///< its spacing
@@ -110,9 +111,8 @@ struct Protocol {
 /// with `complete`, a stability record first (a static target for
 /// stability_minutes, while the device settles), then the calibration rows
 /// (plates at the plan's distance and at a second one, farther, a rail of the
-/// temperature run's plate over the field's p whole TDC periods (at least one)
-/// in N = rail_steps_per_period p + 1 positions, each at its own phase of the
-/// period, and the temperature run),
+/// temperature run's plate over the field's ranges in steps of a TDC period /
+/// rail_steps_per_period, at least one period long, and the temperature run),
 /// then repeats of the plates at the plan's distance on `power_ons` other
 /// seeds at the same time after their power-on. The paper's protocol: the plan
 /// with single_distance and the temperature run only.
