@@ -736,5 +736,42 @@ TEST(PeriodicStep, AddsItsFourierSeriesInTheTimeOfFlight) {
   EXPECT_THROW((void)FixedPointChain::from_pipeline(p, FixedPointFormat{}), std::invalid_argument);
 }
 
+// At both stops the series is the TDC's error at a stop: the time of flight
+// (the rising edge's stop) gets C(tof), the pulse width (the falling edge's
+// stop less the rising one's) C(tof + width) - C(tof), and a gray-value step
+// after it reads the corrected width (closed form: one harmonic, a linear
+// gray value). Old model files (no "stops") keep the rising stop alone.
+TEST(PeriodicStep, AtBothStopsCorrectsTheWidthTheLaterStepsRead) {
+  const double period = 5.0, a1 = 0.001, slope_m_per_ns = 0.02;
+  const double mpn = metres_per_ns(TimeToDistance{});
+  Pipeline p;
+  p.add_step(make_periodic_step(period, {a1, 0.0}, true));
+  PiecewiseLinear g;
+  g.x0 = 4.0;
+  g.slope0 = slope_m_per_ns;
+  p.add_step(make_grayvalue_step(g, {0.0, 20.0}));
+  RawMeasurement raw;
+  raw.shots_valid = 100;
+  raw.amplitude = 1.0;
+  raw.temperature_c = 25.0;
+  raw.tof_ns = 20.0;          // phase 0: C = a1
+  raw.pulse_width_ns = 6.25;  // the fall a quarter period on: C = 0
+  const double rise = a1, fall = 0.0;
+  const double width = raw.pulse_width_ns + (fall - rise) / mpn;
+  EXPECT_NEAR(p.apply(raw).distance_m, 20.0 * mpn + rise + slope_m_per_ns * (width - 4.0), 1e-12);
+  // No width: the rising stop alone.
+  raw.pulse_width_ns = kNaN;
+  Pipeline alone;
+  alone.add_step(make_periodic_step(period, {a1, 0.0}, true));
+  EXPECT_NEAR(alone.apply(raw).distance_m, 20.0 * mpn + a1, 1e-12);
+  // The model file keeps it; an old one (no "stops") reads the rising stop only.
+  nlohmann::json j = io::pipeline_to_json(p);
+  EXPECT_TRUE(io::pipeline_from_json(j, "model.json").steps()[0].both_stops);
+  j["steps"][0].erase("stops");
+  EXPECT_FALSE(io::pipeline_from_json(j, "model.json").steps()[0].both_stops);
+  j["steps"][0]["stops"] = "fall";
+  EXPECT_THROW((void)io::pipeline_from_json(j, "model.json"), std::runtime_error);
+}
+
 }  // namespace
 }  // namespace tofkit::ranging

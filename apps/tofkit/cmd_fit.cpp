@@ -358,9 +358,10 @@ const bool registered = register_command("fit", [](CLI::App& sub, AppContext& ct
                "chain: refine the grayvalue step by a dense penalized piecewise-linear correction "
                "in pulse width (nodes at quantiles; count and smoothing by grouped 5-fold CV)");
   sub.add_flag("--tdc-periodic", o->tdc_periodic,
-               "fit a periodic step in the time of flight modulo the TDC's coarse clock period "
-               "(1e3 / tdc.coarse_clock_mhz of the config): the interpolator's residual "
-               "nonlinearity with a clock-synchronous laser; harmonics by grouped CV");
+               "fit a periodic step modulo the TDC's coarse clock period (1e3 / "
+               "tdc.coarse_clock_mhz of the config), at both stops (tof and tof + pulse width): "
+               "the interpolator's residual nonlinearity with a clock-synchronous laser; "
+               "harmonics by grouped CV");
   sub.add_option("--knots", o->knots,
                  "bspline: knot intervals per axis, RxA[xT], or auto (chosen by generalized "
                  "cross-validation)")

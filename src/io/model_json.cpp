@@ -155,6 +155,8 @@ json step_to_json(const ranging::Step& step) {
       j["input"] = "tof_ns";
       j["period_ns"] = step.period_ns;
       j["harmonics_m"] = step.harmonics_m;
+      // Models before it had none: the rising edge's stop only.
+      if (step.both_stops) j["stops"] = "rise_and_fall";
       break;
   }
   j["fit"] = fit_to_json(step.fit);
@@ -245,6 +247,12 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
     case ranging::StepKind::kPeriodic:
       step.period_ns = number(j, "period_ns", where);
       step.harmonics_m = numbers(j, "harmonics_m", where);
+      if (j.contains("stops")) {
+        const std::string stops = text(j, "stops", where);
+        if (stops != "rise" && stops != "rise_and_fall")
+          fail(where + ".stops", "expected \"rise\" or \"rise_and_fall\"");
+        step.both_stops = stops == "rise_and_fall";
+      }
       break;
   }
   step.fit = fit_from_json(j, where);

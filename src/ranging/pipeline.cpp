@@ -334,11 +334,12 @@ Step make_walk_step(std::shared_ptr<const WalkModel> walk, InputDomain pulse_wid
   return step;
 }
 
-Step make_periodic_step(double period_ns, std::vector<double> harmonics_m) {
+Step make_periodic_step(double period_ns, std::vector<double> harmonics_m, bool both_stops) {
   Step step;
   step.kind = StepKind::kPeriodic;
   step.period_ns = period_ns;
   step.harmonics_m = std::move(harmonics_m);
+  step.both_stops = both_stops;
   return step;
 }
 
@@ -480,8 +481,16 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
           add_walk(*step.walk, step.domain, metres_per_ns_, b, n);
           break;
         case StepKind::kPeriodic:
-          for (std::size_t i = 0; i < n; ++i)
-            b.distance[i] += periodic_correction(step.period_ns, step.harmonics_m, b.tof[i]);
+          for (std::size_t i = 0; i < n; ++i) {
+            const double rise = periodic_correction(step.period_ns, step.harmonics_m, b.tof[i]);
+            b.distance[i] += rise;
+            if (!step.both_stops) continue;
+            // The falling edge's stop: the width the later steps read.
+            const double fall =
+                periodic_correction(step.period_ns, step.harmonics_m, b.tof[i] + b.pulse_width[i]);
+            if (std::isfinite(b.pulse_width[i])) b.pulse_width[i] += (fall - rise) / metres_per_ns_;
+            b.tof[i] += rise / metres_per_ns_;
+          }
           break;
       }
     }
@@ -548,8 +557,9 @@ std::string Pipeline::summary() const {
                                                  : " (range, amplitude)");
         break;
       case StepKind::kPeriodic:
-        out << " in tof modulo " << format_number(step.period_ns) << " ns, "
-            << step.harmonics_m.size() / 2 << " harmonic(s)";
+        out << (step.both_stops ? " at both stops (tof and tof + pulse width)" : " in tof")
+            << " modulo " << format_number(step.period_ns) << " ns, " << step.harmonics_m.size() / 2
+            << " harmonic(s)";
         break;
     }
     if (step.fit.rows > 0) {

@@ -83,11 +83,12 @@ struct ModelFitOptions {
   bool refine_walk = false;
   /// > 0: the TDC's coarse clock period (1e3 / tdc.coarse_clock_mhz). With the
   /// laser fired on the clock, the interpolator's residual nonlinearity leaves
-  /// a range error periodic in the time of flight; a periodic step (Fourier
-  /// series in tof_ns modulo the period, 0-8 harmonics chosen by grouped
-  /// cross-validation) is fitted in front of the chain / surface by
-  /// backfitting. Needs targets whose stops cover the period's phases (the
-  /// walk spreads them). 0: none.
+  /// an error periodic in each stop's time; a periodic step at both stops
+  /// (Fourier series modulo the period, 0-16 harmonics chosen by grouped
+  /// cross-validation, correcting tof_ns and pulse_width_ns) is fitted in
+  /// front of the chain / surface by backfitting, on the rows that kept 98 %
+  /// of the most shots any row kept.
+  /// Needs targets whose stops cover the period's phases (a rail). 0: none.
   double tdc_period_ns = 0;
   /// Start from this already fitted pipeline instead of fitting a chain (the
   /// surface then fits its residual); exclusive with `chain`. It stays fixed

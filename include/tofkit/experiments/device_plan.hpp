@@ -88,10 +88,13 @@ struct ProtocolOptions {
   /// run); true: every cause (plates at two distances, a rail over the TDC's
   /// period, the temperature run, a stability record, other power-ons).
   bool complete = true;
-  double rail_steps_per_period = 8;  ///< rail distances per TDC period (resolves 3 harmonics)
-  double stability_minutes = 60;     ///< the stability record's length
-  double stability_every_s = 15;     ///< its spacing
-  int power_ons = 2;                 ///< repeats on this many other power-ons
+  /// rail distances per TDC period: as many phases of the period; the echo's
+  /// walk along the rail spreads the stops between them (held-out case 0: 240
+  /// distinct phases of 1000 among the calibration's rows, 11 harmonics chosen)
+  double rail_steps_per_period = 8;
+  double stability_minutes = 60;  ///< the stability record's length
+  double stability_every_s = 15;  ///< its spacing
+  int power_ons = 2;              ///< repeats on this many other power-ons
 };
 
 struct Protocol {

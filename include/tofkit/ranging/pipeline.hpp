@@ -70,11 +70,19 @@ struct Step {
   std::shared_ptr<const CorrectionSurface> surface;  ///< kSurface
   /// kWalk: C = -(c_air / 2) (t_rise(pulse_width_ns) - t_rise(reference width)).
   std::shared_ptr<const WalkModel> walk;
-  /// kPeriodic: C = sum_h a_h cos(2 pi h t / T) + b_h sin(2 pi h t / T), t =
-  /// tof_ns, T = period_ns; harmonics_m = {a_1, b_1, a_2, b_2, ...} in m. A row
-  /// without a finite tof_ns gets no periodic correction.
+  /// kPeriodic: C(t) = sum_h a_h cos(2 pi h t / T) + b_h sin(2 pi h t / T),
+  /// T = period_ns; harmonics_m = {a_1, b_1, a_2, b_2, ...} in m. The range
+  /// gets C(tof_ns). With both_stops, C is the TDC's error at a stop (its
+  /// interpolator's nonlinearity, periodic in the stop's time with the laser
+  /// fired on its clock), corrected at both stops of the echo: the time of
+  /// flight (the rising edge's stop) by C(tof_ns), the pulse width (the falling
+  /// edge's stop less the rising one's) by C(tof_ns + pulse_width_ns) -
+  /// C(tof_ns), so that the steps after it read corrected widths. A row
+  /// without a finite tof_ns gets no periodic correction, one without a finite
+  /// width none of its width.
   double period_ns = 0;
   std::vector<double> harmonics_m;
+  bool both_stops = false;
   StepFitInfo fit;
 
   /// Throws std::invalid_argument naming the problem.
@@ -90,7 +98,8 @@ struct Step {
 /// (outside: still corrected by the shape, flagged kCorrOutOfDomain).
 [[nodiscard]] Step make_walk_step(std::shared_ptr<const WalkModel> walk,
                                   InputDomain pulse_width_domain_ns);
-[[nodiscard]] Step make_periodic_step(double period_ns, std::vector<double> harmonics_m);
+[[nodiscard]] Step make_periodic_step(double period_ns, std::vector<double> harmonics_m,
+                                      bool both_stops = false);
 /// The periodic step's correction at time of flight tof_ns (0 when not finite).
 [[nodiscard]] double periodic_correction(double period_ns, const std::vector<double>& harmonics_m,
                                          double tof_ns);
