@@ -633,9 +633,7 @@ FieldFigures field_test(const device::VirtualRangefinder& device, const Calibrat
     // the worst rows' sources).
     std::vector<std::pair<double, std::string>> worst;
     for (const auto& [key, e] : repeats) {
-      double mean = 0;
-      for (double x : e) mean += x;
-      mean /= static_cast<double>(e.size());
+      const double mean = repeats_of(e).mean;
       char line[160];
       std::snprintf(line, sizeof line,
                     "worst target d %.2f rho %.2f T %.0f t %.0f min: mean %.2f mm (%zu rows)\n",
