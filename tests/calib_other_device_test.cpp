@@ -414,10 +414,11 @@ TEST(CalibrationOnOtherParts, CrossFittedSigmaCarriesTheWanderTheCalibrationSpan
 // width, the range axis stays straight) and the folds scored only inside the
 // domain their training rows span (a surface is not applied outside it) must
 // bring the held-out systematic residual within the noise of one row
-// (measured: 0.229 mm against 0.248 mm with the step at both stops, the means'
-// RMS 0.250 mm with their own noise; at the rising stop alone 0.242 mm, range knots at quantiles
-// chosen by cross-validation; 0.241 mm with uniform knots only; one common penalty, folds scored on
-// every row: 0.302 mm).
+// (measured: 0.229 mm against 0.248 mm of noise with the step at both stops.
+// The means' RMS as measured, their own noise in it: 0.250 mm; so measured
+// before, with the step at the rising stop alone: 0.242 mm, range knots at
+// quantiles chosen by cross-validation; 0.241 mm with uniform knots only; one
+// common penalty, folds scored on every row: 0.302 mm).
 TEST(CalibrationOnOtherParts, BSplineWithThePeriodicStepReachesTheNoise) {
   const calib::ModelFitResult fit = fit_grid(false, true, calib::SurfaceIntensity::choose,
                                              calib::ConfidenceKind::calibrated, tdc_period_ns());
