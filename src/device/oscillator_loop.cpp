@@ -66,6 +66,15 @@ std::pair<double, double> crossing(const std::vector<Step>& steps, bool rising, 
   return {-1.0, input};
 }
 
+/// The laser's turn-on transient exp(-t / tau) averaged over an output window
+/// of window_ms starting t0_ms after the switch-on:
+/// exp(-t0 / tau) (1 - exp(-W / tau)) / (W / tau); 0 past 30 tau.
+double turn_on_window_mean(double t0_ms, double window_ms, double tau_ms) {
+  if (!(t0_ms < 30.0 * tau_ms)) return 0.0;
+  const double x = window_ms / tau_ms;
+  return x < 1e-9 ? std::exp(-t0_ms / tau_ms) : std::exp(-t0_ms / tau_ms) * -std::expm1(-x) / x;
+}
+
 }  // namespace
 
 NearTopEdges near_top_edges(double margin_v, double noise_v, double bandwidth_mhz, double high_ns,
@@ -264,10 +273,9 @@ double OscillatorLoop::duty_offset(const Conditions& cond, std::uint64_t seed,
   // A switch-on's unbalance settles as the junction heats (the laser's turn-on
   // time constant): past the transient the loop runs at its settled duty, so a
   // continuous acquisition (thesis Fig. 4.4) shows none of it.
-  const double t0 = std::max(cond.ms_since_laser_on, 0.0);
-  if (!(t0 < 30.0 * tau)) return 0.0;
-  const double x = std::max(window_ms, 0.0) / tau;
-  const double settle = x < 1e-9 ? std::exp(-t0 / tau) : std::exp(-t0 / tau) * -std::expm1(-x) / x;
+  const double settle =
+      turn_on_window_mean(std::max(cond.ms_since_laser_on, 0.0), std::max(window_ms, 0.0), tau);
+  if (settle == 0.0) return 0.0;
   // One draw per switch-on (per second of the session, the run's seed fixes them).
   const double bucket = std::floor(cond.session_time_s / kDutyWanderCorrelationS);
   const auto p = philox(seed, static_cast<std::uint64_t>(std::max(bucket, 0.0)), 0, kLoopBlock + 3);
@@ -312,14 +320,9 @@ ranging::RawMeasurement OscillatorLoop::measure(const Target& target, const Cond
   // b tau / W exp(-t0 / tau) (1 - exp(-W / tau)), as extra round trip.
   double turn_on_ns = 0;
   if (laser.turn_on_bias_mm != 0 && laser.turn_on_time_constant_ms > 0) {
-    const double tau = laser.turn_on_time_constant_ms;
-    const double t0 = cond.ms_since_laser_on;
-    if (t0 < 30.0 * tau) {
-      const double x = window_ms / tau;
-      const double mean =
-          x < 1e-9 ? std::exp(-t0 / tau) : std::exp(-t0 / tau) * (-std::expm1(-x)) / x;
-      turn_on_ns = 2.0 * laser.turn_on_bias_mm * mean * 1e-3 / c_nominal_m_per_ns_;
-    }
+    const double mean =
+        turn_on_window_mean(cond.ms_since_laser_on, window_ms, laser.turn_on_time_constant_ms);
+    turn_on_ns = 2.0 * laser.turn_on_bias_mm * mean * 1e-3 / c_nominal_m_per_ns_;
   }
   // The laser gated by the counting window: the chip's cold share over the gate
   // shortens the turn-on delay (oscillator.chip_bias_mm, as extra round trip).
