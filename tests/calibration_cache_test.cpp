@@ -32,11 +32,7 @@ using tofkit::test::ScopedEnv;
 namespace {
 
 fs::path fresh_dir(const std::string& name) {
-  const fs::path dir =
-      fs::temp_directory_path() / ("tofkit_cache_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
+  return tofkit::test::fresh_dir("tofkit_cache_", name);
 }
 
 std::map<std::string, std::string> files_of(const fs::path& dir) {

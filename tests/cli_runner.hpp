@@ -64,6 +64,16 @@ inline std::string read_file(const std::filesystem::path& file) {
   return s.str();
 }
 
+/// An empty directory `<prefix><name>_<pid>` under the system's temporary one
+/// (emptied if a previous run left it).
+inline std::filesystem::path fresh_dir(const std::string& prefix, const std::string& name) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / (prefix + name + "_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
 /// `tofkit <args>` through the shell with working directory `dir`, stdout
 /// redirected to `out` and stderr to `err` (relative paths are in `dir`), both
 /// read back afterwards.

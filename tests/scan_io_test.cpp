@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "cli_runner.hpp"
 #include "tofkit/io/scene_file.hpp"
 
 namespace fs = std::filesystem;
@@ -25,18 +26,7 @@ namespace {
 const fs::path kScenes = fs::path(TOFKIT_REFERENCE_DIR).parent_path() / "examples" / "scenes";
 
 fs::path fresh_dir(const std::string& name) {
-  const fs::path dir =
-      fs::temp_directory_path() / ("tofkit_scan_io_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
+  return tofkit::test::fresh_dir("tofkit_scan_io_", name);
 }
 
 int run(const std::string& command) {
@@ -276,7 +266,8 @@ TEST(ScanIo, OutputsThatAreInputsLinksOrDirectoriesAreRefusedWritingNothing) {
                                 " --pattern raster --y 0,0.1 --z 0 " + shots + " --out " +
                                 out.string() + " 2> " + (dir / "err.txt").string();
     const int status = std::system(command.c_str());
-    return std::pair{WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(dir / "err.txt")};
+    return std::pair{WIFEXITED(status) ? WEXITSTATUS(status) : -1,
+                     tofkit::test::read_file(dir / "err.txt")};
   };
   auto only = [&](const std::string& name) {
     std::vector<std::string> names;
@@ -288,7 +279,7 @@ TEST(ScanIo, OutputsThatAreInputsLinksOrDirectoriesAreRefusedWritingNothing) {
   auto [status, said] = scan(out / "scan.csv", "--shots 10");
   EXPECT_EQ(status, 1);
   EXPECT_NE(said.find("scan.csv': it is the input file"), std::string::npos) << said;
-  EXPECT_EQ(slurp(out / "scan.csv"), plane);
+  EXPECT_EQ(tofkit::test::read_file(out / "scan.csv"), plane);
   EXPECT_TRUE(only("scan.csv"));
 
   const fs::path scene = write_scene(dir, plane);
@@ -329,7 +320,9 @@ TEST(ScanIo, SameBytesOnOneAndTwoThreads) {
   std::size_t files = 0;
   for (const auto& entry : fs::directory_iterator(a)) {
     ++files;
-    EXPECT_EQ(slurp(entry.path()), slurp(b / entry.path().filename())) << entry.path().filename();
+    EXPECT_EQ(tofkit::test::read_file(entry.path()),
+              tofkit::test::read_file(b / entry.path().filename()))
+        << entry.path().filename();
   }
   EXPECT_EQ(files, 14u);  // csv, 3 x (png, json, npy) (sigma: calibrated), ply, pcd, las, view
   fs::remove_all(a);
@@ -378,10 +371,10 @@ print(n)
   const std::string cmd = "/usr/bin/python3 " + (dir / "check.py").string() + " " + dir.string() +
                           " > " + (dir / "count.txt").string();
   ASSERT_EQ(std::system(cmd.c_str()), 0) << "Open3D / Pillow check failed";
-  const long n = std::stol(slurp(dir / "count.txt"));
+  const long n = std::stol(tofkit::test::read_file(dir / "count.txt"));
 
   // LAS 1.2 public header block, read at the specification's byte offsets.
-  const std::string las = slurp(dir / "points.las");
+  const std::string las = tofkit::test::read_file(dir / "points.las");
   ASSERT_GE(las.size(), 227u);
   EXPECT_EQ(las.substr(0, 4), "LASF");
   EXPECT_EQ(las[24], 1);
