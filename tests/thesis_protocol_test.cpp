@@ -138,7 +138,8 @@ TEST(ThesisProtocol, RawErrorIsOfTheThesisOrder) {
 
 TEST(ThesisProtocol, HeldOutStatisticsAreConsistent) {
   const auto& r = result();
-  ASSERT_EQ(r.rows.size(), 2 + r.options.polynomial_orders.size());
+  // raw, the polynomials, the B-spline and the B-spline with the sensor's temperature term.
+  ASSERT_EQ(r.rows.size(), 3 + r.options.polynomial_orders.size());
   std::vector<double> raw, spline, poly;
   for (const auto& t : r.test_rows) {
     raw.push_back(t.raw_error_m);
@@ -240,6 +241,77 @@ TEST(ThesisProtocol, CalibratedConfidenceCoversHeldOutData) {
   // The thesis's metric is reported on the same rows.
   EXPECT_EQ(thesis.within_2_sigma.rows, cal.within_2_sigma.rows);
   EXPECT_GT(thesis.mean_sigma_m, 0.0);
+}
+
+TEST(ThesisProtocol, TheSensorsTemperatureTermCoversTheWarmerSession) {
+  // The default test scan is a session 8 C warmer than the training (thesis
+  // Section 4.4); the calibrated sigma saw one session only.
+  const auto& r = result();
+  const auto& o = r.options;
+  // Oracle 1: the row is the B-spline's residual less the drift range's centre
+  // times the sensor's departure from the training scan's mean reading,
+  // recomputed here from the records.
+  double sum = 0;
+  std::size_t n = 0;
+  for (const auto& rec : r.training) {
+    if (rec.raw.has_echo() && std::isfinite(rec.raw.amplitude)) {
+      sum += rec.raw.temperature_c;
+      ++n;
+    }
+  }
+  const double reference_c = sum / double(n);
+  const double slope_m_per_c =
+      0.5 * (o.temperature_drift_min_in_per_10c + o.temperature_drift_max_in_per_10c) * 0.0254 /
+      10.0;
+  std::vector<double> residual;
+  std::size_t k = 0;
+  for (const auto& rec : r.test) {
+    if (!rec.raw.has_echo() || !std::isfinite(rec.raw.amplitude)) continue;
+    residual.push_back(r.test_rows[k++].bspline_error_m -
+                       slope_m_per_c * (rec.raw.temperature_c - reference_c));
+  }
+  ASSERT_EQ(residual.size(), r.test_rows.size());
+  EXPECT_NEAR(rms(residual), r.row("bspline_temp").test.rms_m, 1e-9);
+  // Oracle 2: the same protocol with the test taken at the training's
+  // temperature (same seed, so the same chart points and noise draws). The
+  // sensor reads the session's 8 C, and what the term leaves is the drift
+  // range's centre against the preset's own tempco (-6.67 ps/C of round trip,
+  // 0.39 in per 10 C) over those 8 C, to the sensor's 0.0625 C steps.
+  auto same_session = test_options();
+  same_session.test_ambient_offset_c = 0.0;
+  same_session.test_temperature_offsets_c = {};
+  const auto one = run_thesis_protocol(accurange(), same_session, 2024);
+  const double tempco_m_per_c =
+      -accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0;
+  const double left_m = (tempco_m_per_c - slope_m_per_c) * o.test_ambient_offset_c;
+  const auto& spline = r.row("bspline").test;
+  const auto& temp = r.row("bspline_temp").test;
+  EXPECT_GT(std::abs(spline.bias_m), inches_to_m(0.2));  // the session's bias is there
+  EXPECT_NEAR(temp.bias_m, one.row("bspline").test.bias_m + left_m, 0.5e-3);
+  EXPECT_LT(std::abs(temp.bias_m), std::abs(spline.bias_m) / 5);
+  // Coverage: the calibrated sigma alone misses the session; with the slope's
+  // type B uncertainty over the same departure it covers 93-97 % within 2 sigma.
+  const auto& cal = r.coverage_of("calibrated");
+  const auto& cal_t = r.coverage_of("calibrated_temp");
+  EXPECT_LT(cal.within_2_sigma.share, 0.85);
+  if (sanitized()) {
+    EXPECT_NEAR(cal_t.within_2_sigma.share, 0.95, 0.04);
+    return;
+  }
+  EXPECT_GE(cal_t.within_2_sigma.share, 0.93);
+  EXPECT_LE(cal_t.within_2_sigma.share, 0.97);
+  for (int t = 0; t < 3; ++t) EXPECT_GE(cal_t.within_2_sigma.tercile_share[t], 0.93) << t;
+  // Switched off, neither row appears.
+  auto off = test_options();
+  off.temperature_drift_min_in_per_10c = off.temperature_drift_max_in_per_10c = 0.0;
+  off.test_temperature_offsets_c = {};
+  const auto plain = run_thesis_protocol(accurange(), off, 2024);
+  EXPECT_EQ(plain.rows.size(), r.rows.size() - 1);
+  EXPECT_THROW((void)plain.coverage_of("calibrated_temp"), std::out_of_range);
+  EXPECT_EQ(plain.row("bspline").test.rms_m, spline.rms_m);
+  ThesisProtocolOptions bad;
+  bad.temperature_drift_min_in_per_10c = 0.7;  // above the max
+  EXPECT_THROW((void)run_thesis_protocol(accurange(), bad, 1), std::invalid_argument);
 }
 
 TEST(ThesisProtocol, PlotDataAndSummary) {

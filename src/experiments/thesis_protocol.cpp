@@ -73,6 +73,7 @@ Scan scan_chart(const device::VirtualRangefinder& device, const ThesisProtocolOp
 struct Columns {
   std::vector<std::size_t> index;                            // into the scan
   std::vector<double> range_m, amplitude, truth_m, error_m;  // error = true - measured
+  std::vector<double> temperature_c;                         // the unit's sensor
   [[nodiscard]] calib::SurfaceInputs inputs() const { return {range_m, amplitude, {}}; }
 };
 
@@ -86,8 +87,53 @@ Columns columns_of(const std::vector<ranging::Record>& records) {
     c.amplitude.push_back(r.raw.amplitude);
     c.truth_m.push_back(r.truth.distance_m);
     c.error_m.push_back(r.truth.distance_m - r.raw.distance_raw_m);
+    c.temperature_c.push_back(r.raw.temperature_c);
   }
   return c;
+}
+
+/// The sensor's temperature term (ThesisProtocolOptions::temperature_drift_*): the
+/// drift range's centre as a slope, its rectangular standard uncertainty, both in
+/// m of range per C (the range falls as the temperature rises, so the correction
+/// true - measured rises), and the training scan's mean reading it is counted from.
+struct TemperatureTerm {
+  double slope_m_per_c = 0, u_slope_m_per_c = 0, reference_c = 0;
+
+  /// true - measured added by a reading of t_c (0 for a missing reading).
+  [[nodiscard]] double correction_m(double t_c) const {
+    return std::isfinite(t_c) ? slope_m_per_c * (t_c - reference_c) : 0.0;
+  }
+  /// Its standard uncertainty from the slope's (a missing reading: the slope is unknown, 0).
+  [[nodiscard]] double u_m(double t_c) const {
+    return std::isfinite(t_c) ? u_slope_m_per_c * std::abs(t_c - reference_c) : 0.0;
+  }
+};
+
+TemperatureTerm temperature_term(const ThesisProtocolOptions& o, const Columns& training) {
+  TemperatureTerm t;
+  const double per_in_per_10c = kMetersPerInch / 10.0;
+  t.slope_m_per_c = 0.5 *
+                    (o.temperature_drift_min_in_per_10c + o.temperature_drift_max_in_per_10c) *
+                    per_in_per_10c;
+  t.u_slope_m_per_c = 0.5 *
+                      (o.temperature_drift_max_in_per_10c - o.temperature_drift_min_in_per_10c) /
+                      std::sqrt(3.0) * per_in_per_10c;
+  std::vector<double> readings;
+  for (const double c : training.temperature_c) {
+    if (std::isfinite(c)) readings.push_back(c);
+  }
+  t.reference_c = readings.empty() ? 0.0 : sample_stats(readings).mean;
+  return t;
+}
+
+/// Residuals after the temperature term: residual - correction(reading).
+std::vector<double> minus_temperature(const std::vector<double>& residual, const Columns& c,
+                                      const TemperatureTerm& t) {
+  std::vector<double> out(residual.size());
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    out[i] = residual[i] - t.correction_m(c.temperature_c[i]);
+  }
+  return out;
 }
 
 /// Residuals true - (measured + correction); counts rows clamped to the domain.
@@ -162,6 +208,10 @@ void ThesisProtocolOptions::validate() const {
     if (order < 1 || order > 12) fail("polynomial_orders must be in 1..12");
   }
   if (!(rcond >= 0 && rcond < 1)) fail("rcond must be in [0, 1)");
+  if (!(temperature_drift_min_in_per_10c >= 0 &&
+        temperature_drift_max_in_per_10c >= temperature_drift_min_in_per_10c &&
+        temperature_drift_max_in_per_10c <= 100.0))
+    fail("temperature_drift_min/max_in_per_10c must satisfy 0 <= min <= max <= 100");
   bspline.validate();
   calibrated_confidence.validate();
   if (grid_range_nodes < 2 || grid_amplitude_nodes < 2) fail("grid nodes must be >= 2");
@@ -243,6 +293,16 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
   const auto bspline_residual =
       residuals(*result.bspline, held, &bspline_row.test_rows_out_of_domain);
   add_row(bspline_row, result.bspline_fit, bspline_residual);
+  // Beyond the thesis: the sensor's temperature term on the B-spline.
+  const bool with_temperature = options.temperature_drift_max_in_per_10c > 0;
+  const TemperatureTerm temp = temperature_term(options, train);
+  const auto temperature_residual = minus_temperature(bspline_residual, held, temp);
+  if (with_temperature) {
+    ThesisModelRow row;
+    row.model = "bspline_temp";
+    row.test_rows_out_of_domain = bspline_row.test_rows_out_of_domain;
+    add_row(row, result.bspline_fit, temperature_residual);
+  }
 
   // Section 4.8 (relative error roughly constant in range), in-sample like the thesis.
   {
@@ -282,6 +342,22 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
     row.within_1_sigma = calib::coverage(bspline_residual, *sigma, held.amplitude, 1.0, terciles);
     row.within_2_sigma = calib::coverage(bspline_residual, *sigma, held.amplitude, 2.0, terciles);
     row.mean_sigma_m = sample_stats(*sigma).mean;
+    result.coverage.push_back(row);
+  }
+  if (with_temperature) {
+    // The calibrated sigma saw one session's temperature; the slope's own
+    // uncertainty over the test's departure from it adds in quadrature.
+    std::vector<double> sigma(held.range_m.size());
+    for (std::size_t i = 0; i < sigma.size(); ++i) {
+      sigma[i] = std::hypot(sigma_calibrated[i], temp.u_m(held.temperature_c[i]));
+    }
+    ThesisCoverageRow row;
+    row.model = "calibrated_temp";
+    row.within_1_sigma =
+        calib::coverage(temperature_residual, sigma, held.amplitude, 1.0, terciles);
+    row.within_2_sigma =
+        calib::coverage(temperature_residual, sigma, held.amplitude, 2.0, terciles);
+    row.mean_sigma_m = sample_stats(sigma).mean;
     result.coverage.push_back(row);
   }
 
@@ -327,7 +403,9 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
     row.offset_c = offset;
     row.raw = calib::error_stats(w.error_m);
     row.best_polynomial = calib::error_stats(residuals(*result.best_polynomial, w));
-    row.bspline = calib::error_stats(residuals(*result.bspline, w));
+    const auto w_residual = residuals(*result.bspline, w);
+    row.bspline = calib::error_stats(w_residual);
+    row.bspline_temperature = calib::error_stats(minus_temperature(w_residual, w, temp));
     result.temperature.push_back(row);
   }
 
@@ -480,11 +558,11 @@ std::string ThesisProtocolResult::summary() const {
                 test.size(), m_to_inches(options.test_distance_m), test_rows_without_echo);
   out += line;
   out +=
-      "  model     bias [in]  variance [in^2]  RMS [in]  RMS impr. [%]  |  thesis: bias  "
+      "  model         bias [in]  variance [in^2]  RMS [in]  RMS impr. [%]  |  thesis: bias  "
       "variance   RMS   impr.\n";
   for (const auto& r : rows) {
     const double in2 = kMetersPerInch * kMetersPerInch;
-    std::snprintf(line, sizeof line, "  %-8s %10.4f %16.5f %9.4f %14.1f", r.model.c_str(),
+    std::snprintf(line, sizeof line, "  %-12s %10.4f %16.5f %9.4f %14.1f", r.model.c_str(),
                   m_to_inches(r.test.bias_m), r.test.variance_m2 / in2, m_to_inches(r.test.rms_m),
                   r.model == "raw" ? 0.0 : r.rms_improvement_pct);
     out += line;
@@ -502,13 +580,15 @@ std::string ThesisProtocolResult::summary() const {
   std::snprintf(line, sizeof line, "  best polynomial: order %d\n", best_polynomial_order);
   out += line;
   out +=
-      "  confidence on the test scan (B-spline correction), share within k sigma:\n"
-      "    model        1 sigma  2 sigma  2 sigma by intensity tercile (low mid high)  "
+      "  confidence on the test scan (B-spline correction; thesis and calibrated saw the\n"
+      "  training's temperature only, calibrated_temp adds the sensor's term), share\n"
+      "  within k sigma:\n"
+      "    model            1 sigma  2 sigma  2 sigma by intensity tercile (low mid high)  "
       "mean sigma [in]\n";
   for (const auto& c : coverage) {
     const auto& t = c.within_2_sigma.tercile_share;
     std::snprintf(line, sizeof line,
-                  "    %-11s %7.1f%% %7.1f%%   %6.1f%% %6.1f%% %6.1f%%  %24.4f\n", c.model.c_str(),
+                  "    %-15s %7.1f%% %7.1f%%   %6.1f%% %6.1f%% %6.1f%%  %24.4f\n", c.model.c_str(),
                   100 * c.within_1_sigma.share, 100 * c.within_2_sigma.share, 100 * t[0],
                   100 * t[1], 100 * t[2], m_to_inches(c.mean_sigma_m));
     out += line;
@@ -526,13 +606,15 @@ std::string ThesisProtocolResult::summary() const {
     out +=
         "  test scan taken warmer than the training (thesis Section 4.4: temperature not\n"
         "  constant between scans, range falls 0.25-0.60 in per 10 C), bias / RMS [in]:\n"
-        "    warmer by   raw               best poly         bspline\n";
+        "    warmer by   raw               best poly         bspline           bspline_temp\n";
     for (const auto& t : temperature) {
       std::snprintf(line, sizeof line,
-                    "    %5.1f C   %7.4f / %6.4f  %7.4f / %6.4f  %7.4f / %6.4f\n", t.offset_c,
-                    m_to_inches(t.raw.bias_m), m_to_inches(t.raw.rms_m),
+                    "    %5.1f C   %7.4f / %6.4f  %7.4f / %6.4f  %7.4f / %6.4f  %7.4f / %6.4f\n",
+                    t.offset_c, m_to_inches(t.raw.bias_m), m_to_inches(t.raw.rms_m),
                     m_to_inches(t.best_polynomial.bias_m), m_to_inches(t.best_polynomial.rms_m),
-                    m_to_inches(t.bspline.bias_m), m_to_inches(t.bspline.rms_m));
+                    m_to_inches(t.bspline.bias_m), m_to_inches(t.bspline.rms_m),
+                    m_to_inches(t.bspline_temperature.bias_m),
+                    m_to_inches(t.bspline_temperature.rms_m));
       out += line;
     }
   }

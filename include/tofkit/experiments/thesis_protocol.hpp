@@ -71,6 +71,16 @@ struct ThesisProtocolOptions {
   /// per 10 C. The test scan is repeated this many degrees warmer than the
   /// training (each a separate scan) and corrected with the same models.
   std::vector<double> test_temperature_offsets_c{5.0, 10.0};
+  /// tofkit beyond the thesis (its future work: "include temperature in the
+  /// model"): the unit's temperature sensor reads every point, and the thesis's
+  /// Section 4.4 drift, the range falling 0.25-0.60 in per 10 C, is a type B
+  /// input. Its centre corrects the B-spline's ranges by the sensor's departure
+  /// from the training scan's mean reading (model row "bspline_temperature");
+  /// the standard uncertainty of a rectangular distribution over the range,
+  /// half-width / sqrt(3), times that departure adds to the calibrated sigma in
+  /// quadrature (coverage row "calibrated_temperature"). Both 0: no such term.
+  double temperature_drift_min_in_per_10c = 0.25;
+  double temperature_drift_max_in_per_10c = 0.60;
   std::vector<int> polynomial_orders{3, 4, 5, 6};  ///< thesis Fig. 4.18
   /// Thesis: S of A^T A divided by its first entry, below 1e-2 zeroed (calib::kThesisRcond).
   double rcond = calib::kThesisRcond;
@@ -90,9 +100,9 @@ struct ThesisProtocolOptions {
 
 /// One row of the thesis's Fig. 4.18 table, on the held-out test scan.
 struct ThesisModelRow {
-  std::string model;                            ///< "raw", "poly3" .. "poly6", "bspline"
-  int order = 0;                                ///< polynomial order (0 for raw and bspline)
-  calib::ErrorStats test;                       ///< error = true - corrected
+  std::string model;       ///< "raw", "poly3" .. "poly6", "bspline", "bspline_temp"
+  int order = 0;           ///< polynomial order (0 for raw and bspline)
+  calib::ErrorStats test;  ///< error = true - corrected
   double bias_improvement_pct = ranging::kNaN;  ///< of |bias| against raw
   double rms_improvement_pct = ranging::kNaN;
   double training_rms_m = ranging::kNaN;  ///< fit residual on the training scan
@@ -121,11 +131,12 @@ struct ThesisGreyRow {
 struct ThesisTemperatureRow {
   double offset_c = 0;  ///< test scan ambient minus training ambient
   calib::ErrorStats raw, best_polynomial, bspline;
+  calib::ErrorStats bspline_temperature;  ///< with the sensor's temperature term
 };
 
 /// How well a confidence model's sigma describes the test residuals.
 struct ThesisCoverageRow {
-  std::string model;  ///< "thesis" or "calibrated"
+  std::string model;  ///< "thesis", "calibrated" or "calibrated_temp"
   calib::Coverage within_1_sigma;
   calib::Coverage within_2_sigma;
   double mean_sigma_m = ranging::kNaN;
@@ -160,7 +171,7 @@ struct ThesisProtocolResult {
   std::vector<ranging::Record> test;        ///< the held-out scan at test_distance_m
   std::vector<int> training_grey, confidence_grey, test_grey;  ///< grey level per record
 
-  std::vector<ThesisModelRow> rows;  ///< raw, poly orders, bspline (Fig. 4.18)
+  std::vector<ThesisModelRow> rows;  ///< raw, poly orders, bspline(_temp) (Fig. 4.18)
   int best_polynomial_order = 0;     ///< lowest held-out RMS
   std::shared_ptr<const calib::CorrectionSurface> best_polynomial;
   std::shared_ptr<const calib::CorrectionSurface> bspline;
@@ -168,7 +179,7 @@ struct ThesisProtocolResult {
 
   std::shared_ptr<const calib::ConfidenceModel> thesis_confidence;
   std::shared_ptr<const calib::ConfidenceModel> calibrated_confidence;
-  std::vector<ThesisCoverageRow> coverage;  ///< "thesis", "calibrated"
+  std::vector<ThesisCoverageRow> coverage;  ///< "thesis", "calibrated", "calibrated_temp"
   /// Section 4.8: RMS / distance of B-spline-corrected ranges per training
   /// distance (thesis: 0.0117, 0.0077, 0.0070, 0.0046 at 15, 17, 20, 22 in).
   std::vector<double> relative_error_by_training_distance;
