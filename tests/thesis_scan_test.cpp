@@ -517,14 +517,17 @@ TEST(ThesisScanFigures, LineScanReproducesFigs423To427AndConfidenceImages) {
   // (no correction of (range, intensity) removes the noise).
   for (const auto& row : r.per_grey)
     EXPECT_LT(row.best_rms_m, std::max(row.raw_rms_m, r.line.noise_limit_m)) << row.grey;
-  // Fig. 4.32: the confidence image covers most of the stripe chart's errors.
-  EXPECT_GE(r.stripe_images.within_2_sigma.share, 0.90);
-  for (const auto* im : {&r.stripe_images, &r.checker_images})
+  // Figs. 4.32-4.33: tofkit's confidence is fitted on line scans of random-grey
+  // charts at the confidence distances, so it has seen the coupling's memory
+  // after every size of grey step (white after black reads up to 1.9 in long),
+  // and covers 93-98 % of both test images' errors within 2 sigma: the stripes
+  // (one grey step at each edge) and the test's own random checkerboard (another
+  // draw). Fitted on stripe scans alone it covered 84-87 % of the checkerboard.
+  for (const auto* im : {&r.stripe_images, &r.checker_images}) {
+    EXPECT_GE(im->within_2_sigma.share, 0.93);
+    EXPECT_LE(im->within_2_sigma.share, 0.98);
     EXPECT_LT(im->within_1_sigma.share, im->within_2_sigma.share);
-  // Fig. 4.33: the confidence, fitted on stripe scans (one grey step at each
-  // edge), covers the checkerboard less: its random steps leave the coupling
-  // further from settled (larger memory errors, lock lost) than any stripe edge.
-  EXPECT_LT(r.checker_images.within_2_sigma.share, r.stripe_images.within_2_sigma.share);
+  }
 }
 
 TEST(ThesisScanFigures, LineScanPixelNoiseIsNotTheScansNorTheSwitchOnsDuty) {

@@ -15,7 +15,7 @@ namespace {
 
 // Salts of the independent random streams.
 constexpr std::uint64_t kTrainingSalt = 1, kConfidenceSalt = 2, kTestSalt = 3, kTestRepeatSalt = 4,
-                        kCheckerSalt = 5, kCheckerRepeatSalt = 6;
+                        kCheckerSalt = 5, kCheckerRepeatSalt = 6, kRandomConfidenceSalt = 7;
 
 /// A chart in the y-z plane at x = distance, with the grey of every cell.
 struct Chart {
@@ -63,15 +63,15 @@ Chart stripe_chart(const LineScanOptions& o, double distance_m) {
 }
 
 /// Random greys on square cells (each cell one of the chart's levels, drawn
-/// counter-based from the seed), one cell of margin around the scanned ones.
-Chart checker_chart(const LineScanOptions& o) {
+/// counter-based from chart_seed), one cell of margin around the scanned ones,
+/// at distance_m.
+Chart checker_chart(const LineScanOptions& o, double distance_m, std::uint64_t chart_seed) {
   Chart c;
   const int n = o.checker_cells, m = n + 2;
   const double cell = o.checker_cell_m;
   std::vector<int> grey(static_cast<std::size_t>(m * m));
   for (int i = 0; i < m * m; ++i) {
-    const auto pick =
-        derive_seed(o.checker_seed, static_cast<std::uint64_t>(i)) % o.grey_levels.size();
+    const auto pick = derive_seed(chart_seed, static_cast<std::uint64_t>(i)) % o.grey_levels.size();
     grey[static_cast<std::size_t>(i)] = o.grey_levels[static_cast<std::size_t>(pick)];
   }
   // Cell (i, j): i along -y (columns), j along -z (lines), margin at 0 and m - 1.
@@ -80,7 +80,7 @@ Chart checker_chart(const LineScanOptions& o) {
       scan::Primitive p;
       p.kind = scan::PrimitiveKind::kPlane;
       p.name = "checker cell";
-      p.center_m = {o.checker_distance_m, (0.5 * (m - 1) - i) * cell, (0.5 * (m - 1) - j) * cell};
+      p.center_m = {distance_m, (0.5 * (m - 1) - i) * cell, (0.5 * (m - 1) - j) * cell};
       p.normal = {-1, 0, 0};
       p.size_m = {cell, cell};
       p.reflectance.value = grey_reflectance(grey[static_cast<std::size_t>(j * m + i)]);
@@ -364,7 +364,8 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
   result.samples_per_line = test_scan.samples_per_line;
   result.records = test_scan.records;
   result.line_test_records = result.records.size();
-  const auto checker_board = checker_chart(options);
+  const auto checker_board =
+      checker_chart(options, options.checker_distance_m, options.checker_seed);
   const auto checker_scan =
       scan_chart(device, options, checker_board, derive_seed(seed, kCheckerSalt));
   const auto checker_repeat =
@@ -413,11 +414,24 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
     result.per_grey.push_back(row);
   }
 
-  // Confidence (Section 4.8): fitted on the confidence scans' residuals, judged
-  // on the test images (Figs. 4.32-4.33).
-  const auto conf_resid = residuals(*result.best_surface, conf);
-  result.confidence = calib::fit_calibrated_confidence({conf.range_m, conf.amplitude, conf_resid},
-                                                       options.confidence);
+  // Confidence (Section 4.8), judged on the test images (Figs. 4.32-4.33).
+  // tofkit's is fitted on the residuals of line scans of random-grey charts at
+  // the confidence distances (other charts than the test's checkerboard): in a
+  // line scan a pixel's error depends on the greys just scanned (the coupling's
+  // memory: white after black reads up to 1.9 in long), and the stripes, whose
+  // neighbours differ by one step, show only the smallest transitions.
+  Pixels random_conf;
+  k = 0;
+  for (const double d : options.confidence_distances_m) {
+    const auto chart = checker_chart(options, d, derive_seed(options.checker_seed, 1000 + k));
+    random_conf.append(
+        scan_chart(device, options, chart, derive_seed(seed, kRandomConfidenceSalt * 100 + k++))
+            .images,
+        chart.pixel_grey);
+  }
+  const auto random_conf_resid = residuals(*result.best_surface, random_conf);
+  result.confidence = calib::fit_calibrated_confidence(
+      {random_conf.range_m, random_conf.amplitude, random_conf_resid}, options.confidence);
   result.stripe_images = chart_images(test_scan.images, test_chart.pixel_grey, *result.best_surface,
                                       *result.confidence);
   result.checker_images = chart_images(checker_scan.images, checker_board.pixel_grey,
@@ -433,6 +447,7 @@ LineScanResult run_line_scan(const device::VirtualRangefinder& device,
     std::shared_ptr<const calib::CorrectionSurface> poly;
     for (const auto& m : models)
       if (m.model == best_poly->model) poly = m.surface;
+    // The thesis's metric on the stripe scans at the confidence distances.
     const auto poly_conf_resid = residuals(*poly, conf);
     calib::ThesisConfidenceOptions thesis_options = options.thesis_confidence;
     thesis_options.floor_m2 = options.thesis_floor_in2 * kMetersPerInch * kMetersPerInch;

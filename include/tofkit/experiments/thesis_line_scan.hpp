@@ -31,7 +31,10 @@ struct LineScanOptions {
   std::vector<double> training_distances_m{inches_to_m(15), inches_to_m(17), inches_to_m(20),
                                            inches_to_m(22)};  ///< thesis Section 4.7
   double test_distance_m = inches_to_m(19);
-  /// Scans used only to fit the confidence model (between training distances, like the test).
+  /// Scans used only to fit the confidence models (between training distances,
+  /// like the test): the thesis's metric on the stripe chart there; tofkit's
+  /// calibrated sigma on random-grey charts there (other draws than the test's
+  /// checkerboard), whose steps of every size show the coupling's memory.
   std::vector<double> confidence_distances_m{inches_to_m(16), inches_to_m(18), inches_to_m(21)};
   double checker_distance_m = inches_to_m(18);  ///< thesis Fig. 4.27
   std::vector<int> grey_levels{kThesisGreyLevels.begin(), kThesisGreyLevels.end()};
