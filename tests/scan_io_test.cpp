@@ -21,6 +21,8 @@
 
 namespace fs = std::filesystem;
 
+using tofkit::test::read_file;
+
 namespace {
 
 const fs::path kScenes = fs::path(TOFKIT_REFERENCE_DIR).parent_path() / "examples" / "scenes";
@@ -266,8 +268,7 @@ TEST(ScanIo, OutputsThatAreInputsLinksOrDirectoriesAreRefusedWritingNothing) {
                                 " --pattern raster --y 0,0.1 --z 0 " + shots + " --out " +
                                 out.string() + " 2> " + (dir / "err.txt").string();
     const int status = std::system(command.c_str());
-    return std::pair{WIFEXITED(status) ? WEXITSTATUS(status) : -1,
-                     tofkit::test::read_file(dir / "err.txt")};
+    return std::pair{WIFEXITED(status) ? WEXITSTATUS(status) : -1, read_file(dir / "err.txt")};
   };
   auto only = [&](const std::string& name) {
     std::vector<std::string> names;
@@ -279,7 +280,7 @@ TEST(ScanIo, OutputsThatAreInputsLinksOrDirectoriesAreRefusedWritingNothing) {
   auto [status, said] = scan(out / "scan.csv", "--shots 10");
   EXPECT_EQ(status, 1);
   EXPECT_NE(said.find("scan.csv': it is the input file"), std::string::npos) << said;
-  EXPECT_EQ(tofkit::test::read_file(out / "scan.csv"), plane);
+  EXPECT_EQ(read_file(out / "scan.csv"), plane);
   EXPECT_TRUE(only("scan.csv"));
 
   const fs::path scene = write_scene(dir, plane);
@@ -320,8 +321,7 @@ TEST(ScanIo, SameBytesOnOneAndTwoThreads) {
   std::size_t files = 0;
   for (const auto& entry : fs::directory_iterator(a)) {
     ++files;
-    EXPECT_EQ(tofkit::test::read_file(entry.path()),
-              tofkit::test::read_file(b / entry.path().filename()))
+    EXPECT_EQ(read_file(entry.path()), read_file(b / entry.path().filename()))
         << entry.path().filename();
   }
   EXPECT_EQ(files, 14u);  // csv, 3 x (png, json, npy) (sigma: calibrated), ply, pcd, las, view
@@ -371,10 +371,10 @@ print(n)
   const std::string cmd = "/usr/bin/python3 " + (dir / "check.py").string() + " " + dir.string() +
                           " > " + (dir / "count.txt").string();
   ASSERT_EQ(std::system(cmd.c_str()), 0) << "Open3D / Pillow check failed";
-  const long n = std::stol(tofkit::test::read_file(dir / "count.txt"));
+  const long n = std::stol(read_file(dir / "count.txt"));
 
   // LAS 1.2 public header block, read at the specification's byte offsets.
-  const std::string las = tofkit::test::read_file(dir / "points.las");
+  const std::string las = read_file(dir / "points.las");
   ASSERT_GE(las.size(), 227u);
   EXPECT_EQ(las.substr(0, 4), "LASF");
   EXPECT_EQ(las[24], 1);

@@ -29,6 +29,8 @@
 namespace fs = std::filesystem;
 using namespace tofkit;
 
+using tofkit::test::read_file;
+
 namespace {
 
 const fs::path kScenes = fs::path(TOFKIT_REFERENCE_DIR).parent_path() / "examples" / "scenes";
@@ -83,23 +85,21 @@ void expect_stream_matches_frame(const scan::Scene& scene, const scan::BeamPatte
   EXPECT_EQ(summary.beams, frame.beams.size());
   EXPECT_EQ(summary.points, points.size());
 
-  EXPECT_EQ(tofkit::test::read_file(dir / "scan.csv"), io::encode_scan_csv(frame, 21.5)) << name;
-  EXPECT_EQ(tofkit::test::read_file(dir / "points.ply"), io::encode_ply(points)) << name;
-  EXPECT_EQ(tofkit::test::read_file(dir / "points.pcd"), io::encode_pcd(points)) << name;
-  EXPECT_EQ(tofkit::test::read_file(dir / "points.las"), io::encode_las(points)) << name;
-  EXPECT_EQ(tofkit::test::read_file(dir / "range_view.png"), io::encode_range_view(images)) << name;
+  EXPECT_EQ(read_file(dir / "scan.csv"), io::encode_scan_csv(frame, 21.5)) << name;
+  EXPECT_EQ(read_file(dir / "points.ply"), io::encode_ply(points)) << name;
+  EXPECT_EQ(read_file(dir / "points.pcd"), io::encode_pcd(points)) << name;
+  EXPECT_EQ(read_file(dir / "points.las"), io::encode_las(points)) << name;
+  EXPECT_EQ(read_file(dir / "range_view.png"), io::encode_range_view(images)) << name;
   const std::pair<const char*, const scan::Image*> planes[] = {{"range", &images.range},
                                                                {"intensity", &images.intensity}};
   for (const auto& [plane, image] : planes) {
     const io::Png16 png = io::encode_png16(*image);
-    EXPECT_EQ(tofkit::test::read_file(dir / (std::string(plane) + ".png")), png.png)
-        << name << ' ' << plane;
-    EXPECT_EQ(tofkit::test::read_file(dir / (std::string(plane) + ".npy")), io::encode_npy(*image))
-        << name;
+    EXPECT_EQ(read_file(dir / (std::string(plane) + ".png")), png.png) << name << ' ' << plane;
+    EXPECT_EQ(read_file(dir / (std::string(plane) + ".npy")), io::encode_npy(*image)) << name;
     std::ostringstream side;
     side.precision(17);
     side << plane << ".png " << png.scale << ' ' << png.offset;
-    EXPECT_EQ(tofkit::test::read_file(dir / (std::string(plane) + ".json")), side.str()) << name;
+    EXPECT_EQ(read_file(dir / (std::string(plane) + ".json")), side.str()) << name;
   }
   EXPECT_FALSE(fs::exists(dir / "sigma.png"));  // no model
   EXPECT_EQ(entries(dir), 11u) << "no working file left: " << name;
@@ -171,17 +171,16 @@ TEST(ScanStream, FewerOutputsGiveTheWholeFrameBytes) {
     const std::string label = fmt::format("{}", fmt::join(outputs, ","));
     if (outputs.count("las")) {
       ++files;
-      EXPECT_EQ(tofkit::test::read_file(dir / "points.las"), io::encode_las(points)) << label;
+      EXPECT_EQ(read_file(dir / "points.las"), io::encode_las(points)) << label;
     }
     if (outputs.count("ply")) {
       ++files;
-      EXPECT_EQ(tofkit::test::read_file(dir / "points.ply"), io::encode_ply(points)) << label;
+      EXPECT_EQ(read_file(dir / "points.ply"), io::encode_ply(points)) << label;
     }
     if (outputs.count("npy")) {
       files += 2;
-      EXPECT_EQ(tofkit::test::read_file(dir / "range.npy"), io::encode_npy(images.range)) << label;
-      EXPECT_EQ(tofkit::test::read_file(dir / "intensity.npy"), io::encode_npy(images.intensity))
-          << label;
+      EXPECT_EQ(read_file(dir / "range.npy"), io::encode_npy(images.range)) << label;
+      EXPECT_EQ(read_file(dir / "intensity.npy"), io::encode_npy(images.intensity)) << label;
     }
     EXPECT_EQ(entries(dir), files) << "no working file left: " << label;
     fs::remove_all(dir);
@@ -291,7 +290,7 @@ TEST(ScanStream, StreamingOutputAppearsOnlyWhenCommitted) {
     EXPECT_FALSE(fs::exists(dir / "a.bin"));
     out.commit();
   }
-  EXPECT_EQ(tofkit::test::read_file(dir / "a.bin"), "hello there");
+  EXPECT_EQ(read_file(dir / "a.bin"), "hello there");
   {
     io::StreamingOutput dropped(dir / "b.bin");
     dropped.append("never");
@@ -317,7 +316,7 @@ TEST(ScanStream, StreamingOutputAppearsOnlyWhenCommitted) {
     out.commit();
     transaction.commit();
   }
-  EXPECT_EQ(tofkit::test::read_file(dir / "d.bin"), "<23456>");
+  EXPECT_EQ(read_file(dir / "d.bin"), "<23456>");
   EXPECT_EQ(entries(dir), 2u);  // a.bin, d.bin: no temporary or working file left
   EXPECT_THROW(io::StreamingOutput(dir / "missing" / "x"), std::runtime_error);
   fs::remove_all(dir);
