@@ -694,6 +694,11 @@ void PrintTo(const HeldOutCase& c, std::ostream* os) {
       << "ps";
 }
 
+/// The held-out devices (issue 34): cases 0-4, indoors and in Table 1
+/// sunlight, with and without the paper's delay wander.
+constexpr HeldOutCase kHeldOutCases[] = {
+    {1, false, 0}, {2, true, 0}, {3, false, 30}, {1, false, 30}, {2, true, 30}};
+
 class HeldOut : public ::testing::TestWithParam<HeldOutCase> {};
 
 // The issue's acceptance, measured (TOFKIT_BUDGET_DEBUG=1 prints the rows
@@ -1040,10 +1045,7 @@ TEST(UncertaintyBudget, PowerOnTermRecoversTheDevicesPowerOnOffset) {
 
 // Named by their place in the list ("case0".."case4", as the comments call
 // them; with PrintTo, ctest's names no longer carry the struct's bytes).
-INSTANTIATE_TEST_SUITE_P(Devices, HeldOut,
-                         ::testing::Values(HeldOutCase{1, false, 0}, HeldOutCase{2, true, 0},
-                                           HeldOutCase{3, false, 30}, HeldOutCase{1, false, 30},
-                                           HeldOutCase{2, true, 30}),
+INSTANTIATE_TEST_SUITE_P(Devices, HeldOut, ::testing::ValuesIn(kHeldOutCases),
                          [](const ::testing::TestParamInfo<HeldOutCase>& info) {
                            return "case" + std::to_string(info.index);
                          });
@@ -1245,9 +1247,9 @@ TEST_F(BudgetCli, TimedRowsCarryTheirTimeSincePowerOnIntoTheDriftTerm) {
 namespace tofkit {
 namespace {
 
-// Diagnosis of coverage per time band (issue 34): held-out case 0 (indoors,
-// no delay wander) calibrated by the planner's protocol (chain) on several
-// power-ons, each tested in the field on its own power-on. Per power-on: the
+// Diagnosis of coverage per time band (issue 34): a held-out case
+// (TOFKIT_CASE, 0-4 as HeldOut's; 0: indoors, no delay wander) calibrated by the planner's protocol
+// (chain) on several power-ons, each tested in the field on its own power-on. Per power-on: the
 // 2-sigma coverage per time band (0 / 20 / 40 / 60 min), the band's mean
 // error (the power-on's drift draw plus the correction's mean residual), the
 // systematic residual per band and the drift term u its stability record gave;
@@ -1255,14 +1257,19 @@ namespace {
 // bands' mean errors against the rms of the drift terms. TOFKIT_POWER_ONS sets
 // their number (8).
 TEST(UncertaintyBudgetDiagnosis, DISABLED_CoverageByTimeBandOverPowerOns) {
-  const device::VirtualRangefinder device(held_out_device(1, false, 0));
+  const int which = std::getenv("TOFKIT_CASE") ? std::atoi(std::getenv("TOFKIT_CASE")) : 0;
+  ASSERT_TRUE(which >= 0 && which < static_cast<int>(std::size(kHeldOutCases)));
+  const HeldOutCase hc = kHeldOutCases[which];
+  const device::VirtualRangefinder device(held_out_device(hc.draw, hc.sunlight, hc.wander_ps));
   const int power_ons =
       std::getenv("TOFKIT_POWER_ONS") ? std::atoi(std::getenv("TOFKIT_POWER_ONS")) : 8;
   const double minutes[4] = {0, 20, 40, 60};
+  const bool bspline = std::getenv("TOFKIT_BSPLINE") != nullptr;
   std::array<double, 4> coverage{}, mean2{}, drift2{}, systematic2{}, mean_sum{};
-  double noise2 = 0;
+  std::array<double, 3> terciles{};
+  double noise2 = 0, overall = 0;
   for (int p = 1; p <= power_ons; ++p) {
-    const Calibrated c = calibrate(device, true, false, static_cast<std::uint64_t>(p));
+    const Calibrated c = calibrate(device, true, bspline, static_cast<std::uint64_t>(p));
     const FieldFigures f = field_test(device, c, static_cast<std::uint64_t>(p));
     std::array<double, 4> u{};
     for (const auto& component : c.budget.budget.components)
@@ -1285,8 +1292,13 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_CoverageByTimeBandOverPowerOns) {
       systematic2[b] += f.systematic_by_time_mm[b] * f.systematic_by_time_mm[b] / power_ons;
     }
     noise2 += f.noise_mm * f.noise_mm / power_ons;
+    overall += f.within_2sigma / power_ons;
+    for (int k = 0; k < 3; ++k) terciles[k] += f.by_tercile[k] / power_ons;
   }
-  std::printf("over %d power-ons, per band (0 / 20 / 40 / 60 min):\n  2-sigma", power_ons);
+  std::printf("over %d power-ons (%s): 2-sigma %.1f %% (terciles %.1f / %.1f / %.1f %%)\n",
+              power_ons, bspline ? "chain + B-spline" : "chain", 100 * overall, 100 * terciles[0],
+              100 * terciles[1], 100 * terciles[2]);
+  std::printf("per band (0 / 20 / 40 / 60 min):\n  2-sigma");
   for (int b = 0; b < 4; ++b) std::printf(" %5.1f", 100 * coverage[b]);
   std::printf(" %%\n  mean error: mean");
   for (int b = 0; b < 4; ++b) std::printf(" %+5.2f", mean_sum[b]);
