@@ -27,6 +27,9 @@ enum class TemperatureTermSource {
 [[nodiscard]] const char* to_string(TemperatureTermSource source);
 
 struct TemperatureTermOptions {
+  /// Not an aggregate: as one, GCC 12 warns (-Wmaybe-uninitialized, a false
+  /// positive) on the vectors of a temporary ThesisProtocolOptions{}.
+  TemperatureTermOptions() = default;
   TemperatureTermSource source = TemperatureTermSource::run;
   /// source run: a separate session (its own power-on and random stream) of
   /// run_temperature (characterization_temperature.hpp) at the protocol's
