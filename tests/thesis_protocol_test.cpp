@@ -73,6 +73,27 @@ double rms(const std::vector<double>& v) {
   return std::sqrt(s / double(v.size()));
 }
 
+/// The temperature term's row recomputed from the test rows: each measured range
+/// moved by the slope times its sensor's departure from `reference_c`, then the
+/// B-spline evaluated there; error = true - corrected.
+std::vector<double> temperature_residuals(const ThesisProtocolResult& r, double reference_c) {
+  std::vector<double> range, amplitude, truth;
+  std::size_t k = 0;
+  for (const auto& rec : r.test) {
+    if (!rec.raw.has_echo() || !std::isfinite(rec.raw.amplitude)) continue;
+    const auto& row = r.test_rows[k++];
+    range.push_back(row.measured_m +
+                    r.temperature_term.slope_m_per_c * (rec.raw.temperature_c - reference_c));
+    amplitude.push_back(row.amplitude);
+    truth.push_back(row.truth_m);
+  }
+  std::vector<double> correction(range.size()), residual(range.size());
+  std::vector<std::uint8_t> outside(range.size());
+  r.bspline->evaluate({range, amplitude, {}}, correction, outside);
+  for (std::size_t i = 0; i < range.size(); ++i) residual[i] = truth[i] - range[i] - correction[i];
+  return residual;
+}
+
 }  // namespace
 
 TEST(ThesisProtocol, ScansAreTheThesisDesignAndIndependent) {
@@ -246,12 +267,33 @@ TEST(ThesisProtocol, CalibratedConfidenceCoversHeldOutData) {
 
 TEST(ThesisProtocol, TheSensorsTemperatureTermCoversTheWarmerSession) {
   // The default test scan is a session 8 C warmer than the training (thesis
-  // Section 4.4); the calibrated sigma saw one session only.
+  // Section 4.4); the calibrated sigma saw one session only. The term's slope is
+  // measured on the device in a temperature run of its own (source run).
   const auto& r = result();
   const auto& o = r.options;
-  // Oracle 1: the row is the B-spline's residual less the drift range's centre
-  // times the sensor's departure from the training scan's mean reading,
-  // recomputed here from the records.
+  const auto& term = r.temperature_term;
+  ASSERT_EQ(term.source, TemperatureTermSource::run);
+  ASSERT_EQ(term.lines.size(),
+            o.temperature_term.run_grey_levels.size() * o.training_distances_m.size());
+  // Oracle 1: the run's slope is the device's delay tempco, c/2 x tempco of
+  // range per degree of the timing board, which the sensor follows one to one
+  // once warmed up (no heater on this unit): range falls, true - measured rises.
+  // Every line within 3 of its standard errors, the mean within 3 of its
+  // uncertainty (plus the sensor's 1/16 C steps' share, 1 %).
+  const double tempco_m_per_c =
+      -accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0;
+  for (const auto& line : term.lines) {
+    EXPECT_NEAR(line.slope_m_per_c, tempco_m_per_c,
+                3 * line.slope_se_m_per_c + 0.01 * tempco_m_per_c)
+        << line.grey << " " << line.distance_m;
+  }
+  EXPECT_NEAR(term.slope_m_per_c, tempco_m_per_c, 3 * term.u_slope_m_per_c + 0.01 * tempco_m_per_c);
+  EXPECT_GT(term.u_slope_m_per_c, 0.0);
+  EXPECT_NEAR(term.u_slope_m_per_c, std::hypot(term.slope_se_m_per_c, term.slope_spread_m_per_c),
+              1e-15);
+  // Oracle 2: the row is the B-spline's residual with each measured range moved
+  // by the slope times the sensor's departure from the training scan's mean
+  // reading before the surface is evaluated, recomputed here from the records.
   double sum = 0;
   std::size_t n = 0;
   for (const auto& rec : r.training) {
@@ -261,37 +303,27 @@ TEST(ThesisProtocol, TheSensorsTemperatureTermCoversTheWarmerSession) {
     }
   }
   const double reference_c = sum / double(n);
-  const double slope_m_per_c =
-      0.5 * (o.temperature_drift_min_in_per_10c + o.temperature_drift_max_in_per_10c) * 0.0254 /
-      10.0;
-  std::vector<double> residual;
-  std::size_t k = 0;
-  for (const auto& rec : r.test) {
-    if (!rec.raw.has_echo() || !std::isfinite(rec.raw.amplitude)) continue;
-    residual.push_back(r.test_rows[k++].bspline_error_m -
-                       slope_m_per_c * (rec.raw.temperature_c - reference_c));
-  }
+  EXPECT_NEAR(term.reference_c, reference_c, 1e-9);
+  const auto residual = temperature_residuals(r, reference_c);
   ASSERT_EQ(residual.size(), r.test_rows.size());
   EXPECT_NEAR(rms(residual), r.row("bspline_temp").test.rms_m, 1e-9);
-  // Oracle 2: the same protocol with the test taken at the training's
+  // Oracle 3: the same protocol with the test taken at the training's
   // temperature (same seed, so the same chart points and noise draws). The
-  // sensor reads the session's 8 C, and what the term leaves is the drift
-  // range's centre against the preset's own tempco (-6.67 ps/C of round trip,
-  // 0.39 in per 10 C) over those 8 C, to the sensor's 0.0625 C steps.
+  // sensor reads the session's 8 C, and what the term leaves is the measured
+  // slope against the preset's own tempco over those 8 C, to the sensor's
+  // 0.0625 C steps.
   auto same_session = test_options();
   same_session.test_ambient_offset_c = 0.0;
   same_session.test_temperature_offsets_c = {};
   const auto one = run_thesis_protocol(accurange(), same_session, 2024);
-  const double tempco_m_per_c =
-      -accurange().config().thermal.delay_tempco_ps_per_c * 1e-12 * 299792458.0 / 2.0;
-  const double left_m = (tempco_m_per_c - slope_m_per_c) * o.test_ambient_offset_c;
+  const double left_m = (tempco_m_per_c - term.slope_m_per_c) * o.test_ambient_offset_c;
   const auto& spline = r.row("bspline").test;
   const auto& temp = r.row("bspline_temp").test;
   EXPECT_GT(std::abs(spline.bias_m), inches_to_m(0.2));  // the session's bias is there
   EXPECT_NEAR(temp.bias_m, one.row("bspline").test.bias_m + left_m, 0.5e-3);
   EXPECT_LT(std::abs(temp.bias_m), std::abs(spline.bias_m) / 5);
   // Coverage: the calibrated sigma alone misses the session; with the slope's
-  // type B uncertainty over the same departure it covers 93-97 % within 2 sigma.
+  // uncertainty over the same departure it covers 93-97 % within 2 sigma.
   const auto& cal = r.coverage_of("calibrated");
   const auto& cal_t = r.coverage_of("calibrated_temp");
   EXPECT_LT(cal.within_2_sigma.share, 0.85);
@@ -304,15 +336,74 @@ TEST(ThesisProtocol, TheSensorsTemperatureTermCoversTheWarmerSession) {
   for (int t = 0; t < 3; ++t) EXPECT_GE(cal_t.within_2_sigma.tercile_share[t], 0.93) << t;
   // Switched off, neither row appears.
   auto off = test_options();
-  off.temperature_drift_min_in_per_10c = off.temperature_drift_max_in_per_10c = 0.0;
+  off.temperature_term.source = TemperatureTermSource::none;
   off.test_temperature_offsets_c = {};
   const auto plain = run_thesis_protocol(accurange(), off, 2024);
   EXPECT_EQ(plain.rows.size(), r.rows.size() - 1);
   EXPECT_THROW((void)plain.coverage_of("calibrated_temp"), std::out_of_range);
   EXPECT_EQ(plain.row("bspline").test.rms_m, spline.rms_m);
   ThesisProtocolOptions bad;
-  bad.temperature_drift_min_in_per_10c = 0.7;  // above the max
+  bad.temperature_term.stated_drift_min_in_per_10c = 0.7;  // above the max
   EXPECT_THROW((void)run_thesis_protocol(accurange(), bad, 1), std::invalid_argument);
+  bad = {};
+  bad.temperature_term.run_ambient_c = {20, 30};  // a line needs three
+  EXPECT_THROW((void)run_thesis_protocol(accurange(), bad, 1), std::invalid_argument);
+}
+
+TEST(ThesisProtocol, TheStatedDriftStillGivesTheThesisTerm) {
+  // Source stated: the thesis's Section 4.4 range, 0.25-0.60 in per 10 C, as a
+  // type B input: its centre as the slope, a rectangular distribution's
+  // half-width / sqrt(3) as its standard uncertainty; no temperature run.
+  auto o = test_options();
+  o.temperature_term.source = TemperatureTermSource::stated;
+  o.test_temperature_offsets_c = {};
+  const auto r = run_thesis_protocol(accurange(), o, 2024);
+  const auto& term = r.temperature_term;
+  EXPECT_EQ(term.source, TemperatureTermSource::stated);
+  EXPECT_TRUE(term.lines.empty());
+  const double in_per_10c = 0.0254 / 10.0;  // m per C
+  EXPECT_NEAR(term.slope_m_per_c, 0.425 * in_per_10c, 1e-15);
+  EXPECT_NEAR(term.u_slope_m_per_c, 0.175 / std::sqrt(3.0) * in_per_10c, 1e-15);
+  // The scans are the default protocol's (same seed): only the term differs.
+  const auto& measured = result();
+  EXPECT_EQ(r.row("bspline").test.rms_m, measured.row("bspline").test.rms_m);
+  EXPECT_NEAR(term.reference_c, measured.temperature_term.reference_c, 1e-12);
+  // The row: the ranges moved by the centre times the departure, then the B-spline.
+  const auto residual = temperature_residuals(r, term.reference_c);
+  EXPECT_NEAR(rms(residual), r.row("bspline_temp").test.rms_m, 1e-9);
+  // The summary names the source used.
+  EXPECT_NE(r.summary().find("source stated"), std::string::npos);
+  EXPECT_NE(measured.summary().find("source run"), std::string::npos);
+}
+
+TEST(ThesisProtocol, TheRunsSlopeCoversADeviceOutsideTheStatedRange) {
+  // A unit whose delay tempco is -15 ps/C (2.25 mm/C, 0.88 in per 10 C: above
+  // the thesis's 0.25-0.60): the stated range under-corrects the warmer session,
+  // the device's own temperature run does not. Oracle: c/2 x the configured
+  // tempco, and the coverage target of the preset.
+  auto config = device::accurange_preset();
+  config.thermal.delay_tempco_ps_per_c = -15.0;
+  const device::VirtualRangefinder steep(config);
+  auto o = test_options();
+  o.test_temperature_offsets_c = {};
+  const auto r = run_thesis_protocol(steep, o, 2024);
+  const double tempco_m_per_c = 15.0e-12 * 299792458.0 / 2.0;
+  EXPECT_NEAR(r.temperature_term.slope_m_per_c, tempco_m_per_c,
+              3 * r.temperature_term.u_slope_m_per_c + 0.01 * tempco_m_per_c);
+  EXPECT_LT(std::abs(r.row("bspline_temp").test.bias_m),
+            std::abs(r.row("bspline").test.bias_m) / 5);
+  auto stated = o;
+  stated.temperature_term.source = TemperatureTermSource::stated;
+  const auto s = run_thesis_protocol(steep, stated, 2024);
+  EXPECT_LT(s.coverage_of("calibrated_temp").within_2_sigma.share, 0.85);
+  const auto& cal_t = r.coverage_of("calibrated_temp");
+  if (sanitized()) {
+    EXPECT_NEAR(cal_t.within_2_sigma.share, 0.95, 0.04);
+    return;
+  }
+  EXPECT_GE(cal_t.within_2_sigma.share, 0.93);
+  EXPECT_LE(cal_t.within_2_sigma.share, 0.97);
+  for (int t = 0; t < 3; ++t) EXPECT_GE(cal_t.within_2_sigma.tercile_share[t], 0.93) << t;
 }
 
 TEST(ThesisProtocol, PlotDataAndSummary) {

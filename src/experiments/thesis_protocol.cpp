@@ -12,8 +12,9 @@ namespace {
 
 // Salts of the independent random streams of the protocol.
 constexpr std::uint64_t kTrainingSalt = 1, kConfidenceSalt = 2, kTestSalt = 3;
-constexpr std::uint64_t kChartSalt = 1000;        // per-point chart deviations
-constexpr std::uint64_t kTemperatureSalt = 2000;  // warmer repeats of the test scan
+constexpr std::uint64_t kChartSalt = 1000;           // per-point chart deviations
+constexpr std::uint64_t kTemperatureSalt = 2000;     // warmer repeats of the test scan
+constexpr std::uint64_t kTemperatureRunSalt = 3000;  // the temperature term's run
 
 /// A standard normal fixed by (seed, index, k): counter-based, so a chart point's
 /// deviations do not depend on how many points came before it.
@@ -92,46 +93,19 @@ Columns columns_of(const std::vector<ranging::Record>& records) {
   return c;
 }
 
-/// The sensor's temperature term (ThesisProtocolOptions::temperature_drift_*): the
-/// drift range's centre as a slope, its rectangular standard uncertainty, both in
-/// m of range per C (the range falls as the temperature rises, so the correction
-/// true - measured rises), and the training scan's mean reading it is counted from.
-struct TemperatureTerm {
-  double slope_m_per_c = 0, u_slope_m_per_c = 0, reference_c = 0;
-
-  /// true - measured added by a reading of t_c (0 for a missing reading).
-  [[nodiscard]] double correction_m(double t_c) const {
-    return std::isfinite(t_c) ? slope_m_per_c * (t_c - reference_c) : 0.0;
-  }
-  /// Its standard uncertainty from the slope's (a missing reading: the slope is unknown, 0).
-  [[nodiscard]] double u_m(double t_c) const {
-    return std::isfinite(t_c) ? u_slope_m_per_c * std::abs(t_c - reference_c) : 0.0;
-  }
-};
-
-TemperatureTerm temperature_term(const ThesisProtocolOptions& o, const Columns& training) {
-  TemperatureTerm t;
-  const double per_in_per_10c = kMetersPerInch / 10.0;
-  t.slope_m_per_c = 0.5 *
-                    (o.temperature_drift_min_in_per_10c + o.temperature_drift_max_in_per_10c) *
-                    per_in_per_10c;
-  t.u_slope_m_per_c = 0.5 *
-                      (o.temperature_drift_max_in_per_10c - o.temperature_drift_min_in_per_10c) /
-                      std::sqrt(3.0) * per_in_per_10c;
-  std::vector<double> readings;
-  for (const double c : training.temperature_c) {
-    if (std::isfinite(c)) readings.push_back(c);
-  }
-  t.reference_c = readings.empty() ? 0.0 : sample_stats(readings).mean;
-  return t;
-}
-
-/// Residuals after the temperature term: residual - correction(reading).
-std::vector<double> minus_temperature(const std::vector<double>& residual, const Columns& c,
-                                      const TemperatureTerm& t) {
-  std::vector<double> out(residual.size());
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    out[i] = residual[i] - t.correction_m(c.temperature_c[i]);
+/// The columns as the training's temperature would have read them: the
+/// temperature term's correction added to each measured range (and so taken
+/// from its error). The drift is a delay of the timing board, so it moves the
+/// measured range before the surface sees it; a surface over (measured range,
+/// intensity) must be evaluated where the range would have been, not only
+/// offset afterwards (its range dependence, steep near the chart's darkest
+/// grey, would otherwise read the drift as distance).
+Columns at_training_temperature(const Columns& c, const TemperatureTerm& t) {
+  Columns out = c;
+  for (std::size_t i = 0; i < out.range_m.size(); ++i) {
+    const double correction = t.correction_m(c.temperature_c[i]);
+    out.range_m[i] += correction;
+    out.error_m[i] -= correction;
   }
   return out;
 }
@@ -208,10 +182,7 @@ void ThesisProtocolOptions::validate() const {
     if (order < 1 || order > 12) fail("polynomial_orders must be in 1..12");
   }
   if (!(rcond >= 0 && rcond < 1)) fail("rcond must be in [0, 1)");
-  if (!(temperature_drift_min_in_per_10c >= 0 &&
-        temperature_drift_max_in_per_10c >= temperature_drift_min_in_per_10c &&
-        temperature_drift_max_in_per_10c <= 100.0))
-    fail("temperature_drift_min/max_in_per_10c must satisfy 0 <= min <= max <= 100");
+  temperature_term.validate();
   bspline.validate();
   calibrated_confidence.validate();
   if (grid_range_nodes < 2 || grid_amplitude_nodes < 2) fail("grid nodes must be >= 2");
@@ -293,14 +264,20 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
   const auto bspline_residual =
       residuals(*result.bspline, held, &bspline_row.test_rows_out_of_domain);
   add_row(bspline_row, result.bspline_fit, bspline_residual);
-  // Beyond the thesis: the sensor's temperature term on the B-spline.
-  const bool with_temperature = options.temperature_drift_max_in_per_10c > 0;
-  const TemperatureTerm temp = temperature_term(options, train);
-  const auto temperature_residual = minus_temperature(bspline_residual, held, temp);
+  // Beyond the thesis: the sensor's temperature term on the B-spline, its slope
+  // measured on the device in a session of its own (or the thesis's stated one).
+  result.temperature_term =
+      make_temperature_term(device, options.temperature_term, options.training_distances_m,
+                            train.temperature_c, derive_seed(seed, kTemperatureRunSalt));
+  const TemperatureTerm& temp = result.temperature_term;
+  const bool with_temperature = temp.active();
+  const Columns held_t = at_training_temperature(held, temp);
+  std::size_t temperature_out_of_domain = 0;
+  const auto temperature_residual = residuals(*result.bspline, held_t, &temperature_out_of_domain);
   if (with_temperature) {
     ThesisModelRow row;
     row.model = "bspline_temp";
-    row.test_rows_out_of_domain = bspline_row.test_rows_out_of_domain;
+    row.test_rows_out_of_domain = temperature_out_of_domain;
     add_row(row, result.bspline_fit, temperature_residual);
   }
 
@@ -346,10 +323,12 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
   }
   if (with_temperature) {
     // The calibrated sigma saw one session's temperature; the slope's own
-    // uncertainty over the test's departure from it adds in quadrature.
+    // uncertainty over the test's departure from it adds in quadrature (GUM:
+    // independent inputs).
     std::vector<double> sigma(held.range_m.size());
+    result.calibrated_confidence->sigma(held_t.range_m, held_t.amplitude, sigma);
     for (std::size_t i = 0; i < sigma.size(); ++i) {
-      sigma[i] = std::hypot(sigma_calibrated[i], temp.u_m(held.temperature_c[i]));
+      sigma[i] = std::hypot(sigma[i], temp.u_m(held.temperature_c[i]));
     }
     ThesisCoverageRow row;
     row.model = "calibrated_temp";
@@ -405,7 +384,8 @@ ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& devic
     row.best_polynomial = calib::error_stats(residuals(*result.best_polynomial, w));
     const auto w_residual = residuals(*result.bspline, w);
     row.bspline = calib::error_stats(w_residual);
-    row.bspline_temperature = calib::error_stats(minus_temperature(w_residual, w, temp));
+    row.bspline_temperature =
+        calib::error_stats(residuals(*result.bspline, at_training_temperature(w, temp)));
     result.temperature.push_back(row);
   }
 
@@ -470,6 +450,10 @@ std::vector<Finding> ThesisProtocolResult::findings() const {
       f.push_back({r.model + "_rms_improvement_pct", r.rms_improvement_pct, "%"});
   }
   f.push_back({"best_polynomial_order", double(best_polynomial_order), ""});
+  if (temperature_term.active()) {
+    f.push_back({"temperature_slope_mm_per_c", 1e3 * temperature_term.slope_m_per_c, "mm/C"});
+    f.push_back({"temperature_slope_u_mm_per_c", 1e3 * temperature_term.u_slope_m_per_c, "mm/C"});
+  }
   for (const auto& c : coverage) {
     f.push_back({c.model + "_within_1_sigma", c.within_1_sigma.share, ""});
     f.push_back({c.model + "_within_2_sigma", c.within_2_sigma.share, ""});
@@ -617,6 +601,10 @@ std::string ThesisProtocolResult::summary() const {
                     m_to_inches(t.bspline_temperature.rms_m));
       out += line;
     }
+  }
+  const std::string term = temperature_term.summary();  // its lines, indented as the rest
+  for (std::size_t a = 0, b = 0; (b = term.find('\n', a)) != std::string::npos; a = b + 1) {
+    out += "  " + term.substr(a, b - a + 1);
   }
   out +=
       "  relative error of corrected ranges per training distance (thesis: 0.0117 0.0077 "

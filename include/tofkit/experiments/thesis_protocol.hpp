@@ -21,6 +21,7 @@
 #include "tofkit/device/virtual_rangefinder.hpp"
 #include "tofkit/experiments/characterization_common.hpp"
 #include "tofkit/experiments/thesis_grey_chart.hpp"
+#include "tofkit/experiments/thesis_temperature_term.hpp"
 
 namespace tofkit::experiments {
 
@@ -72,15 +73,16 @@ struct ThesisProtocolOptions {
   /// training (each a separate scan) and corrected with the same models.
   std::vector<double> test_temperature_offsets_c{5.0, 10.0};
   /// tofkit beyond the thesis (its future work: "include temperature in the
-  /// model"): the unit's temperature sensor reads every point, and the thesis's
-  /// Section 4.4 drift, the range falling 0.25-0.60 in per 10 C, is a type B
-  /// input. Its centre corrects the B-spline's ranges by the sensor's departure
-  /// from the training scan's mean reading (model row "bspline_temperature");
-  /// the standard uncertainty of a rectangular distribution over the range,
-  /// half-width / sqrt(3), times that departure adds to the calibrated sigma in
-  /// quadrature (coverage row "calibrated_temperature"). Both 0: no such term.
-  double temperature_drift_min_in_per_10c = 0.25;
-  double temperature_drift_max_in_per_10c = 0.60;
+  /// model"): the unit's temperature sensor reads every point, and a slope of
+  /// range error against that reading times the sensor's departure from the
+  /// training scan's mean reading moves each measured range back to the
+  /// training's temperature before the B-spline corrects it (model row
+  /// "bspline_temp"); the slope's standard uncertainty times that departure adds
+  /// to the calibrated sigma in quadrature (coverage row "calibrated_temp"). By
+  /// default the slope is measured on the device in a temperature run of its
+  /// own (type A); source stated takes the thesis's 0.25-0.60 in per 10 C
+  /// (type B); none: no such rows.
+  TemperatureTermOptions temperature_term{};
   std::vector<int> polynomial_orders{3, 4, 5, 6};  ///< thesis Fig. 4.18
   /// Thesis: S of A^T A divided by its first entry, below 1e-2 zeroed (calib::kThesisRcond).
   double rcond = calib::kThesisRcond;
@@ -186,6 +188,9 @@ struct ThesisProtocolResult {
   /// The same with the best polynomial (the thesis's own correction).
   std::vector<double> relative_error_by_training_distance_polynomial;
 
+  /// The sensor's temperature term (slope, its uncertainty, the source used;
+  /// with source run, the run's lines).
+  TemperatureTerm temperature_term;
   std::vector<ThesisTemperatureRow> temperature;  ///< test scans taken warmer
   std::vector<ThesisGreyRow> per_grey;            ///< Fig. 4.19
   std::vector<ThesisTestRow> test_rows;           ///< Figs. 4.30-4.31 (rows with an echo)
@@ -204,9 +209,10 @@ struct ThesisProtocolResult {
   [[nodiscard]] std::string summary() const;
 };
 
-/// Runs the three scans (independent seeds derived from `seed`), the fits and
-/// the held-out evaluation. Throws std::invalid_argument on bad options and
-/// std::runtime_error if a scan leaves too few echoes to fit.
+/// Runs the three scans and the temperature term's run (independent seeds
+/// derived from `seed`), the fits and the held-out evaluation. Throws
+/// std::invalid_argument on bad options and std::runtime_error if a scan
+/// leaves too few echoes to fit.
 [[nodiscard]] ThesisProtocolResult run_thesis_protocol(const device::VirtualRangefinder& device,
                                                        const ThesisProtocolOptions& options,
                                                        std::uint64_t seed);
