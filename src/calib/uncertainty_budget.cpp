@@ -533,9 +533,15 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
 
   // Temperature model residual: the temperature run's targets' in-sample
   // mean residuals less that of the same target at the reference temperature
-  // (what the temperature step left), less their noise, times the optimism of
-  // a fit of p parameters on G temperatures, (G + p) / (G - p) (Mallows' C_p,
-  // ESL 2nd ed. Eq. 7.24). Leaving whole temperatures out instead measures
+  // (what the temperature step left), less their noise, plus the optimism of
+  // a fit of p parameters on G temperatures. The optimism is additive in the
+  // noise (Mallows' C_p, ESL 2nd ed. Eq. 7.24: Err_in = err + 2 (p / G)
+  // sigma^2): an in-sample difference d at a temperature of leverage h ~ p / G
+  // has E d^2 = b^2 + v (1 - h) for a systematic b left by the step and a
+  // noise variance v of the difference; a field row there errs by b plus the
+  // fit's noise, E = b^2 + v h = (d^2 - v) + 2 h v. Scaling d^2 - v, which has
+  // the noise taken out, by (G + p) / (G - p) instead would count the
+  // systematic b as noise. Leaving whole temperatures out instead measures
   // the interpolation across twice the run's step, not the field's. Its
   // axis is the row's temperature reading: what the temperature step leaves
   // grows with the distance from the calibration's temperature (and need not
@@ -547,7 +553,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   // Per temperature of the run: the excesses of its plates (pooled: the
   // field's echoes are the plates' mix), their readings, and the plates.
   struct AtTemperature {
-    double sum = 0, reading = 0;
+    double sum = 0, noise = 0, reading = 0;  ///< excess^2, its noise variance v, the readings
     std::size_t n = 0;
   };
   std::map<double, AtTemperature> per_temperature;
@@ -567,14 +573,16 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
     if (ref == at_reference.end()) continue;
     const double dm = t.mean_m - ref->second->mean_m;
-    const double excess2 = dm * dm - noise2(t.log_amplitude) / static_cast<double>(t.n) -
-                           noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    const double v = noise2(t.log_amplitude) / static_cast<double>(t.n) +
+                     noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
+    const double excess2 = dm * dm - v;
     if (t.lost_share - ref->second->lost_share > kFalseStopShare) {
       false_stops.emplace_back(t.lost_share, std::max(0.0, excess2));
       continue;
     }
     AtTemperature& at = per_temperature[t.ambient_c];
     at.sum += excess2;
+    at.noise += v;
     at.reading += t.temperature_c;
     ++at.n;
     if (plates.emplace(ref->second, true).second) reference_reading += ref->second->temperature_c;
@@ -599,14 +607,14 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     return c;
   };
   if (per_temperature.size() >= 3 && g > p_t + 1) {
-    const double optimism = (g + p_t) / (g - p_t);
+    const double leverage = p_t / g;
     BudgetComponent temperature;
     temperature.name = "temperature model residual";
     temperature.axis = BudgetComponent::Axis::temperature_c;
     std::vector<std::pair<double, double>> nodes = {{reference_reading, 0.0}};
     for (const auto& [ambient, at] : per_temperature) {
       const double n = static_cast<double>(at.n);
-      nodes.emplace_back(at.reading / n, std::max(0.0, optimism * at.sum / n));
+      nodes.emplace_back(at.reading / n, std::max(0.0, (at.sum + 2 * leverage * at.noise) / n));
     }
     std::sort(nodes.begin(), nodes.end());
     for (const auto& [x, v] : nodes) add_node(temperature, x, v);

@@ -23,8 +23,8 @@
 ///   apply_budget counts it and the pipeline's out-of-domain growth as one
 ///   cause);
 /// - temperature model residual (type A): the temperature run's in-sample
-///   mean residuals against the same target at the reference temperature, times
-///   the optimism of the temperature step's fit, as a function of the row's
+///   mean residuals against the same target at the reference temperature, plus
+///   the optimism of the temperature step's fit (additive in the noise), as a function of the row's
 ///   temperature reading (none at the calibration's); else type B from
 ///   delay_tempco_ps_per_c (u = tempco x |T - T_ref|);
 /// - drift since calibration (type A): the structure function of a stability
