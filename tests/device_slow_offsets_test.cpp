@@ -152,3 +152,43 @@ TEST(SlowOffsets, DrawsAreReproducibleBySeedAndIndependentOfGrouping) {
                             d.data(), l.data()),
                std::invalid_argument);
 }
+
+// The flicker does not repeat: each octave's frequency lies log-uniformly
+// within its octave over power-ons (two chains of x4 steps, even and odd
+// octaves, each from a base drawn at power-on), so the change over a lag
+// tau has the mean square sum_k A_k^2 (1 - E cos 2 pi f_k tau), A_k^2 = 2
+// rms^2 / 8, E over f log-uniform in [f_0 2^k, f_0 2^(k+1)) (integrated
+// here). Octaves at exact doublings of f_0 (1 mHz) would repeat every
+// 1000 s: the change over 1000 s nil, over 1200 s 1.12x its mean.
+TEST(SlowOffsets, FlickerDoesNotRepeat) {
+  const auto cfg = only(0, 5, 0, 0);
+  const SlowOffsets slow(cfg, 1);
+  const double period_s = cfg.measurement.shots / cfg.link.laser.repetition_hz;
+  const double rms_ns = 5e-3;
+  for (const double lag_s : {1000.0, 1200.0, 1800.0}) {
+    double oracle = 0;
+    for (int k = 0; k < SlowOffsets::kFlickerOctaves; ++k) {
+      // E cos over the octave, midpoint rule in ln f (2000 steps).
+      constexpr int kSteps = 2000;
+      double e = 0;
+      for (int j = 0; j < kSteps; ++j) {
+        const double f = SlowOffsets::kFlickerLowestHz * std::exp2(k + (j + 0.5) / kSteps);
+        e += std::cos(2 * M_PI * f * lag_s) / kSteps;
+      }
+      oracle += 2 * rms_ns * rms_ns / SlowOffsets::kFlickerOctaves * (1 - e);
+    }
+    const auto from = static_cast<std::uint64_t>(600 / period_s);
+    const auto to = static_cast<std::uint64_t>((600 + lag_s) / period_s);
+    std::vector<double> d2;
+    for (int s = 0; s < kPowerOns; ++s) {
+      const auto seed = 1000 + static_cast<std::uint64_t>(s);
+      const double d = offset_at(slow, seed, to, 0).delay_ns - offset_at(slow, seed, from, 0).delay_ns;
+      d2.push_back(d * d);
+    }
+    const Moments m = moments(d2);
+    const double se = m.rms / std::sqrt(static_cast<double>(kPowerOns));
+    EXPECT_NEAR(m.mean, oracle, 4 * se) << "lag " << lag_s << " s";
+    // Well away from nil at a whole period of the lowest octave.
+    EXPECT_GT(m.mean, 0.5 * 2 * rms_ns * rms_ns) << "lag " << lag_s << " s";
+  }
+}

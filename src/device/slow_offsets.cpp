@@ -91,6 +91,10 @@ const SlowOffsets::RunDraws& SlowOffsets::run_draws(std::uint64_t seed) const {
                  &run.cos_phase[o]);
       }
     }
+    const auto f = rng.draw(kPowerOnStream, 2, 0);
+    for (std::size_t chain = 0; chain < 2; ++chain)
+      run.chain_hz[chain] =
+          kFlickerLowestHz * std::exp2(static_cast<double>(chain) + unit_open(f[chain]));
     run.device = device_id_;
     run.seed = rng.seed();
   }
@@ -110,24 +114,36 @@ __attribute__((target_clones("avx2", "default"))) void SlowOffsets::flicker_offs
   }
   // 1/f noise has equal power per octave: one sinusoid of random phase per
   // octave, each with rms flicker / sqrt(octaves), i.e. amplitude sqrt(2) times that.
-  // Octave k oscillates at f_0 2^k: its angle is the lowest's doubled k times.
+  // The even octaves oscillate at chain_hz[0] 4^j, the odd ones at chain_hz[1]
+  // 4^j, each chain's base drawn within its octave at power-on: a chain's angle
+  // is its base's doubled twice per octave, and the two chains' periods differ,
+  // so the sum does not repeat (octaves at exact doublings of f_0 would sum to
+  // a signal of period 1 / f_0, 1000 s, whose change over 1000 s is nil and
+  // over 1200 s 1.12x its mean).
   const double amplitude = mc.flicker_delay_ps * 1e-3 * std::sqrt(2.0 / kFlickerOctaves);
-  std::array<double, kMaxOutputs> sin_a, cos_a;
+  std::array<std::array<double, kMaxOutputs>, 2> sin_a, cos_a;
   for (std::size_t i = 0; i < n; ++i) {
     const double t_s = static_cast<double>(stream0 + i) * mc.shots / repetition_hz_;
-    // The lowest octave's phase in cycles, to 2^-32 of a cycle (table sincos).
-    const double cycles = kFlickerLowestHz * t_s;
-    const auto phase = static_cast<std::uint32_t>(
-        static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
-    sincos_of_phase(phase, sin_a[i], cos_a[i]);
+    for (std::size_t chain = 0; chain < 2; ++chain) {
+      // The chain's base phase in cycles, to 2^-32 of a cycle (table sincos).
+      const double cycles = run.chain_hz[chain] * t_s;
+      const auto phase = static_cast<std::uint32_t>(
+          static_cast<std::int64_t>((cycles - std::floor(cycles)) * 0x1p32) & 0xFFFFFFFF);
+      sincos_of_phase(phase, sin_a[chain][i], cos_a[chain][i]);
+    }
   }
   for (std::size_t i = 0; i < n; ++i) {
-    double s = sin_a[i], c = cos_a[i], wander = 0;
-    for (std::size_t k = 0; k < kFlickerOctaves; ++k) {
-      wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
-      const double s2 = 2.0 * s * c;
-      c = (c - s) * (c + s);
-      s = s2;
+    double wander = 0;
+    for (std::size_t chain = 0; chain < 2; ++chain) {
+      double s = sin_a[chain][i], c = cos_a[chain][i];
+      for (std::size_t k = chain; k < kFlickerOctaves; k += 2) {
+        wander += s * run.cos_phase[k] + c * run.sin_phase[k];  // sin(a + phase)
+        for (int twice = 0; twice < 2; ++twice) {
+          const double s2 = 2.0 * s * c;
+          c = (c - s) * (c + s);
+          s = s2;
+        }
+      }
     }
     offsets[i] = run.offset_ns + amplitude * wander;
   }

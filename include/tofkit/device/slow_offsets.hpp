@@ -6,8 +6,10 @@
 ///    per power-on, the trigger and receive chain settling a little
 ///    differently each time;
 ///  - 1/f flicker (measurement.flicker_delay_ps): equal power per octave over
-///    kFlickerOctaves octaves from kFlickerLowestHz, one sinusoid of random
-///    phase per octave;
+///    kFlickerOctaves octaves from kFlickerLowestHz, one sinusoid per octave
+///    of random phase; the even and the odd octaves each a chain of x4
+///    steps from a base frequency drawn log-uniformly within its octave per
+///    power-on (two periods that differ: the sum does not repeat);
 ///  - a random wander (measurement.delay_wander_ps): kWanderLevels processes
 ///    of equal power whose correlation times grow by kWanderLevelRatio (two
 ///    octaves) from kWanderShortestS, each passing from one independent knot
@@ -51,6 +53,9 @@ class SlowOffsets {
     std::uint64_t device = 0, seed = 0;
     double offset_ns = 0;  ///< the power-on offset
     std::array<double, kFlickerOctaves> cos_phase{}, sin_phase{};
+    /// The flicker's two chains of octaves (even, odd): octave 2 j + chain
+    /// oscillates at chain_hz[chain] 4^j, chain_hz[chain] in [f_0 2^chain, f_0 2^(chain + 1)).
+    std::array<double, 2> chain_hz{};
   };
   [[nodiscard]] const RunDraws& run_draws(std::uint64_t seed) const;
 
