@@ -182,7 +182,8 @@ TEST(SlowOffsets, FlickerDoesNotRepeat) {
     std::vector<double> d2;
     for (int s = 0; s < kPowerOns; ++s) {
       const auto seed = 1000 + static_cast<std::uint64_t>(s);
-      const double d = offset_at(slow, seed, to, 0).delay_ns - offset_at(slow, seed, from, 0).delay_ns;
+      const double d =
+          offset_at(slow, seed, to, 0).delay_ns - offset_at(slow, seed, from, 0).delay_ns;
       d2.push_back(d * d);
     }
     const Moments m = moments(d2);

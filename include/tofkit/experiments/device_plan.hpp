@@ -92,7 +92,10 @@ struct ProtocolOptions {
   /// walk along the rail spreads the stops between them (held-out case 0: 240
   /// distinct phases of 1000 among the calibration's rows, 11 harmonics chosen)
   double rail_steps_per_period = 8;
-  double stability_minutes = 60;  ///< the stability record's length
+  /// The stability record's length: its structure function reaches 3/4 of it
+  /// (a lag needs pairs), so 80 min observe the drift to 60 min after the
+  /// calibration; beyond the last lag the drift term is held.
+  double stability_minutes = 80;
   double stability_every_s = 15;  ///< its spacing
   int power_ons = 2;              ///< repeats on this many other power-ons
 };
