@@ -164,7 +164,7 @@ TEST(SlowOffsets, FlickerDoesNotRepeat) {
   const auto cfg = only(0, 5, 0, 0);
   const SlowOffsets slow(cfg, 1);
   const double period_s = cfg.measurement.shots / cfg.link.laser.repetition_hz;
-  const double rms_ns = 5e-3;
+  const double rms_ns = cfg.measurement.flicker_delay_ps * 1e-3;
   for (const double lag_s : {1000.0, 1200.0, 1800.0}) {
     double oracle = 0;
     for (int k = 0; k < SlowOffsets::kFlickerOctaves; ++k) {

@@ -811,7 +811,8 @@ TEST_P(HeldOut, DISABLED_PlannerProtocolHoldsInTheField) {
 // (power-on 1, since the flicker stopped repeating every 1000 s and the
 // stability record grew to 80 min: both cases' 20 / 40 min bands sit -2.0..
 // -2.3 mm off against a drift term of 1.0 mm, 45-66 % within 2 sigma; before,
-// the same test read 98.9 / 99.1 % on a draw under 1 sigma). Over 32
+// the same test read 98.9 / 99.1 % on a draw of +1.2 / +0.3 / +0.8 mm at 20 /
+// 40 / 60 min against about 1.05 mm). Over 32
 // power-ons (DISABLED_CoverageByTimeBandOverPowerOns) case 0 reads 93.2 %,
 // terciles 93.7 / 94.5 / 91.5 %, bands 91.0 / 94.5 / 91.1 / 96.4 %: the band
 // at the calibration's own time is short too (rows at 27-37 C read -0.6..-1.4
