@@ -923,6 +923,74 @@ TEST(UncertaintyBudget, FalseStopTermFollowsTheRowsThatLoseShots) {
   EXPECT_GE(in_with / n, 0.85);
 }
 
+// The fine bins' width follows the timing board's temperature
+// (tdc.bin_tempco_ppm_per_c, kappa): a stop fine_t into the coarse period P
+// reads fine_t kappa dT short, so what the temperature does to a row depends
+// on where its stop falls in the period, a sawtooth over the distance whose
+// departure from its mean has rms P kappa dT / sqrt(12) (as distance, x c / 2).
+// The temperature run at one distance sees one phase of it (its hinge absorbs
+// it); the planner's run at 16 phases a sixteenth of the period apart shows it.
+// Oracle, at kappa = 1000 ppm/C and 15 C above the calibration: 3.25 mm. The
+// field rows over 0.7-7.4 m must show it, and the budget's temperature term
+// at that reading must cover it.
+TEST(UncertaintyBudget, TemperatureRunSeesTheFineBinsOverTheTdcPeriod) {
+  if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "a full calibration: Release only";
+  device::DeviceConfig config = held_out_device(1, false, 0);
+  constexpr double kKappa = 1e-3;  // per C
+  set_key(config, "tdc.bin_tempco_ppm_per_c", kKappa * 1e6);
+  const device::VirtualRangefinder device(config);
+  const Calibrated c = calibrate(device, true, false);
+  experiments::PlateGrid grid;
+  for (double d = 0.7; d <= 7.4; d += 0.0937) grid.distances_m.push_back(d);
+  grid.reflectances = {0.35};
+  grid.ambient_c = {20, 35};
+  grid.count = 3;
+  const auto rows =
+      experiments::run(device, experiments::plate_grid_plan(grid), 1, {c.calibration_start_s, 0});
+  std::vector<ranging::Range> ranges(rows.size());
+  c.fit.pipeline.apply(ranging::RawColumns::of(rows), ranges);
+  std::map<std::pair<double, double>, std::vector<double>> by;
+  double reading = 0, hot = 0;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    by[{rows[i].truth.distance_m, rows[i].truth.ambient_c}].push_back(rows[i].truth.distance_m -
+                                                                      ranges[i].distance_m);
+    if (rows[i].truth.ambient_c == 35) {
+      reading += rows[i].raw.temperature_c;
+      hot += 1;
+    }
+  }
+  reading /= hot;
+  // Each distance's change from 20 to 35 C, less its mean over the
+  // distances; less the noise of a difference of two means of 3.
+  std::vector<double> change;
+  double noise2 = 0;
+  for (const double d : grid.distances_m) {
+    const Repeats a = repeats_of(by[{d, 20.0}]), b = repeats_of(by[{d, 35.0}]);
+    change.push_back(b.mean - a.mean);
+    noise2 += (a.variance + b.variance) / 3;
+  }
+  noise2 /= static_cast<double>(change.size());
+  double mean = 0, var = 0;
+  for (double x : change) mean += x / static_cast<double>(change.size());
+  for (double x : change) var += (x - mean) * (x - mean) / static_cast<double>(change.size());
+  const double seen = std::sqrt(std::max(0.0, var - noise2));
+  const double rms = std::sqrt(std::max(0.0, var + mean * mean - noise2));  // what u covers
+  const double period_ns = 1e3 / config.tdc.coarse_clock_mhz;
+  const double oracle = period_ns * kKappa * 15 / std::sqrt(12.0) *
+                        ranging::metres_per_ns(device::nominal_time_to_distance(config));
+  double u = 0;
+  for (const auto& component : c.budget.budget.components)
+    if (component.name == "temperature model residual") u = component.u_m(reading);
+  std::printf(
+      "15 C above the calibration: the rows' change departs from its mean by %.2f mm rms over "
+      "0.7-7.4 m (oracle %.2f mm), %.2f mm rms with its mean; the budget's temperature term at "
+      "reading %.1f C: %.2f mm\n",
+      seen * 1e3, oracle * 1e3, rms * 1e3, reading, u * 1e3);
+  EXPECT_NEAR(seen, oracle, 0.25 * oracle);
+  EXPECT_GE(u, 0.7 * rms);
+  EXPECT_LE(u, 1.6 * rms);
+}
+
 // What moves a row after the calibration on an indoor held-out device
 // without delay wander (case 0: the slow flicker and the comparator level's
 // wander) is random per power-on: over 80 power-ons the stability plate's

@@ -554,8 +554,15 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   // field's echoes are the plates' mix), their readings, and the plates.
   struct AtTemperature {
     double sum = 0, noise = 0, reading = 0;  ///< excess^2, its noise variance v, the readings
-    std::size_t n = 0;
+    double n = 0;                            ///< their weight
   };
+  // Each distance of the run weighs alike at a temperature: the field's
+  // distances put their stops anywhere in the TDC's period, and several plates
+  // at one distance share one phase of it (the fine bins' temperature
+  // dependence), which the temperature function fitted on them absorbs.
+  std::map<std::pair<double, double>, double> at_distance;  // (ambient, distance) -> targets
+  for (const auto& t : targets)
+    if (t.ambient_c != reference_c) at_distance[{t.ambient_c, t.distance_m}] += 1;
   std::map<double, AtTemperature> per_temperature;
   std::map<const Target*, bool> plates;
   double reference_reading = 0;
@@ -581,10 +588,11 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
       continue;
     }
     AtTemperature& at = per_temperature[t.ambient_c];
-    at.sum += excess2;
-    at.noise += v;
-    at.reading += t.temperature_c;
-    ++at.n;
+    const double w = 1.0 / at_distance[{t.ambient_c, t.distance_m}];
+    at.sum += w * excess2;
+    at.noise += w * v;
+    at.reading += w * t.temperature_c;
+    at.n += w;
     if (plates.emplace(ref->second, true).second) reference_reading += ref->second->temperature_c;
   }
   if (!plates.empty()) reference_reading /= static_cast<double>(plates.size());
@@ -611,10 +619,23 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     BudgetComponent temperature;
     temperature.name = "temperature model residual";
     temperature.axis = BudgetComponent::Axis::temperature_c;
+    // A ramp read every 2.5 C gives each temperature a few targets, whose
+    // excesses are noisy (the noise's variance is subtracted from each): a
+    // node pools the temperatures within kTemperaturePool_c of it, so the u
+    // it gives is an average of what the run saw there, not one draw's
+    // (soaked steps 5 C apart pool nothing).
+    constexpr double kTemperaturePool_c = 2.5;
     std::vector<std::pair<double, double>> nodes = {{reference_reading, 0.0}};
     for (const auto& [ambient, at] : per_temperature) {
-      const double n = static_cast<double>(at.n);
-      nodes.emplace_back(at.reading / n, std::max(0.0, (at.sum + 2 * leverage * at.noise) / n));
+      AtTemperature pool;
+      for (const auto& [other, o] : per_temperature)
+        if (std::abs(other - ambient) <= kTemperaturePool_c + 1e-9) {
+          pool.sum += o.sum;
+          pool.noise += o.noise;
+          pool.n += o.n;
+        }
+      nodes.emplace_back(at.reading / at.n,
+                         std::max(0.0, (pool.sum + 2 * leverage * pool.noise) / pool.n));
     }
     std::sort(nodes.begin(), nodes.end());
     for (const auto& [x, v] : nodes) add_node(temperature, x, v);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -154,6 +155,10 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
         o.stability_minutes * 60 / o.stability_every_s >= 8 &&
         o.stability_minutes * 60 / o.stability_every_s <= 1e5))
     throw std::invalid_argument("stability_minutes / stability_every_s must give 8 to 100000 rows");
+  if (!(o.temperature_ramp_every_c >= 0.1 && o.temperature_ramp_every_c <= 100))
+    throw std::invalid_argument("temperature_ramp_every_c must be in [0.1, 100] C");
+  if (!(o.ramp_c_per_min > 0 && o.ramp_c_per_min <= 100))
+    throw std::invalid_argument("ramp_c_per_min must be in (0, 100] C/min");
   if (o.power_ons < 0 || o.power_ons > 20)
     throw std::invalid_argument("power_ons must be in [0, 20]");
   const auto& config = device.config();
@@ -251,7 +256,49 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
     s.grid.ambient_c = plan.temperatures_c;
     s.grid.count = o.count;
     s.bench_minutes = 30.0 * static_cast<double>(plan.temperatures_c.size());  // soak per step
+    if (o.complete && plan.temperatures_c.size() >= 2) {
+      // A slow ramp instead of soaked steps: the field's temperatures fall
+      // anywhere, and what the temperature function leaves between the steps
+      // (a kink it placed wrong) is seen only where the run was read.
+      const double lo = plan.temperatures_c.front(), hi = plan.temperatures_c.back();
+      s.grid.ambient_c.clear();
+      for (double t = lo; t <= hi + 1e-9; t += o.temperature_ramp_every_c)
+        s.grid.ambient_c.push_back(std::round(t * 100) / 100);
+      char every[32];
+      std::snprintf(every, sizeof every, "%g", o.temperature_ramp_every_c);
+      s.observes += std::string(", a ramp read every ") + every + " C";
+      s.bench_minutes = (hi - lo) / o.ramp_c_per_min;
+    }
     add(s);
+    if (o.complete && protocol.tdc_period_m > 0) {
+      // The temperature plate at 16 phases of the TDC's period in the same
+      // ramp: the fine bins' width follows the timing board's
+      // temperature, so what the temperature does to a row depends on where
+      // its stop falls in the coarse period (a sawtooth over the distance);
+      // one distance sees one phase of that, and the temperature function
+      // fitted there absorbs it. Sixteen phases make the function fit their
+      // mean and show the rest (both stops are quantized, and the walk
+      // correction reads their difference: more than a sawtooth's harmonics).
+      constexpr int kPhases = 16;
+      ProtocolStep phases = s;
+      phases.file = "temperature2.csv";
+      phases.observes = "the temperature dependence over the TDC's period (fine-bin width)";
+      phases.grid.reflectances = {rounded4(plan.temperature_plate.reflectance)};
+      phases.grid.distances_m.clear();
+      // At the soaked run's temperatures, each twice: their change from the
+      // reference, not their noise, is what is sought (the ramp's plates give
+      // the temperature function's shape between them).
+      phases.grid.ambient_c = plan.temperatures_c;
+      phases.grid.count = 2;
+      const double d0 = rounded4(plan.temperature_plate.distance_m);
+      for (int k = 0; k < kPhases; ++k) {
+        const double d = d0 + protocol.tdc_period_m * k / kPhases;
+        phases.grid.distances_m.push_back(
+            rounded4(d <= field.range_max_m ? d : d - protocol.tdc_period_m));
+      }
+      phases.bench_minutes = 0;  // read in the same ramp
+      add(phases);
+    }
   }
   if (o.complete) {
     for (int k = 0; k < o.power_ons; ++k) {

@@ -98,6 +98,12 @@ struct ProtocolOptions {
   double stability_minutes = 80;
   double stability_every_s = 15;  ///< its spacing
   int power_ons = 2;              ///< repeats on this many other power-ons
+  /// The temperature run as a slow ramp read every this many C (the field's
+  /// temperatures fall anywhere between a soaked run's steps, where a fitted
+  /// temperature function can miss the device's kinks: a heater's setpoint
+  /// and its limit); ramped at ramp_c_per_min for the bench's duration.
+  double temperature_ramp_every_c = 2.5;
+  double ramp_c_per_min = 0.2;
 };
 
 struct Protocol {
