@@ -147,23 +147,27 @@ def test_plan_lines_calibrate_the_device_they_were_printed_for(tmp_path):
         args = shlex.split(line)[1:]
         tofkit(*args, cwd=tmp_path / "printed")
     # The same protocol typed by hand: the plan printed for the default
-    # device's options, with the device's options typed on every line.
+    # device's options, with the device's options typed on every line,
+    # measures the same bytes (the fit, a function of those files and the
+    # same words, is then the same model).
     (tmp_path / "hand").mkdir()
     plain = tofkit(*DEVICE, "plan", "--range-max", "6", cwd=tmp_path).stdout
-    protocol = [shlex.split(x)[1 + len(DEVICE):] for x in plain.splitlines()
-                if x.startswith("tofkit ")][:-3]  # the measure lines and the fit
-    for words in protocol:
+    measures = [shlex.split(x)[1 + len(DEVICE):] for x in plain.splitlines()
+                if x.startswith("tofkit ")][:-4]  # the measure lines
+    assert measures and all(words[0] == "measure" for words in measures)
+    for words in measures:
         tofkit(*DEVICE, *words, cwd=tmp_path / "hand")
-    printed_model = (tmp_path / "printed" / "model.json").read_text()
-    assert printed_model.replace("printed", "") == \
-        (tmp_path / "hand" / "model.json").read_text().replace("hand", "")
-    # Pasted without the device options (the old lines), the fit calibrates
-    # another device: a different model.
+    written = sorted(x.name for x in (tmp_path / "hand").iterdir())
+    assert len(written) >= len(measures)
+    for name in written:
+        assert (tmp_path / "hand" / name).read_bytes() == \
+            (tmp_path / "printed" / name).read_bytes(), name
+    # Pasted without the device options (the old lines), the first step
+    # measures another device: other bytes, so the fit would calibrate it.
     (tmp_path / "other").mkdir()
-    for words in protocol:
-        tofkit(*words, cwd=tmp_path / "other")
-    assert (tmp_path / "other" / "model.json").read_text() != \
-        (tmp_path / "hand" / "model.json").read_text()
+    tofkit(*measures[0], cwd=tmp_path / "other")
+    name = next(x.name for x in (tmp_path / "other").iterdir())
+    assert (tmp_path / "other" / name).read_bytes() != (tmp_path / "hand" / name).read_bytes()
     # The test line, half an hour after the calibration: corrected within a
     # few mm.
     tested = rows(tmp_path / "printed" / "test_corrected.csv")
