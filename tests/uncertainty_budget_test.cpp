@@ -1342,8 +1342,8 @@ namespace {
 //   mean error rms 0.21 / 0.86 / 1.08 / 0.87 mm against a drift term of 0 /
 //   0.93 / 0.97 / 1.00 mm; with a 180-min record 92.8 % (terciles 93.2 / 93.3 /
 //   92.0 %, bands 95.2 / 88.6 / 97.1 / 90.5 %), rms 0.17 / 1.14 / 0.82 / 1.09
-//   mm against 0 / 0.91 / 0.93 / 0.94 mm. Over both 48 the drift term's mean
-//   square is within 5-10 % of the ensemble's at 20-60 min, and its scatter
+//   mm against 0 / 0.91 / 0.93 / 0.94 mm. Over both 48 the bands' mean square is
+//   1.20 / 1.02 / 1.03 times the drift term's at 20 / 40 / 60 min, and its scatter
 //   between records (u^2 25-33 % sd: 19-35 degrees of freedom) costs about a
 //   point: the bands' spread is the draws', not the record's length. The weak
 //   tercile's misses are rows losing 2-20 % of their shots (rho 0.06 at 6.6-7.4
