@@ -39,6 +39,12 @@
 namespace tofkit {
 namespace {
 
+/// A diagnosis' setting from the environment, or `fallback` when unset.
+double env_number(const char* name, double fallback) {
+  const char* value = std::getenv(name);
+  return value ? std::atof(value) : fallback;
+}
+
 using test::set_key;
 
 // ------------------------------------------------------------ combination
@@ -401,8 +407,7 @@ ProtocolRows protocol_rows(const device::VirtualRangefinder& device, bool comple
   const calib::CalibrationPlanOptions field = field_domain();
   experiments::ProtocolOptions po;
   po.complete = complete;
-  if (const char* minutes = std::getenv("TOFKIT_STABILITY_MINUTES"))  // diagnoses only
-    po.stability_minutes = std::atof(minutes);
+  po.stability_minutes = env_number("TOFKIT_STABILITY_MINUTES", po.stability_minutes);  // diagnoses
   const experiments::Protocol protocol = experiments::plan_protocol(device, field, po);
   std::vector<ranging::Record> calibration, stability;
   calib::ProtocolSteps steps;
@@ -1376,15 +1381,13 @@ namespace {
 //   bands 97.2 / 95.4 / 93.6 / 96.6 %); mean error rms 0.90 / 1.07 / 0.81 mm
 //   at 20 / 40 / 60 min against 0.86 / 0.91 / 0.94 mm (its first 8: 93.2 %).
 TEST(UncertaintyBudgetDiagnosis, DISABLED_CoverageByTimeBandOverPowerOns) {
-  const int which = std::getenv("TOFKIT_CASE") ? std::atoi(std::getenv("TOFKIT_CASE")) : 0;
+  const int which = static_cast<int>(env_number("TOFKIT_CASE", 0));
   ASSERT_TRUE(which >= 0 && which < static_cast<int>(std::size(kHeldOutCases)));
   const HeldOutCase hc = kHeldOutCases[which];
   const device::VirtualRangefinder device(held_out_device(hc.draw, hc.sunlight, hc.wander_ps));
-  const int power_ons =
-      std::getenv("TOFKIT_POWER_ONS") ? std::atoi(std::getenv("TOFKIT_POWER_ONS")) : 8;
+  const int power_ons = static_cast<int>(env_number("TOFKIT_POWER_ONS", 8));
   const double minutes[4] = {0, 20, 40, 60};
-  const int first =
-      std::getenv("TOFKIT_FIRST_POWER_ON") ? std::atoi(std::getenv("TOFKIT_FIRST_POWER_ON")) : 1;
+  const int first = static_cast<int>(env_number("TOFKIT_FIRST_POWER_ON", 1));
   const bool bspline = std::getenv("TOFKIT_BSPLINE") != nullptr;
   std::array<double, 4> coverage{}, mean2{}, drift2{}, systematic2{}, mean_sum{};
   std::array<double, 3> terciles{};
@@ -1512,8 +1515,7 @@ ZeroMinute zero_minute(const device::DeviceConfig& config, int power_ons, bool b
 }
 
 TEST(UncertaintyBudgetDiagnosis, DISABLED_ZeroMinuteSystematicByCause) {
-  const int power_ons =
-      std::getenv("TOFKIT_POWER_ONS") ? std::atoi(std::getenv("TOFKIT_POWER_ONS")) : 2;
+  const int power_ons = static_cast<int>(env_number("TOFKIT_POWER_ONS", 2));
   const bool bspline = std::getenv("TOFKIT_BSPLINE") != nullptr;
   const std::vector<std::pair<const char*, std::vector<const char*>>> variants = {
       {"as drawn", {}},
@@ -1538,9 +1540,8 @@ TEST(UncertaintyBudgetDiagnosis, DISABLED_ZeroMinuteSystematicByCause) {
     for (const auto& [k, v] : m) std::printf(" %g:%+.2f", k, v);
     std::printf("\n");
   };
-  const std::size_t runs = std::getenv("TOFKIT_VARIANTS")
-                               ? static_cast<std::size_t>(std::atoi(std::getenv("TOFKIT_VARIANTS")))
-                               : variants.size();
+  const auto runs = static_cast<std::size_t>(
+      std::max(0.0, env_number("TOFKIT_VARIANTS", static_cast<double>(variants.size()))));
   for (std::size_t v = 0; v < std::min(runs, variants.size()); ++v) {
     const auto& [name, keys] = variants[v];
     device::DeviceConfig config = held_out_device(1, false, 0);
