@@ -1068,13 +1068,16 @@ TEST(UncertaintyBudget, PaperProtocolNamesWhatItLeftUnobserved) {
   // The planner's protocol observes every cause: type A throughout.
   if (std::getenv("TOFKIT_SANITIZED")) GTEST_SKIP() << "the planner's protocol: Release only";
   const Calibrated full = calibrate(device, true, false);
+  std::size_t lost_shot_terms = 0;
   for (const auto& component : full.budget.budget.components) {
     EXPECT_FALSE(component.type_b) << component.name;
-    // Indoors no plate loses shots to false stops.
-    EXPECT_NE(component.axis, ranging::BudgetComponent::Axis::lost_shot_share)
-        << full.budget.report;
+    lost_shot_terms += component.axis == ranging::BudgetComponent::Axis::lost_shot_share;
   }
   EXPECT_TRUE(full.budget.budget.unobserved.empty());
+  // Indoors no plate has false stops, but the plan's weakest plate, hot, is
+  // below the threshold for some of its shots (the APD's gain falls with heat):
+  // the lost-shot term is observed from the temperature run's misses.
+  EXPECT_EQ(lost_shot_terms, 1u) << full.budget.report;
 }
 
 /// The oracles' set-up: the paper device with only one slow cause left
@@ -1355,16 +1358,17 @@ namespace {
 //   same at every reflectance: the delay's drift, not the comparator level's); the term's
 //   scatter between records (u^2 25-33 % sd: 19-35 degrees of freedom) costs
 //   about a point, and the longer record changes neither. The weak
-//   tercile's misses are rows losing 2-20 % of their shots (rho 0.06 at 6.6-7.4
-//   m, 27-37 C, amplitude 0.048): at 0 min (8 power-ons) they read -1.2 mm
-//   mean against a sigma of 0.44 mm, 21-29 % within 2 sigma, while weak rows
-//   keeping every shot are 95.6 % within. They sit 0.19 e-folds below the
-//   calibration's weakest target (amplitude 0.058: the plates are placed by
-//   their power at 20 C, and the APD's gain is lower at 27-37 C), where the
-//   extrapolation term, C (e^d - 1 - d) with C 1.24 mm, gives them 0.02 mm
-//   (power-on 1's 36 rows below it: 0.08 mm mean, errors -1.95 mm mean, 38.9 %
-//   within 2 sigma); the temperature run loses no shots on this device, so no
-//   lost-shot term either.
+//   tercile's misses were rows losing 2-20 % of their shots (rho 0.06 at
+//   6.6-7.4 m, 27-37 C, amplitude 0.048): at 0 min (8 power-ons) -1.2 mm mean
+//   against a sigma of 0.44 mm, 21-29 % within 2 sigma. The plates are placed
+//   by their power at 20 C and the APD's gain is lower at 27-37 C, so these
+//   rows sat 0.19 e-folds below the calibration's weakest target, where no
+//   calibration row was both hot and weak. With the plan's weakest plate in
+//   the temperature ramp (temperature3.csv), power-ons 1-24: 94.5 % (terciles
+//   96.4 / 95.8 / 91.4 %, bands 95.8 / 95.6 / 91.0 / 95.8 %), against 93.6 %
+//   (93.9 / 95.6 / 91.3 %, bands 94.3 / 94.6 / 89.9 / 95.6 %) without it. What
+//   is short now is the strong tercile at 40 min: strong rows' sigma is
+//   nearly all the drift term, which reads a few percent low (above).
 // - case 0, 32 power-ons (before 77705c7): 93.2 % (terciles 93.7 / 94.5 / 91.5 %, bands 91.0 /
 //   94.5 / 91.1 / 96.4 %); the bands' mean errors have rms 0.21 / 0.90 / 1.07
 //   / 0.81 mm against a drift term of 0 / 0.93 / 0.98 / 1.00 mm. At 0 min the

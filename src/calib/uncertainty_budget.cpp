@@ -672,7 +672,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     // kept, not fewer), held beyond the last.
     std::sort(false_stops.begin(), false_stops.end());
     BudgetComponent c;
-    c.name = "false stops (shots lost to noise)";
+    c.name = "lost shots (false stops, missed echoes)";
     c.axis = BudgetComponent::Axis::lost_shot_share;
     add_node(c, kFalseStopShare, 0.0);
     double v = 0;
@@ -686,7 +686,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         reference_c);
     budget.components.push_back(c);
     report += fmt::sprintf(
-        "budget: false stops: %zu temperature-run target(s) lose %.1f-%.1f %% of their shots; "
+        "budget: lost shots: %zu temperature-run target(s) lose %.1f-%.1f %% of their shots; "
         "u %.2f mm at %.1f %% lost, held beyond (a row's lost share is 1 - shots_valid / %g)\n",
         false_stops.size(), 100 * false_stops.front().first, 100 * false_stops.back().first,
         std::sqrt(v) * 1e3, 100 * false_stops.back().first, budget.shots);
