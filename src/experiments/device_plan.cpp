@@ -299,8 +299,8 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
       phases.bench_minutes = 0;  // read in the same ramp
       add(phases);
     }
-    const double weakest_m = plan.plates.empty() ? 0 : rounded4(plan.plates.front().distance_m);
-    if (o.complete && !plan.plates.empty() && weakest_m != s.grid.distances_m.front()) {
+    const calib::PlannedPlate* weakest = plan.plates.empty() ? nullptr : &plan.plates.front();
+    if (o.complete && weakest && rounded4(weakest->distance_m) != s.grid.distances_m.front()) {
       // The field's weakest echo power, at its own distance, in the same
       // ramp: the plan places it by power at the receiver's nominal
       // temperature, and the APD's gain falls with heat, so hot it returns
@@ -311,8 +311,8 @@ Protocol plan_protocol(const device::VirtualRangefinder& device,
       weak.file = "temperature3.csv";
       weak.observes =
           "the field's weakest echo power over the temperature run (gain falls with heat)";
-      weak.grid.distances_m = {weakest_m};  // plates ascend in power
-      weak.grid.reflectances = {rounded4(plan.plates.front().reflectance)};
+      weak.grid.distances_m = {rounded4(weakest->distance_m)};  // plates ascend in power
+      weak.grid.reflectances = {rounded4(weakest->reflectance)};
       weak.bench_minutes = 0;  // read in the same ramp
       add(weak);
     }
