@@ -773,5 +773,40 @@ TEST(PeriodicStep, AtBothStopsCorrectsTheWidthTheLaterStepsRead) {
   EXPECT_THROW((void)io::pipeline_from_json(j, "model.json"), std::runtime_error);
 }
 
+// With temperature slopes the coefficients are a + a' (T - T_ref) (closed
+// form at phase 0: a_1 + a_2 and their slopes times the departure); a row
+// without a reading gets a alone; the model file keeps the slopes and their
+// reference, an old one (none) reads none; slopes of another length, or not
+// finite, are refused.
+TEST(PeriodicStep, ItsCoefficientsMoveWithTheTemperatureReading) {
+  const double period = 5.0, mpn = metres_per_ns(TimeToDistance{});
+  Step step = make_periodic_step(period, {0.001, 0.0005, 0.0002, 0.0});
+  step.harmonics_per_c_m = {2e-5, 0.0, -1e-5, 0.0};
+  step.reference_temperature_c = 30.0;
+  Pipeline p;
+  p.add_step(step);
+  RawMeasurement raw;
+  raw.shots_valid = 100;
+  raw.pulse_width_ns = 5.0;
+  raw.amplitude = 1.0;
+  raw.tof_ns = 20.0;  // phase 0
+  raw.temperature_c = 40.0;
+  EXPECT_NEAR(p.apply(raw).distance_m, 20.0 * mpn + 0.0012 + 10 * (2e-5 - 1e-5), 1e-12);
+  raw.temperature_c = 30.0;
+  EXPECT_NEAR(p.apply(raw).distance_m, 20.0 * mpn + 0.0012, 1e-12);
+  raw.temperature_c = kNaN;
+  EXPECT_NEAR(p.apply(raw).distance_m, 20.0 * mpn + 0.0012, 1e-12);
+  nlohmann::json j = io::pipeline_to_json(p);
+  const Pipeline loaded = io::pipeline_from_json(j, "model.json");
+  EXPECT_EQ(loaded.steps()[0].harmonics_per_c_m, step.harmonics_per_c_m);
+  EXPECT_EQ(loaded.steps()[0].reference_temperature_c, 30.0);
+  j["steps"][0].erase("harmonics_per_c_m");
+  EXPECT_TRUE(io::pipeline_from_json(j, "model.json").steps()[0].harmonics_per_c_m.empty());
+  j["steps"][0]["harmonics_per_c_m"] = {1e-5, 0.0};
+  EXPECT_THROW((void)io::pipeline_from_json(j, "model.json"), std::runtime_error);
+  step.harmonics_per_c_m = {kNaN, 0.0, 0.0, 0.0};
+  EXPECT_THROW(p.add_step(step), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace tofkit::ranging

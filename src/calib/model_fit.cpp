@@ -595,18 +595,33 @@ std::vector<double> width_sensitivity(const ranging::Pipeline& main,
 /// is -1/2) would sit at a phase that moves with the echo's width, which no
 /// series in the time of flight can follow: on held-out case 0 it left
 /// 0.35 mm of a 1.15 mm effect even fitted to the field rows themselves,
-/// both stops 0.11 mm (8 harmonics) and 0.04 mm (16). Returns the harmonics
-/// (empty: none chosen).
+/// both stops 0.11 mm (8 harmonics) and 0.04 mm (16).
+/// Where the rows span temperatures (a temperature run over the period's
+/// phases), the cross-validation also chooses whether each coefficient moves
+/// linearly with the temperature reading about the rows' median reading: the
+/// fine bins' width follows the timing board's temperature, so a bin-width
+/// error, a sawtooth over the period, grows with the board's departure from
+/// where the codes were fitted. Its mean over the period is the temperature
+/// step's (a column fitted, not kept). Held-out case 0 (power-ons 9-16,
+/// the planner's protocol): the field's rows at 37 C read 0.38 mm long
+/// against 17 C on average over 0.7-4.9 m (phases 0.30-0.41 m of the 0.75 m
+/// period), 0.03 mm with the slopes; the systematic residual at 0 min fell
+/// from 0.41 to 0.36 mm (one row's noise 0.31 mm).
+/// Returns the series (empty harmonics: none chosen).
 constexpr int kMaxHarmonics = 16;
 
-std::vector<double> fit_periodic(const ranging::Pipeline& main,
-                                 std::span<const ranging::Record> rows, double period_ns,
-                                 ModelFitSummary::Periodic* info) {
+struct PeriodicSeries {
+  std::vector<double> harmonics_m, harmonics_per_c_m;
+  double reference_temperature_c = 0;
+};
+
+PeriodicSeries fit_periodic(const ranging::Pipeline& main, std::span<const ranging::Record> rows,
+                            double period_ns, ModelFitSummary::Periodic* info) {
   const std::vector<ranging::Range> corrected = corrected_ranges(main, rows);
   const std::vector<double> sensitivity = width_sensitivity(main, rows);
   std::size_t groups = 0;
   const std::vector<std::size_t> group_of = truth_groups(rows, groups);
-  std::vector<double> rise, fall, g, e;
+  std::vector<double> rise, fall, g, e, temperature;
   std::vector<std::size_t> fold;
   constexpr std::size_t kFolds = 5;
   const auto phase = [&](double tof_ns) {
@@ -633,12 +648,28 @@ std::vector<double> fit_periodic(const ranging::Pipeline& main,
     fall.push_back(std::isfinite(width) ? phase(rows[i].raw.tof_ns + width) : 0.0);
     g.push_back(std::isfinite(width) ? sensitivity[i] : 0.0);
     e.push_back(r);
+    temperature.push_back(rows[i].raw.temperature_c);
     fold.push_back(fold_of(group_of[i], kFolds));
   }
   const auto n = static_cast<Eigen::Index>(e.size());
+  PeriodicSeries out;
+  // The slope's anchor: the median reading (where the plates and the rail
+  // stand); rows without a reading get none of the slope.
+  std::vector<double> readings;
+  for (double t : temperature)
+    if (std::isfinite(t)) readings.push_back(t);
+  double t_lo = 0, t_hi = 0;
+  if (!readings.empty()) {
+    std::sort(readings.begin(), readings.end());
+    out.reference_temperature_c = readings[readings.size() / 2];
+    t_lo = readings.front();
+    t_hi = readings.back();
+  }
   // Columns: a constant (the main correction's business; fitted, not kept),
-  // then cos and sin of each harmonic at both stops, weighted by their share.
-  Eigen::MatrixXd x(n, 1 + 2 * kMaxHarmonics);
+  // then cos and sin of each harmonic at both stops, weighted by their share;
+  // then the same times the reading's departure (the slopes).
+  constexpr Eigen::Index kCols = 1 + 2 * kMaxHarmonics;
+  Eigen::MatrixXd x(n, 2 * kCols);
   for (Eigen::Index i = 0; i < n; ++i) {
     const auto k = static_cast<std::size_t>(i);
     x(i, 0) = 1.0;
@@ -646,41 +677,79 @@ std::vector<double> fit_periodic(const ranging::Pipeline& main,
       x(i, 2 * h - 1) = (1 - g[k]) * std::cos(h * rise[k]) + g[k] * std::cos(h * fall[k]);
       x(i, 2 * h) = (1 - g[k]) * std::sin(h * rise[k]) + g[k] * std::sin(h * fall[k]);
     }
+    const double dt =
+        std::isfinite(temperature[k]) ? temperature[k] - out.reference_temperature_c : 0.0;
+    x.row(i).segment(kCols, kCols) = dt * x.row(i).head(kCols);
   }
+  // A slope needs a spread of readings to be seen (a temperature run's), and
+  // its harmonics phases that resolve them: the rows away from the reference
+  // stand at a few phases only (a run's plates), where more harmonics than
+  // a third of their phases (in 64ths of the period) would alias, fitting
+  // them and swinging between them, and a grouped fold holds out a target,
+  // not its phase, so the cross-validation would not see it.
+  constexpr double kMinSpanC = 5;
+  constexpr int kPhaseBins = 64;
+  std::vector<bool> seen(kPhaseBins, false);
+  for (std::size_t k = 0; k < temperature.size(); ++k)
+    if (std::abs(temperature[k] - out.reference_temperature_c) >= kMinSpanC / 2)
+      seen[std::min(kPhaseBins - 1,
+                    static_cast<int>(rise[k] / (2 * std::numbers::pi) * kPhaseBins))] = true;
+  const int slope_harmonics = static_cast<int>(std::count(seen.begin(), seen.end(), true)) / 3;
+  const bool slope_seen = t_hi - t_lo >= kMinSpanC && slope_harmonics >= 1;
+  const auto columns = [&](int h, bool slope) {
+    std::vector<Eigen::Index> c;
+    for (Eigen::Index j = 0; j <= 2 * h; ++j) c.push_back(j);
+    if (slope)
+      for (Eigen::Index j = 0; j <= 2 * std::min(h, slope_harmonics); ++j) c.push_back(kCols + j);
+    return c;
+  };
   const Eigen::Map<const Eigen::VectorXd> y(e.data(), n);
   double best = y.squaredNorm(), without = -1;
   int best_h = 0;
+  bool best_slope = false;
   if (groups >= kFolds && n >= 40) {
-    for (int h = 0; h <= kMaxHarmonics; ++h) {
-      const Eigen::Index cols = 1 + 2 * h;
-      double sse = 0;
-      for (std::size_t f = 0; f < kFolds; ++f) {
-        std::vector<Eigen::Index> train, test;
-        for (Eigen::Index i = 0; i < n; ++i)
-          (fold[static_cast<std::size_t>(i)] == f ? test : train).push_back(i);
-        if (test.empty() || train.size() < static_cast<std::size_t>(3 * cols)) continue;
-        const Eigen::MatrixXd a = x(train, Eigen::seq(0, cols - 1));
-        const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train).eval());
-        sse += (y(test) - x(test, Eigen::seq(0, cols - 1)) * c).squaredNorm();
-      }
-      if (h == 0) {
-        without = sse;
-        best = sse;
-      } else if (sse < best) {
-        best = sse;
-        best_h = h;
+    for (int slope = 0; slope <= (slope_seen ? 1 : 0); ++slope) {
+      for (int h = slope; h <= kMaxHarmonics; ++h) {
+        const std::vector<Eigen::Index> cols = columns(h, slope != 0);
+        double sse = 0;
+        for (std::size_t f = 0; f < kFolds; ++f) {
+          std::vector<Eigen::Index> train, test;
+          for (Eigen::Index i = 0; i < n; ++i)
+            (fold[static_cast<std::size_t>(i)] == f ? test : train).push_back(i);
+          if (test.empty() || train.size() < 3 * cols.size()) continue;
+          const Eigen::MatrixXd a = x(train, cols);
+          const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train).eval());
+          sse += (y(test) - x(test, cols) * c).squaredNorm();
+        }
+        if (h == 0 && slope == 0) {
+          without = sse;
+          best = sse;
+        } else if (sse < best) {
+          best = sse;
+          best_h = h;
+          best_slope = slope != 0;
+        }
       }
     }
   }
   if (info && without >= 0) {
     info->harmonics = best_h;
+    info->temperature_slope = best_slope;
     info->cv_rms_m = std::sqrt(best / static_cast<double>(n));
     info->cv_rms_without_m = std::sqrt(without / static_cast<double>(n));
   }
-  if (best_h == 0) return {};
-  const Eigen::Index cols = 1 + 2 * best_h;
-  const Eigen::VectorXd c = x.leftCols(cols).colPivHouseholderQr().solve(y);
-  return std::vector<double>(c.data() + 1, c.data() + cols);
+  if (best_h == 0) return out;
+  const std::vector<Eigen::Index> cols = columns(best_h, best_slope);
+  const Eigen::VectorXd c = x(Eigen::all, cols).colPivHouseholderQr().solve(y);
+  const auto terms = static_cast<Eigen::Index>(2 * best_h);
+  out.harmonics_m.assign(c.data() + 1, c.data() + 1 + terms);
+  if (best_slope) {  // the harmonics beyond the slope's own hold still
+    out.harmonics_per_c_m.assign(static_cast<std::size_t>(terms), 0.0);
+    const Eigen::Index slope_terms = 2 * std::min(best_h, slope_harmonics);
+    std::copy(c.data() + 2 + terms, c.data() + 2 + terms + slope_terms,
+              out.harmonics_per_c_m.begin());
+  }
+  return out;
 }
 
 /// The correction: the main one (chain and/or surface), and with
@@ -692,17 +761,25 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
                                  ModelFitSummary* summary, std::string* report) {
   if (!(o.tdc_period_ns > 0)) return fit_main_correction(rows, o, summary, report);
   std::vector<ranging::Record> adjusted(rows.begin(), rows.end());
-  std::vector<double> harmonics;
+  PeriodicSeries series;
+  const auto step_of = [&] {
+    ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, series.harmonics_m, true);
+    step.harmonics_per_c_m = series.harmonics_per_c_m;
+    step.reference_temperature_c = series.reference_temperature_c;
+    return step;
+  };
   // The rows as the step hands them on: its corrected tof and width.
   const auto adjust = [&] {
     const double metres_per_ns = ranging::metres_per_ns(o.time_to_distance);
+    const ranging::Step step = step_of();
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const double tof = rows[i].raw.tof_ns, width = rows[i].raw.pulse_width_ns;
-      const double c_rise = ranging::periodic_correction(o.tdc_period_ns, harmonics, tof);
+      const double reading = rows[i].raw.temperature_c;
+      const double c_rise = ranging::periodic_correction(step, tof, reading);
       adjusted[i].raw.tof_ns = tof + c_rise / metres_per_ns;
       adjusted[i].raw.distance_raw_m = rows[i].raw.distance_raw_m + c_rise;
       if (std::isfinite(width) && std::isfinite(tof)) {
-        const double c_fall = ranging::periodic_correction(o.tdc_period_ns, harmonics, tof + width);
+        const double c_fall = ranging::periodic_correction(step, tof + width, reading);
         adjusted[i].raw.pulse_width_ns = width + (c_fall - c_rise) / metres_per_ns;
       }
     }
@@ -711,13 +788,13 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   ModelFitSummary::Periodic info;
   constexpr int kRounds = 2;
   for (int round = 0; round <= kRounds; ++round) {
-    harmonics = fit_periodic(main, rows, o.tdc_period_ns, &info);
-    if (harmonics.empty() || round == kRounds) break;
+    series = fit_periodic(main, rows, o.tdc_period_ns, &info);
+    if (series.harmonics_m.empty() || round == kRounds) break;
     adjust();
     const bool last = round + 1 == kRounds;
     main = fit_main_correction(adjusted, o, last ? summary : nullptr, last ? report : nullptr);
   }
-  if (harmonics.empty()) {
+  if (series.harmonics_m.empty()) {
     // Not chosen: the main correction alone, fitted (and summarised) on the rows as they are.
     main = fit_main_correction(rows, o, summary, report);
     if (summary) summary->periodic = info;
@@ -729,7 +806,7 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
     return main;
   }
   ranging::Pipeline pipeline(main.time_to_distance());
-  ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, harmonics, true);
+  ranging::Step step = step_of();
   step.fit.rows = rows.size();
   step.fit.residual_rms_m = main.residual_rms_m();  // of the whole fit, periodic part included
   pipeline.add_step(std::move(step));
@@ -737,13 +814,21 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   pipeline.set_residual_rms_m(main.residual_rms_m());
   if (summary) summary->periodic = info;
   if (report) {
-    double amplitude2 = 0;
-    for (double c : harmonics) amplitude2 += c * c;
+    const auto rms = [](const std::vector<double>& c) {
+      double amplitude2 = 0;
+      for (double v : c) amplitude2 += v * v;
+      return std::sqrt(0.5 * amplitude2);
+    };
+    const std::string slope =
+        series.harmonics_per_c_m.empty()
+            ? std::string()
+            : format(", its rms moving %.4f mm/C about %.1f C", rms(series.harmonics_per_c_m) * 1e3,
+                     series.reference_temperature_c);
     *report += format(
-        "periodic (TDC clock period %.4g ns, at both stops): %d harmonic(s), rms %.3f mm, "
+        "periodic (TDC clock period %.4g ns, at both stops): %d harmonic(s), rms %.3f mm%s, "
         "cross-validated RMS %.3f mm (without %.3f mm)\n",
-        o.tdc_period_ns, info.harmonics, std::sqrt(0.5 * amplitude2) * 1e3, info.cv_rms_m * 1e3,
-        info.cv_rms_without_m * 1e3);
+        o.tdc_period_ns, info.harmonics, rms(series.harmonics_m) * 1e3, slope.c_str(),
+        info.cv_rms_m * 1e3, info.cv_rms_without_m * 1e3);
   }
   return pipeline;
 }
@@ -772,7 +857,7 @@ struct Residuals {
 /// hat matrix, or its rank), the chain's offset, its walk refinement's trace
 /// or its hinges' parameters (intercept, slope and one per knot), the walk
 /// model's shape parameters, and two per
-/// harmonic of a periodic step.
+/// harmonic of a periodic step (four when they move with the temperature).
 double effective_parameters(const ModelFitSummary& s) {
   double p = 0;
   if (s.surface) p += s.surface->effective_parameters;
@@ -788,7 +873,7 @@ double effective_parameters(const ModelFitSummary& s) {
     if (s.chain->walk)
       p += std::isfinite(s.chain->walk->shape.saturation_log_overdrive) ? 4.0 : 2.0;
   }
-  if (s.periodic) p += 2.0 * s.periodic->harmonics;
+  if (s.periodic) p += (s.periodic->temperature_slope ? 4.0 : 2.0) * s.periodic->harmonics;
   return p;
 }
 

@@ -155,6 +155,10 @@ json step_to_json(const ranging::Step& step) {
       j["input"] = "tof_ns";
       j["period_ns"] = step.period_ns;
       j["harmonics_m"] = step.harmonics_m;
+      if (!step.harmonics_per_c_m.empty()) {
+        j["harmonics_per_c_m"] = step.harmonics_per_c_m;
+        j["reference_temperature_c"] = step.reference_temperature_c;
+      }
       // Models before it had none: the rising edge's stop only.
       if (step.both_stops) j["stops"] = "rise_and_fall";
       break;
@@ -247,6 +251,10 @@ ranging::Step step_from_json(const json& j, const std::string& where) {
     case ranging::StepKind::kPeriodic:
       step.period_ns = number(j, "period_ns", where);
       step.harmonics_m = numbers(j, "harmonics_m", where);
+      if (j.contains("harmonics_per_c_m")) {
+        step.harmonics_per_c_m = numbers(j, "harmonics_per_c_m", where);
+        step.reference_temperature_c = number(j, "reference_temperature_c", where);
+      }
       if (j.contains("stops")) {
         const std::string stops = text(j, "stops", where);
         if (stops != "rise" && stops != "rise_and_fall")
@@ -545,6 +553,7 @@ json fit_summary_json(const calib::ModelFitSummary& s, const std::string& input)
   }
   if (s.periodic) {
     j["periodic"] = {{"harmonics", s.periodic->harmonics},
+                     {"temperature_slope", s.periodic->temperature_slope},
                      {"cv_rms_m", s.periodic->cv_rms_m},
                      {"cv_rms_without_m", s.periodic->cv_rms_without_m}};
   }

@@ -292,6 +292,18 @@ void Step::validate() const {
         if (!std::isfinite(c))
           throw std::invalid_argument("periodic step: a harmonic is not finite");
       }
+      if (!harmonics_per_c_m.empty() && harmonics_per_c_m.size() != harmonics_m.size()) {
+        throw std::invalid_argument(
+            "periodic step: harmonics_per_c_m needs as many coefficients as harmonics_m");
+      }
+      for (double c : harmonics_per_c_m) {
+        if (!std::isfinite(c))
+          throw std::invalid_argument(
+              "periodic step: a harmonic's temperature slope is not finite");
+      }
+      if (!harmonics_per_c_m.empty() && !std::isfinite(reference_temperature_c)) {
+        throw std::invalid_argument("periodic step: reference_temperature_c is not finite");
+      }
       break;
   }
 }
@@ -343,15 +355,21 @@ Step make_periodic_step(double period_ns, std::vector<double> harmonics_m, bool 
   return step;
 }
 
-double periodic_correction(double period_ns, const std::vector<double>& harmonics_m,
-                           double tof_ns) {
+double periodic_correction(const Step& step, double tof_ns, double temperature_c) {
   if (!std::isfinite(tof_ns)) return 0.0;
   // The phase from the remainder, so that large times keep their precision.
-  const double phase = 2.0 * std::numbers::pi * std::fmod(tof_ns, period_ns) / period_ns;
+  const double phase = 2.0 * std::numbers::pi * std::fmod(tof_ns, step.period_ns) / step.period_ns;
+  const auto& a = step.harmonics_m;
+  const auto& slope = step.harmonics_per_c_m;
+  const double dt = std::isfinite(temperature_c) && !slope.empty()
+                        ? temperature_c - step.reference_temperature_c
+                        : 0.0;
   double c = 0;
-  for (std::size_t h = 0; 2 * h + 1 < harmonics_m.size(); ++h) {
+  for (std::size_t h = 0; 2 * h + 1 < a.size(); ++h) {
     const double angle = static_cast<double>(h + 1) * phase;
-    c += harmonics_m[2 * h] * std::cos(angle) + harmonics_m[2 * h + 1] * std::sin(angle);
+    const double ca = a[2 * h] + (dt != 0 ? slope[2 * h] * dt : 0.0);
+    const double sa = a[2 * h + 1] + (dt != 0 ? slope[2 * h + 1] * dt : 0.0);
+    c += ca * std::cos(angle) + sa * std::sin(angle);
   }
   return c;
 }
@@ -482,12 +500,12 @@ void Pipeline::apply(const RawColumns& in, std::span<Range> out) const {
           break;
         case StepKind::kPeriodic:
           for (std::size_t i = 0; i < n; ++i) {
-            const double rise = periodic_correction(step.period_ns, step.harmonics_m, b.tof[i]);
+            const double rise = periodic_correction(step, b.tof[i], b.temperature[i]);
             b.distance[i] += rise;
             if (!step.both_stops) continue;
             // The falling edge's stop: the width the later steps read.
             const double fall =
-                periodic_correction(step.period_ns, step.harmonics_m, b.tof[i] + b.pulse_width[i]);
+                periodic_correction(step, b.tof[i] + b.pulse_width[i], b.temperature[i]);
             if (std::isfinite(b.pulse_width[i])) b.pulse_width[i] += (fall - rise) / metres_per_ns_;
             b.tof[i] += rise / metres_per_ns_;
           }
@@ -560,6 +578,9 @@ std::string Pipeline::summary() const {
         out << (step.both_stops ? " at both stops (tof and tof + pulse width)" : " in tof")
             << " modulo " << format_number(step.period_ns) << " ns, " << step.harmonics_m.size() / 2
             << " harmonic(s)";
+        if (!step.harmonics_per_c_m.empty())
+          out << ", scaled with the temperature reading about "
+              << format_number(step.reference_temperature_c) << " C";
         break;
     }
     if (step.fit.rows > 0) {

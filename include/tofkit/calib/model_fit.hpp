@@ -143,6 +143,7 @@ struct ModelFitSummary {
   /// with them and without a periodic step.
   struct Periodic {
     int harmonics = 0;
+    bool temperature_slope = false;  ///< the coefficients move with the temperature reading
     double cv_rms_m = 0;
     double cv_rms_without_m = 0;
   };

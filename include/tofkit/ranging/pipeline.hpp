@@ -80,8 +80,16 @@ struct Step {
   /// C(tof_ns), so that the steps after it read corrected widths. A row
   /// without a finite tof_ns gets no periodic correction, one without a finite
   /// width none of its width.
+  /// harmonics_per_c_m (empty, or laid out as harmonics_m, m per C): the
+  /// coefficients' change with the temperature reading, so that C uses
+  /// harmonics_m + harmonics_per_c_m (temperature_c - reference_temperature_c)
+  /// (a row without a finite reading: harmonics_m alone). The interpolator's
+  /// bins widen with the timing board's temperature (carry-chain delays), so
+  /// the error's shape over the period scales with it.
   double period_ns = 0;
   std::vector<double> harmonics_m;
+  std::vector<double> harmonics_per_c_m;
+  double reference_temperature_c = 0;
   bool both_stops = false;
   StepFitInfo fit;
 
@@ -100,9 +108,10 @@ struct Step {
                                   InputDomain pulse_width_domain_ns);
 [[nodiscard]] Step make_periodic_step(double period_ns, std::vector<double> harmonics_m,
                                       bool both_stops = false);
-/// The periodic step's correction at time of flight tof_ns (0 when not finite).
-[[nodiscard]] double periodic_correction(double period_ns, const std::vector<double>& harmonics_m,
-                                         double tof_ns);
+/// A periodic step's correction at time of flight tof_ns (0 when not finite)
+/// and temperature reading temperature_c (step.harmonics_per_c_m's share 0
+/// when not finite). Reads period_ns and the harmonics of `step` only.
+[[nodiscard]] double periodic_correction(const Step& step, double tof_ns, double temperature_c);
 
 /// One input field read in place: element i is the T at `data` + i * `stride`
 /// bytes (a member of an array of structs, a column of a structured NumPy
