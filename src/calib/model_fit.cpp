@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -607,16 +608,11 @@ std::vector<double> width_sensitivity(const ranging::Pipeline& main,
 /// against 17 C on average over 0.7-4.9 m (phases 0.30-0.41 m of the 0.75 m
 /// period), 0.03 mm with the slopes; the systematic residual at 0 min fell
 /// from 0.41 to 0.36 mm (one row's noise 0.31 mm).
-/// Returns the series (empty harmonics: none chosen).
+/// Returns the step, at both stops (empty harmonics: none chosen).
 constexpr int kMaxHarmonics = 16;
 
-struct PeriodicSeries {
-  std::vector<double> harmonics_m, harmonics_per_c_m;
-  double reference_temperature_c = 0;
-};
-
-PeriodicSeries fit_periodic(const ranging::Pipeline& main, std::span<const ranging::Record> rows,
-                            double period_ns, ModelFitSummary::Periodic* info) {
+ranging::Step fit_periodic(const ranging::Pipeline& main, std::span<const ranging::Record> rows,
+                           double period_ns, ModelFitSummary::Periodic* info) {
   const std::vector<ranging::Range> corrected = corrected_ranges(main, rows);
   const std::vector<double> sensitivity = width_sensitivity(main, rows);
   std::size_t groups = 0;
@@ -652,7 +648,7 @@ PeriodicSeries fit_periodic(const ranging::Pipeline& main, std::span<const rangi
     fold.push_back(fold_of(group_of[i], kFolds));
   }
   const auto n = static_cast<Eigen::Index>(e.size());
-  PeriodicSeries out;
+  ranging::Step out = ranging::make_periodic_step(period_ns, {}, true);
   // The slope's anchor: the median reading (where the plates and the rail
   // stand); rows without a reading get none of the slope.
   std::vector<double> readings;
@@ -708,18 +704,19 @@ PeriodicSeries fit_periodic(const ranging::Pipeline& main, std::span<const rangi
   int best_h = 0;
   bool best_slope = false;
   if (groups >= kFolds && n >= 40) {
+    std::array<std::vector<Eigen::Index>, kFolds> train, test;
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (std::size_t f = 0; f < kFolds; ++f)
+        (fold[static_cast<std::size_t>(i)] == f ? test[f] : train[f]).push_back(i);
     for (int slope = 0; slope <= (slope_seen ? 1 : 0); ++slope) {
       for (int h = slope; h <= kMaxHarmonics; ++h) {
         const std::vector<Eigen::Index> cols = columns(h, slope != 0);
         double sse = 0;
         for (std::size_t f = 0; f < kFolds; ++f) {
-          std::vector<Eigen::Index> train, test;
-          for (Eigen::Index i = 0; i < n; ++i)
-            (fold[static_cast<std::size_t>(i)] == f ? test : train).push_back(i);
-          if (test.empty() || train.size() < 3 * cols.size()) continue;
-          const Eigen::MatrixXd a = x(train, cols);
-          const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train).eval());
-          sse += (y(test) - x(test, cols) * c).squaredNorm();
+          if (test[f].empty() || train[f].size() < 3 * cols.size()) continue;
+          const Eigen::MatrixXd a = x(train[f], cols);
+          const Eigen::VectorXd c = a.colPivHouseholderQr().solve(y(train[f]).eval());
+          sse += (y(test[f]) - x(test[f], cols) * c).squaredNorm();
         }
         if (h == 0 && slope == 0) {
           without = sse;
@@ -761,17 +758,10 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
                                  ModelFitSummary* summary, std::string* report) {
   if (!(o.tdc_period_ns > 0)) return fit_main_correction(rows, o, summary, report);
   std::vector<ranging::Record> adjusted(rows.begin(), rows.end());
-  PeriodicSeries series;
-  const auto step_of = [&] {
-    ranging::Step step = ranging::make_periodic_step(o.tdc_period_ns, series.harmonics_m, true);
-    step.harmonics_per_c_m = series.harmonics_per_c_m;
-    step.reference_temperature_c = series.reference_temperature_c;
-    return step;
-  };
+  ranging::Step step;  // the periodic one
   // The rows as the step hands them on: its corrected tof and width.
   const auto adjust = [&] {
     const double metres_per_ns = ranging::metres_per_ns(o.time_to_distance);
-    const ranging::Step step = step_of();
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const double tof = rows[i].raw.tof_ns, width = rows[i].raw.pulse_width_ns;
       const double reading = rows[i].raw.temperature_c;
@@ -788,13 +778,13 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
   ModelFitSummary::Periodic info;
   constexpr int kRounds = 2;
   for (int round = 0; round <= kRounds; ++round) {
-    series = fit_periodic(main, rows, o.tdc_period_ns, &info);
-    if (series.harmonics_m.empty() || round == kRounds) break;
+    step = fit_periodic(main, rows, o.tdc_period_ns, &info);
+    if (step.harmonics_m.empty() || round == kRounds) break;
     adjust();
     const bool last = round + 1 == kRounds;
     main = fit_main_correction(adjusted, o, last ? summary : nullptr, last ? report : nullptr);
   }
-  if (series.harmonics_m.empty()) {
+  if (step.harmonics_m.empty()) {
     // Not chosen: the main correction alone, fitted (and summarised) on the rows as they are.
     main = fit_main_correction(rows, o, summary, report);
     if (summary) summary->periodic = info;
@@ -806,10 +796,9 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
     return main;
   }
   ranging::Pipeline pipeline(main.time_to_distance());
-  ranging::Step step = step_of();
   step.fit.rows = rows.size();
   step.fit.residual_rms_m = main.residual_rms_m();  // of the whole fit, periodic part included
-  pipeline.add_step(std::move(step));
+  pipeline.add_step(step);
   for (const ranging::Step& s : main.steps()) pipeline.add_step(s);
   pipeline.set_residual_rms_m(main.residual_rms_m());
   if (summary) summary->periodic = info;
@@ -820,14 +809,14 @@ ranging::Pipeline fit_correction(std::span<const ranging::Record> rows, const Mo
       return std::sqrt(0.5 * amplitude2);
     };
     const std::string slope =
-        series.harmonics_per_c_m.empty()
+        step.harmonics_per_c_m.empty()
             ? std::string()
-            : format(", its rms moving %.4f mm/C about %.1f C", rms(series.harmonics_per_c_m) * 1e3,
-                     series.reference_temperature_c);
+            : format(", its rms moving %.4f mm/C about %.1f C", rms(step.harmonics_per_c_m) * 1e3,
+                     step.reference_temperature_c);
     *report += format(
         "periodic (TDC clock period %.4g ns, at both stops): %d harmonic(s), rms %.3f mm%s, "
         "cross-validated RMS %.3f mm (without %.3f mm)\n",
-        o.tdc_period_ns, info.harmonics, rms(series.harmonics_m) * 1e3, slope.c_str(),
+        o.tdc_period_ns, info.harmonics, rms(step.harmonics_m) * 1e3, slope.c_str(),
         info.cv_rms_m * 1e3, info.cv_rms_without_m * 1e3);
   }
   return pipeline;
