@@ -862,8 +862,9 @@ TEST(WalkModel, OutOfDomainSigmaAddsTheWalksOwnVariance) {
 
 // In sunlight (paper Table 1) the bright plates lose shots to false alarms
 // before their echo (the background, and with it the noise, follows the
-// reflectance), which the firmware's stop gate drops: rows with 85-99 % of
-// their shots, whose kept shots time the echo as a complete row's do. They
+// reflectance), which the firmware's stop gate drops: rows with 97.3-99.9 %
+// of their shots, whose kept shots time the echo as a complete row's do (a
+// row losing more than 5 % keeps false stops and is left out). They
 // were left out of the walk fit with the weak echoes' partial rows (whose
 // mean is biased by which shots crossed), so the walk never saw clipping and
 // the temperature run's clipped rows bent the temperature step: the fit's own
