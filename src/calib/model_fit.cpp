@@ -709,7 +709,6 @@ ranging::Step fit_periodic(const ranging::Pipeline& main, std::span<const rangin
     // refinement's, for a block its training rows cannot carry).
     std::array<std::vector<Eigen::Index>, kFolds> test;
     std::array<NormalEquations, kFolds> train;
-    std::array<std::size_t, kFolds> train_rows{};
     for (Eigen::Index i = 0; i < n; ++i) test[fold[static_cast<std::size_t>(i)]].push_back(i);
     for (std::size_t f = 0; f < kFolds; ++f) {
       std::vector<Eigen::Index> rows_in;
@@ -717,14 +716,14 @@ ranging::Step fit_periodic(const ranging::Pipeline& main, std::span<const rangin
         if (fold[static_cast<std::size_t>(i)] != f) rows_in.push_back(i);
       const Eigen::MatrixXd a = x(rows_in, Eigen::all);
       train[f] = {a.transpose() * a, a.transpose() * y(rows_in)};
-      train_rows[f] = rows_in.size();
     }
     for (int slope = 0; slope <= (slope_seen ? 1 : 0); ++slope) {
       for (int h = slope; h <= kMaxHarmonics; ++h) {
         const std::vector<Eigen::Index> cols = columns(h, slope != 0);
         double sse = 0;
         for (std::size_t f = 0; f < kFolds; ++f) {
-          if (test[f].empty() || train_rows[f] < 3 * cols.size()) continue;
+          const std::size_t train_rows = static_cast<std::size_t>(n) - test[f].size();
+          if (test[f].empty() || train_rows < 3 * cols.size()) continue;
           Eigen::MatrixXd normal = train[f].normal(cols, cols);
           normal.diagonal().array() += 1e-12 * normal.trace() / static_cast<double>(cols.size());
           const Eigen::VectorXd c = normal.ldlt().solve(train[f].rhs(cols).eval());
