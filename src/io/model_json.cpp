@@ -380,6 +380,8 @@ const char* axis_name(ranging::BudgetComponent::Axis a) {
       return "temperature_c";
     case ranging::BudgetComponent::Axis::lost_shot_share:
       return "lost_shot_share";
+    case ranging::BudgetComponent::Axis::false_stop_rate_per_m:
+      return "false_stop_rate_per_m";
     case ranging::BudgetComponent::Axis::none:
       break;
   }
@@ -454,10 +456,12 @@ ranging::UncertaintyBudget budget_from_json(const json& j, const std::string& co
       c.axis = ranging::BudgetComponent::Axis::temperature_c;
     } else if (axis == "lost_shot_share") {
       c.axis = ranging::BudgetComponent::Axis::lost_shot_share;
+    } else if (axis == "false_stop_rate_per_m") {
+      c.axis = ranging::BudgetComponent::Axis::false_stop_rate_per_m;
     } else {
       fail(where + ".axis",
-           "expected none, log_amplitude, time_since_calibration_s, temperature_c or "
-           "lost_shot_share");
+           "expected none, log_amplitude, time_since_calibration_s, temperature_c, "
+           "lost_shot_share or false_stop_rate_per_m");
     }
     c.node = numbers(cj, "node", where);
     c.variance_m2 = numbers(cj, "variance_m2", where);

@@ -30,8 +30,10 @@ void UncertaintyBudget::validate() const {
       throw std::invalid_argument(who + ": node and variance_m2 must be non-empty, equal length");
     if (c.axis == BudgetComponent::Axis::none && c.node.size() != 1)
       throw std::invalid_argument(who + ": a component without an axis has one node");
-    if (c.axis == BudgetComponent::Axis::lost_shot_share && !(shots >= 1))
-      throw std::invalid_argument(who + ": a lost_shot_share component needs the budget's shots");
+    if ((c.axis == BudgetComponent::Axis::lost_shot_share ||
+         c.axis == BudgetComponent::Axis::false_stop_rate_per_m) &&
+        !(shots >= 1))
+      throw std::invalid_argument(who + ": a lost-shot component needs the budget's shots");
     for (std::size_t j = 0; j < c.node.size(); ++j) {
       if (!std::isfinite(c.node[j]) || (j > 0 && !(c.node[j] > c.node[j - 1])))
         throw std::invalid_argument(who + ".node must be finite and ascending");
@@ -45,8 +47,16 @@ double lost_shot_share(double shots_valid, double shots) {
   return shots > 0 ? std::clamp(1.0 - shots_valid / shots, 0.0, 1.0) : kNaN;
 }
 
+double false_stop_rate_per_m(double lost_share, double distance_m) {
+  if (lost_share == 0) return 0.0;  // at any range
+  if (!(lost_share > 0 && lost_share <= 1) || !(distance_m > 0) || !std::isfinite(distance_m))
+    return kNaN;
+  return -std::log1p(-lost_share) / distance_m;
+}
+
 double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double since_s,
-                                        double temperature_c, double lost_share) const {
+                                        double temperature_c, double lost_share,
+                                        double distance_m) const {
   const BudgetComponent& c = components[k];
   const bool same = std::isfinite(since_s);
   if ((c.scope == BudgetScope::same_power_on && !same) ||
@@ -63,6 +73,11 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
     case BudgetComponent::Axis::lost_shot_share:
       if (std::isfinite(lost_share)) return c.u_m(lost_share);
       return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+    case BudgetComponent::Axis::false_stop_rate_per_m: {
+      const double rate = false_stop_rate_per_m(lost_share, distance_m);
+      if (!std::isnan(rate)) return c.u_m(rate);  // +inf: held beyond the last node
+      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+    }
     case BudgetComponent::Axis::none:
       break;
   }
@@ -71,21 +86,25 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
 
 void UncertaintyBudget::combined(std::span<const double> amplitude, std::span<const double> since_s,
                                  std::span<double> u_m, std::span<const double> temperature_c,
-                                 std::span<const double> lost_share) const {
+                                 std::span<const double> lost_share,
+                                 std::span<const double> distance_m) const {
+  const auto per_row = [&](std::span<const double> s) {
+    return s.empty() || s.size() == amplitude.size();
+  };
   if (u_m.size() != amplitude.size() ||
-      (since_s.size() != 1 && since_s.size() != amplitude.size()) ||
-      (!temperature_c.empty() && temperature_c.size() != amplitude.size()) ||
-      (!lost_share.empty() && lost_share.size() != amplitude.size()))
+      (since_s.size() != 1 && since_s.size() != amplitude.size()) || !per_row(temperature_c) ||
+      !per_row(lost_share) || !per_row(distance_m))
     throw std::invalid_argument(
-        "UncertaintyBudget::combined: amplitude, since_s (one or one per row), temperature_c and "
-        "lost_share (none or one per row) and u_m differ in length");
+        "UncertaintyBudget::combined: amplitude, since_s (one or one per row), temperature_c, "
+        "lost_share and distance_m (none or one per row) and u_m differ in length");
   for (std::size_t i = 0; i < amplitude.size(); ++i) {
     const double since = since_s.size() == 1 ? since_s[0] : since_s[i];
     const double t = temperature_c.empty() ? kNaN : temperature_c[i];
     const double lost = lost_share.empty() ? kNaN : lost_share[i];
+    const double d = distance_m.empty() ? kNaN : distance_m[i];
     double v = 0;
     for (std::size_t k = 0; k < components.size(); ++k) {
-      const double u = component_u_m(k, amplitude[i], since, t, lost);
+      const double u = component_u_m(k, amplitude[i], since, t, lost, d);
       v += u * u;
     }
     u_m[i] = std::sqrt(v);
@@ -136,7 +155,8 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
             : "");
   }
   if (std::any_of(components.begin(), components.end(), [](const BudgetComponent& c) {
-        return c.axis == BudgetComponent::Axis::lost_shot_share;
+        return c.axis == BudgetComponent::Axis::lost_shot_share ||
+               c.axis == BudgetComponent::Axis::false_stop_rate_per_m;
       }))
     out += "  (each point keeps all its shots: a row losing them adds the lost-shot term)\n";
   if (std::any_of(components.begin(), components.end(),
@@ -161,7 +181,7 @@ void apply_budget(const UncertaintyBudget& budget, const Pipeline& pipeline, con
     intensity[i] = by_width ? in.pulse_width_ns[i] : amplitude[i];
     distance[i] = out[i].distance_m;
   }
-  budget.combined(amplitude, since_s, u, temperature, lost);
+  budget.combined(amplitude, since_s, u, temperature, lost, distance);
   if (confidence) {
     confidence->sigma(distance, intensity, inside);
   } else {

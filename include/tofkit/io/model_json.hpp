@@ -20,9 +20,9 @@
 ///    "uncertainty_budget": {"components": [{"name", "step", "type": "A" | "B",
 ///        "default_specification", "scope": "always" | "same_power_on" | "other_power_on",
 ///        "axis": "none" | "log_amplitude" | "time_since_calibration_s" | "temperature_c"
-///        | "lost_shot_share", "node": [], "variance_m2": []}], "unobserved": [...],
-///        "calibration_time_s" (optional: s after power-on),
-///        "shots" (optional: shots per measurement, for a lost_shot_share axis)}  (optional: models
+///        | "lost_shot_share" | "false_stop_rate_per_m", "node": [], "variance_m2": []}],
+///        "unobserved": [...], "calibration_time_s" (optional: s after power-on),
+///        "shots" (optional: shots per measurement, for the two lost-shot axes)}  (optional: models
 ///        written before the budget have none, and read as before)}
 ///
 /// Non-finite numbers are written as null (an open domain bound, an unknown RMS).

@@ -29,10 +29,18 @@ enum class BudgetScope {
 /// constant): ln(amplitude) for causes that follow the echo's strength, the
 /// time since calibration (s) for drift, the row's temperature reading
 /// (temperature_c, C) for the temperature model's residual, the share of the
-/// row's shots the device lost (1 - shots_valid / shots) for false stops,
-/// none for the rest.
+/// row's shots the device lost (1 - shots_valid / shots) for echoes missed at
+/// the threshold, the row's false-stop rate per metre of range
+/// (false_stop_rate_per_m) for false stops before the echo, none for the rest.
 struct BudgetComponent {
-  enum class Axis { none, log_amplitude, time_since_calibration_s, temperature_c, lost_shot_share };
+  enum class Axis {
+    none,
+    log_amplitude,
+    time_since_calibration_s,
+    temperature_c,
+    lost_shot_share,
+    false_stop_rate_per_m
+  };
   std::string name;  ///< "repeatability", "correction residual", ...
   std::string step;  ///< the calibration step that gave it, or the specification key (type B)
   bool type_b = false;
@@ -56,7 +64,7 @@ struct UncertaintyBudget {
   double calibration_time_s = kNaN;
   /// Shots per measurement (the calibration rows' largest shots_valid; NaN:
   /// unknown): a row's lost share is 1 - shots_valid / shots. Needed by a
-  /// lost_shot_share component only.
+  /// lost_shot_share or false_stop_rate_per_m component only.
   double shots = kNaN;
 
   /// Throws std::invalid_argument naming the bad component and field.
@@ -65,16 +73,20 @@ struct UncertaintyBudget {
   /// u of component k for a row (amplitude in the row's units; since_s NaN: the
   /// time since calibration is unknown, i.e. another power-on; temperature_c
   /// NaN: unknown, the temperature components' largest value; lost_share NaN:
-  /// unknown, the lost-shot components' largest value).
+  /// unknown, the lost-shot components' largest value; distance_m: the row's
+  /// range, for its false-stop rate, NaN: unknown, that component's largest).
   [[nodiscard]] double component_u_m(std::size_t k, double amplitude, double since_s,
-                                     double temperature_c = kNaN, double lost_share = kNaN) const;
+                                     double temperature_c = kNaN, double lost_share = kNaN,
+                                     double distance_m = kNaN) const;
   /// Combined standard uncertainty of each row (GUM Eq. 10): since_s either
   /// one value for every row or one per row; NaN: unknown; temperature_c
   /// (the rows' temperature readings) empty or one per row; lost_share (1 -
-  /// shots_valid / shots) empty or one per row.
+  /// shots_valid / shots) and distance_m (the rows' ranges) each empty or one
+  /// per row.
   void combined(std::span<const double> amplitude, std::span<const double> since_s,
                 std::span<double> u_m, std::span<const double> temperature_c = {},
-                std::span<const double> lost_share = {}) const;
+                std::span<const double> lost_share = {},
+                std::span<const double> distance_m = {}) const;
   /// The budget as a table: component, value at each point, step, type, share
   /// of the combined variance at each point (amplitude, since_s, temperature_c;
   /// temperature_c empty: unknown) given.
@@ -83,13 +95,23 @@ struct UncertaintyBudget {
                                   std::span<const double> temperature_c = {}) const;
 };
 
-/// Name of the component for rows below the calibrated amplitudes (the
-/// correction extrapolated there); apply_budget counts it and the pipeline's
-/// out-of-domain growth as one cause.
 /// A row's share of lost shots, 1 - shots_valid / shots, within [0, 1]; NaN
 /// when shots per measurement is unknown (not > 0).
 [[nodiscard]] double lost_shot_share(double shots_valid, double shots);
 
+/// False stops per metre of range of a row that lost lost_share of its shots
+/// at distance_m: noise crossings arrive at a steady rate between the shot and
+/// the echo (a Poisson process over the 2 d / c before it), so a shot escapes
+/// them with probability exp(-rate d) and rate = -ln(1 - lost_share) / d. The
+/// share lost grows with the range at one rate; the false stops the range
+/// gate keeps just before the echo, and the bias they give, follow the rate
+/// (0 when none was lost, at any d; NaN when either is unknown or d <= 0;
+/// +inf when every shot was lost).
+[[nodiscard]] double false_stop_rate_per_m(double lost_share, double distance_m);
+
+/// Name of the component for rows below the calibrated amplitudes (the
+/// correction extrapolated there); apply_budget counts it and the pipeline's
+/// out-of-domain growth as one cause.
 inline constexpr const char* kExtrapolationComponent =
     "extrapolation below the calibrated amplitudes";
 
