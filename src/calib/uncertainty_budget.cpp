@@ -21,7 +21,7 @@ using ranging::BudgetScope;
 /// Lost share of shots (above the same plate's at the reference temperature)
 /// from which a temperature-run target counts as losing shots (to false stops
 /// or missed echoes).
-constexpr double kFalseStopShare = 0.02;
+constexpr double kLostShotShare = 0.02;
 
 /// One target: repeats of one truth.
 struct Target {
@@ -591,7 +591,7 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     if (t.lost_share == 0)
       narrowest_complete_ns = std::min(narrowest_complete_ns, t.pulse_width_ns);
   std::vector<std::pair<double, double>> false_stops, missed;         // (axis value, excess^2)
-  double false_stop_onset = std::numeric_limits<double>::infinity();  // kFalseStopShare's rate
+  double false_stop_onset = std::numeric_limits<double>::infinity();  // kLostShotShare's rate
   for (const auto& t : targets) {
     if (t.ambient_c == reference_c) continue;
     const auto ref = at_reference.find({t.distance_m, t.reflectance, t.angle_deg});
@@ -600,12 +600,12 @@ BudgetFitResult fit_uncertainty_budget(const BudgetFitData& d, const BudgetSpeci
     const double v = noise2(t.log_amplitude) / static_cast<double>(t.n) +
                      noise2(ref->second->log_amplitude) / static_cast<double>(ref->second->n);
     const double excess2 = dm * dm - v;
-    if (t.lost_share - ref->second->lost_share > kFalseStopShare) {
+    if (t.lost_share - ref->second->lost_share > kLostShotShare) {
       if (t.pulse_width_ns > narrowest_complete_ns) {
         false_stops.emplace_back(ranging::false_stop_rate_per_m(t.lost_share, t.distance_m),
                                  std::max(0.0, excess2));
         false_stop_onset = std::min(false_stop_onset,
-                                    ranging::false_stop_rate_per_m(kFalseStopShare, t.distance_m));
+                                    ranging::false_stop_rate_per_m(kLostShotShare, t.distance_m));
       } else {
         missed.emplace_back(t.lost_share, std::max(0.0, excess2));
       }

@@ -9,7 +9,16 @@
 #include <vector>
 
 namespace tofkit::ranging {
-namespace {}  // namespace
+namespace {
+
+/// Whether a component's axis is read from the row's lost shots (and needs
+/// the budget's shots per measurement).
+bool follows_lost_shots(BudgetComponent::Axis axis) {
+  return axis == BudgetComponent::Axis::lost_shot_share ||
+         axis == BudgetComponent::Axis::false_stop_rate_per_m;
+}
+
+}  // namespace
 
 double BudgetComponent::u_m(double x) const {
   if (variance_m2.size() == 1 || !(x > node.front())) return std::sqrt(variance_m2.front());
@@ -30,9 +39,7 @@ void UncertaintyBudget::validate() const {
       throw std::invalid_argument(who + ": node and variance_m2 must be non-empty, equal length");
     if (c.axis == BudgetComponent::Axis::none && c.node.size() != 1)
       throw std::invalid_argument(who + ": a component without an axis has one node");
-    if ((c.axis == BudgetComponent::Axis::lost_shot_share ||
-         c.axis == BudgetComponent::Axis::false_stop_rate_per_m) &&
-        !(shots >= 1))
+    if (follows_lost_shots(c.axis) && !(shots >= 1))
       throw std::invalid_argument(who + ": a lost-shot component needs the budget's shots");
     for (std::size_t j = 0; j < c.node.size(); ++j) {
       if (!std::isfinite(c.node[j]) || (j > 0 && !(c.node[j] > c.node[j - 1])))
@@ -62,21 +69,23 @@ double UncertaintyBudget::component_u_m(std::size_t k, double amplitude, double 
   if ((c.scope == BudgetScope::same_power_on && !same) ||
       (c.scope == BudgetScope::other_power_on && same))
     return 0.0;
+  // An axis value the row does not carry: the component's largest u.
+  const auto known_or_largest = [&c](bool known, double x) {
+    return known ? c.u_m(x)
+                 : std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+  };
   switch (c.axis) {
     case BudgetComponent::Axis::log_amplitude:
       return std::isfinite(amplitude) && amplitude > 0 ? c.u_m(std::log(amplitude)) : kNaN;
     case BudgetComponent::Axis::time_since_calibration_s:
       return c.u_m(std::abs(since_s));
     case BudgetComponent::Axis::temperature_c:
-      if (std::isfinite(temperature_c)) return c.u_m(temperature_c);
-      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+      return known_or_largest(std::isfinite(temperature_c), temperature_c);
     case BudgetComponent::Axis::lost_shot_share:
-      if (std::isfinite(lost_share)) return c.u_m(lost_share);
-      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+      return known_or_largest(std::isfinite(lost_share), lost_share);
     case BudgetComponent::Axis::false_stop_rate_per_m: {
       const double rate = false_stop_rate_per_m(lost_share, distance_m);
-      if (!std::isnan(rate)) return c.u_m(rate);  // +inf: held beyond the last node
-      return std::sqrt(*std::max_element(c.variance_m2.begin(), c.variance_m2.end()));
+      return known_or_largest(!std::isnan(rate), rate);  // +inf: held beyond the last node
     }
     case BudgetComponent::Axis::none:
       break;
@@ -154,10 +163,8 @@ std::string UncertaintyBudget::table(std::span<const double> amplitude,
             ? fmt::sprintf(", temperature reading %.1f C", temperature(p)).c_str()
             : "");
   }
-  if (std::any_of(components.begin(), components.end(), [](const BudgetComponent& c) {
-        return c.axis == BudgetComponent::Axis::lost_shot_share ||
-               c.axis == BudgetComponent::Axis::false_stop_rate_per_m;
-      }))
+  if (std::any_of(components.begin(), components.end(),
+                  [](const BudgetComponent& c) { return follows_lost_shots(c.axis); }))
     out += "  (each point keeps all its shots: a row losing them adds the lost-shot term)\n";
   if (std::any_of(components.begin(), components.end(),
                   [](const BudgetComponent& c) { return c.default_specification; }))
